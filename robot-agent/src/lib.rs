@@ -1,0 +1,1 @@
+//! robot-agent library
