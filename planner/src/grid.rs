@@ -25,7 +25,8 @@ impl Cell {
 
     /// Manhattan distance: the 4-connected distance on an empty grid.
     pub fn manhattan(self, other: Cell) -> u32 {
-        (self.x as i32 - other.x as i32).unsigned_abs() + (self.y as i32 - other.y as i32).unsigned_abs()
+        (self.x as i32 - other.x as i32).unsigned_abs()
+            + (self.y as i32 - other.y as i32).unsigned_abs()
     }
 }
 
@@ -81,7 +82,9 @@ pub enum GridError {
         height: usize,
     },
     /// Width or height above [`MAX_SIDE`] or cells above [`MAX_CELLS`].
-    #[error("the grid is {width}x{height}; at most {MAX_SIDE} cells a side and {MAX_CELLS} cells in all are supported")]
+    #[error(
+        "the grid is {width}x{height}; at most {MAX_SIDE} cells a side and {MAX_CELLS} cells in all are supported"
+    )]
     TooLarge {
         /// Width asked for.
         width: usize,
@@ -118,9 +121,17 @@ impl Grid {
             return Err(GridError::TooLarge { width, height });
         }
         if free.len() != width * height {
-            return Err(GridError::WrongCellCount { width, height, got: free.len() });
+            return Err(GridError::WrongCellCount {
+                width,
+                height,
+                got: free.len(),
+            });
         }
-        Ok(Grid { width: width as u16, height: height as u16, free })
+        Ok(Grid {
+            width: width as u16,
+            height: height as u16,
+            free,
+        })
     }
 
     /// Number of columns.
@@ -160,7 +171,10 @@ impl Grid {
 
     /// The cell at a row-major index.
     pub fn cell(&self, idx: usize) -> Cell {
-        Cell::new((idx % self.width as usize) as u16, (idx / self.width as usize) as u16)
+        Cell::new(
+            (idx % self.width as usize) as u16,
+            (idx / self.width as usize) as u16,
+        )
     }
 
     /// Whether a cell is on the grid and passable.
@@ -186,7 +200,9 @@ impl Grid {
 
     /// Passable 4-neighbours of `c`, in action order.
     pub fn neighbors(&self, c: Cell) -> impl Iterator<Item = Cell> + '_ {
-        Action::ALL.into_iter().filter_map(move |a| self.neighbor(c, a))
+        Action::ALL
+            .into_iter()
+            .filter_map(move |a| self.neighbor(c, a))
     }
 }
 
@@ -199,14 +215,26 @@ mod tests {
         let g = Grid::new(2, 2, vec![true, false, true, true]).unwrap();
         assert_eq!(g.neighbor(Cell::new(0, 0), Action::Up), None);
         assert_eq!(g.neighbor(Cell::new(0, 0), Action::Right), None);
-        assert_eq!(g.neighbor(Cell::new(0, 0), Action::Down), Some(Cell::new(0, 1)));
+        assert_eq!(
+            g.neighbor(Cell::new(0, 0), Action::Down),
+            Some(Cell::new(0, 1))
+        );
         assert_eq!(g.neighbors(Cell::new(1, 1)).count(), 1);
     }
 
     #[test]
     fn rejects_bad_sizes() {
-        assert!(matches!(Grid::new(0, 3, vec![]), Err(GridError::Empty { .. })));
-        assert!(matches!(Grid::new(5000, 1, vec![true; 5000]), Err(GridError::TooLarge { .. })));
-        assert!(matches!(Grid::new(2, 2, vec![true; 3]), Err(GridError::WrongCellCount { .. })));
+        assert!(matches!(
+            Grid::new(0, 3, vec![]),
+            Err(GridError::Empty { .. })
+        ));
+        assert!(matches!(
+            Grid::new(5000, 1, vec![true; 5000]),
+            Err(GridError::TooLarge { .. })
+        ));
+        assert!(matches!(
+            Grid::new(2, 2, vec![true; 3]),
+            Err(GridError::WrongCellCount { .. })
+        ));
     }
 }

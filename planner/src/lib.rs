@@ -6,5 +6,8 @@
 //! nothing of them.
 
 pub mod grid;
+pub mod map;
+pub mod path;
+pub mod task;
 
 pub use grid::{Action, Cell, Grid, GridError};
