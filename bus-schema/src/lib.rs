@@ -1,1 +1,57 @@
-//! bus-schema
+#![doc = include_str!("../README.md")]
+#![deny(missing_docs)]
+
+pub mod coordinator_to_robot;
+pub mod names;
+pub mod robot_to_coordinator;
+
+#[cfg(test)]
+mod layout;
+
+pub use coordinator_to_robot::{
+    Command, Control, DiscoveryAck, MergedHintBatch, REASON_LEN, ROBOT_ID_ALL,
+};
+pub use names::{Delivery, Direction, RUN_ID_MAX_LEN, Topic};
+pub use robot_to_coordinator::{
+    FinalReport, HINT_BATCH_CAP, LatencySummary, PseudoTargetDiscovery, QHint, QHintBatch,
+    Register, RobotState, RobotStatus,
+};
+
+/// Version of this wire contract; sent in `Register`, `Control` and `FinalReport` and checked at
+/// registration, because iceoryx2 itself only compares type name, size and alignment.
+///
+/// Bump it together with the `v1` in every `#[type_name]` whenever any field changes meaning,
+/// order or size.
+pub const SCHEMA_VERSION: u32 = 1;
+
+/// Gives every message an all-zero constant, the natural "empty" value to start from.
+macro_rules! zeroed {
+    ($($ty:ty),* $(,)?) => {$(
+        impl $ty {
+            /// The all-zero value (every count, id, time and padding byte zero), to build
+            /// messages with struct update syntax: `T { field: x, ..T::ZEROED }`.
+            // SAFETY: every field of this `#[repr(C)]` type is an integer, a float, or an array
+            // or struct of those (checked by the layout test), so all-zero bytes are a valid value.
+            pub const ZEROED: Self = unsafe { core::mem::zeroed() };
+        }
+
+        impl Default for $ty {
+            fn default() -> Self {
+                Self::ZEROED
+            }
+        }
+    )*};
+}
+
+zeroed!(
+    Register,
+    RobotState,
+    PseudoTargetDiscovery,
+    QHint,
+    QHintBatch,
+    LatencySummary,
+    FinalReport,
+    Control,
+    MergedHintBatch,
+    DiscoveryAck,
+);

@@ -1,0 +1,140 @@
+//! Messages the coordinator publishes and every robot-agent subscribes to.
+//!
+//! All three topics are broadcast: each robot receives every message and keeps those whose
+//! `robot_id` is its own (or [`ROBOT_ID_ALL`]). Layout rules as in
+//! [`robot_to_coordinator`](crate::robot_to_coordinator).
+
+use iceoryx2::prelude::ZeroCopySend;
+
+use crate::robot_to_coordinator::{HINT_BATCH_CAP, QHint};
+
+/// `robot_id` value addressing every robot of the run.
+pub const ROBOT_ID_ALL: u32 = u32::MAX;
+
+/// Capacity in bytes of [`Control::reason`].
+pub const REASON_LEN: usize = 64;
+
+/// What a [`Control`] message asks for, carried as a `u8` in [`Control::command`].
+#[repr(u8)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Command {
+    /// Begin learning: publish learning traffic from now on (the end of the start handshake).
+    Start = 1,
+    /// Stop learning, send the `FinalReport` and exit.
+    Stop = 2,
+    /// Learn towards goal `goal_id` at (`goal_x`, `goal_y`).
+    AssignGoal = 3,
+    /// Switch to experiment phase `phase` (with `episodes` episodes, 0 = unchanged).
+    Phase = 4,
+    /// The registration of `robot_id` was accepted.
+    Ack = 5,
+    /// The registration of `robot_id` was refused; `reason` says why; the robot must exit.
+    Refuse = 6,
+}
+
+impl Command {
+    /// The byte written on the wire for this command.
+    pub const fn as_u8(self) -> u8 {
+        self as u8
+    }
+}
+
+impl TryFrom<u8> for Command {
+    type Error = u8;
+
+    /// Decodes a wire byte; an unknown value is returned as the error so it can be reported.
+    fn try_from(value: u8) -> Result<Self, u8> {
+        match value {
+            1 => Ok(Self::Start),
+            2 => Ok(Self::Stop),
+            3 => Ok(Self::AssignGoal),
+            4 => Ok(Self::Phase),
+            5 => Ok(Self::Ack),
+            6 => Ok(Self::Refuse),
+            other => Err(other),
+        }
+    }
+}
+
+/// A command from the coordinator to one robot or all of them (lossless).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("qfleet::v1::Control")]
+pub struct Control {
+    /// A [`Command`] as `u8`.
+    pub command: u8,
+    /// Explicit padding, always zero.
+    pub _pad0: [u8; 3],
+    /// Addressed robot, or [`ROBOT_ID_ALL`].
+    pub robot_id: u32,
+    /// Goal for `AssignGoal` (and the goal in effect for the other commands).
+    pub goal_id: u32,
+    /// Goal cell column.
+    pub goal_x: u16,
+    /// Goal cell row.
+    pub goal_y: u16,
+    /// Experiment phase number.
+    pub phase: u32,
+    /// Episodes to run (for `Start`/`Phase`; 0 = keep the robot's own setting).
+    pub episodes: u32,
+    /// The coordinator's `SCHEMA_VERSION`.
+    pub schema_version: u32,
+    /// Number of valid bytes in `reason`.
+    pub reason_len: u32,
+    /// Coordinator-wide control sequence number: 0, 1, 2, … (lets a robot spot duplicates).
+    pub seq: u64,
+    /// Monotonic time the message was written.
+    pub time_ns: u64,
+    /// UTF-8 text for `Refuse` (and optionally others): `reason[..reason_len]`, rest zero.
+    pub reason: [u8; REASON_LEN],
+}
+
+/// Q-values merged from the whole fleet, broadcast to every robot (latest-wins).
+///
+/// Provenance is kept **per entry**: `origin_ns[i]` is the monotonic time of the oldest robot
+/// update merged into `entries[i]` and `origin_robot[i]` the robot it came from, so a robot can
+/// record the true end-to-end latency of every hint it applies (not just one per batch) and skip
+/// its own hints. `oldest_origin_ns` is the minimum over the batch, for quick checks.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("qfleet::v1::MergedHintBatch")]
+pub struct MergedHintBatch {
+    /// Coordinator-wide merged batch sequence number; gaps show overwritten batches.
+    pub coordinator_seq: u64,
+    /// Goal the Q-values refer to.
+    pub goal_id: u32,
+    /// Number of valid entries at the start of each array (≤ `HINT_BATCH_CAP`).
+    pub count: u32,
+    /// Minimum of `origin_ns[..count]`.
+    pub oldest_origin_ns: u64,
+    /// Monotonic time the message was written.
+    pub send_time_ns: u64,
+    /// Merged entries; only `entries[..count]` are meaningful.
+    pub entries: [QHint; HINT_BATCH_CAP],
+    /// Per entry: monotonic time of the oldest robot update merged into it.
+    pub origin_ns: [u64; HINT_BATCH_CAP],
+    /// Per entry: robot that produced that oldest update.
+    pub origin_robot: [u32; HINT_BATCH_CAP],
+}
+
+/// Cumulative acknowledgement of one robot's discoveries (latest-wins).
+///
+/// "Every discovery of `robot_id` with `seq ≤ up_to_seq` was received." A newer ack
+/// supersedes an older one, so losing one in the buffer loses no information.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("qfleet::v1::DiscoveryAck")]
+pub struct DiscoveryAck {
+    /// Robot whose discoveries are acknowledged.
+    pub robot_id: u32,
+    /// Explicit padding, always zero.
+    pub _pad0: [u8; 4],
+    /// Highest discovery `seq` received without gaps.
+    pub up_to_seq: u64,
+    /// Monotonic time the message was written.
+    pub time_ns: u64,
+}
+
+const _: () = assert!(size_of::<Control>() == 112 && align_of::<Control>() == 8);
+const _: () = assert!(size_of::<MergedHintBatch>() == 6176 && align_of::<MergedHintBatch>() == 8);
+const _: () = assert!(size_of::<DiscoveryAck>() == 24 && align_of::<DiscoveryAck>() == 8);

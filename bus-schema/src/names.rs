@@ -1,0 +1,220 @@
+//! Service names, the iceoryx2 prefix of a run, and which type travels on which topic.
+//!
+//! Every service of a run lives under `qfleet/<run-id>/…`, and every process of the run uses the
+//! iceoryx2 `global.prefix` [`iceoryx_prefix`]`(run_id)`, so two runs never see each other even
+//! if they used the same service names. Run-id validation (allowed characters, length) is done by
+//! the `bus` crate; the functions here only format.
+
+use crate::coordinator_to_robot::{Control, DiscoveryAck, MergedHintBatch};
+use crate::robot_to_coordinator::{
+    FinalReport, PseudoTargetDiscovery, QHintBatch, Register, RobotState,
+};
+
+/// First element of every qfleet service name.
+pub const SERVICE_ROOT: &str = "qfleet";
+
+/// Longest run id accepted (bytes); allowed characters are `A-Z a-z 0-9 _ -`.
+///
+/// Short enough that `qfleet_<run-id>_` plus iceoryx2's own file names stay far below the
+/// 255-byte file-name limit of `/dev/shm`.
+pub const RUN_ID_MAX_LEN: usize = 48;
+
+/// Last element appended to a topic's service name to name its wakeup event service.
+pub const WAKE_SUFFIX: &str = "wake";
+
+/// Which way a topic flows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Direction {
+    /// Many robots publish, the coordinator subscribes.
+    RobotToCoordinator,
+    /// The coordinator publishes, every robot subscribes.
+    CoordinatorToRobot,
+}
+
+/// Delivery guarantee of a topic (part of the contract: a subscriber may rely on it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Delivery {
+    /// Safe overflow off, publisher retries until delivered: nothing is lost once the
+    /// subscriber is connected (see the start handshake in the `bus` crate).
+    Lossless,
+    /// Safe overflow on: a full subscriber buffer drops its oldest sample; only the newest
+    /// messages matter.
+    LatestWins,
+}
+
+/// The eight publish-subscribe topics of a run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Topic {
+    /// `robot/register`: [`Register`].
+    Register,
+    /// `robot/state`: [`RobotState`].
+    RobotState,
+    /// `robot/discovery`: [`PseudoTargetDiscovery`].
+    Discovery,
+    /// `robot/hints`: [`QHintBatch`].
+    Hints,
+    /// `robot/report`: [`FinalReport`].
+    Report,
+    /// `coord/control`: [`Control`].
+    Control,
+    /// `coord/merged`: [`MergedHintBatch`].
+    Merged,
+    /// `coord/ack`: [`DiscoveryAck`].
+    Ack,
+}
+
+impl Topic {
+    /// Every topic, robot→coordinator first.
+    pub const ALL: [Topic; 8] = [
+        Topic::Register,
+        Topic::RobotState,
+        Topic::Discovery,
+        Topic::Hints,
+        Topic::Report,
+        Topic::Control,
+        Topic::Merged,
+        Topic::Ack,
+    ];
+
+    /// The part of the service name after `qfleet/<run-id>/`.
+    pub const fn path(self) -> &'static str {
+        match self {
+            Topic::Register => "robot/register",
+            Topic::RobotState => "robot/state",
+            Topic::Discovery => "robot/discovery",
+            Topic::Hints => "robot/hints",
+            Topic::Report => "robot/report",
+            Topic::Control => "coord/control",
+            Topic::Merged => "coord/merged",
+            Topic::Ack => "coord/ack",
+        }
+    }
+
+    /// The iceoryx2 type name of the payload (what `#[type_name]` says).
+    pub const fn type_name(self) -> &'static str {
+        match self {
+            Topic::Register => "qfleet::v1::Register",
+            Topic::RobotState => "qfleet::v1::RobotState",
+            Topic::Discovery => "qfleet::v1::PseudoTargetDiscovery",
+            Topic::Hints => "qfleet::v1::QHintBatch",
+            Topic::Report => "qfleet::v1::FinalReport",
+            Topic::Control => "qfleet::v1::Control",
+            Topic::Merged => "qfleet::v1::MergedHintBatch",
+            Topic::Ack => "qfleet::v1::DiscoveryAck",
+        }
+    }
+
+    /// Payload size in bytes (iceoryx2 compares it when a port opens the service).
+    pub const fn payload_size(self) -> usize {
+        match self {
+            Topic::Register => size_of::<Register>(),
+            Topic::RobotState => size_of::<RobotState>(),
+            Topic::Discovery => size_of::<PseudoTargetDiscovery>(),
+            Topic::Hints => size_of::<QHintBatch>(),
+            Topic::Report => size_of::<FinalReport>(),
+            Topic::Control => size_of::<Control>(),
+            Topic::Merged => size_of::<MergedHintBatch>(),
+            Topic::Ack => size_of::<DiscoveryAck>(),
+        }
+    }
+
+    /// Payload alignment in bytes (also compared by iceoryx2).
+    pub const fn payload_align(self) -> usize {
+        match self {
+            Topic::Register => align_of::<Register>(),
+            Topic::RobotState => align_of::<RobotState>(),
+            Topic::Discovery => align_of::<PseudoTargetDiscovery>(),
+            Topic::Hints => align_of::<QHintBatch>(),
+            Topic::Report => align_of::<FinalReport>(),
+            Topic::Control => align_of::<Control>(),
+            Topic::Merged => align_of::<MergedHintBatch>(),
+            Topic::Ack => align_of::<DiscoveryAck>(),
+        }
+    }
+
+    /// Who publishes and who subscribes.
+    pub const fn direction(self) -> Direction {
+        match self {
+            Topic::Register
+            | Topic::RobotState
+            | Topic::Discovery
+            | Topic::Hints
+            | Topic::Report => Direction::RobotToCoordinator,
+            Topic::Control | Topic::Merged | Topic::Ack => Direction::CoordinatorToRobot,
+        }
+    }
+
+    /// Lossless or latest-wins; see the `bus` crate documentation for the reasons.
+    pub const fn delivery(self) -> Delivery {
+        match self {
+            Topic::Register | Topic::Discovery | Topic::Report | Topic::Control => {
+                Delivery::Lossless
+            }
+            Topic::RobotState | Topic::Hints | Topic::Merged | Topic::Ack => Delivery::LatestWins,
+        }
+    }
+
+    /// Full publish-subscribe service name: `qfleet/<run-id>/<path>`.
+    pub fn service_name(self, run_id: &str) -> String {
+        format!("{}/{}", run_root(run_id), self.path())
+    }
+
+    /// Name of the event service that wakes the topic's subscribers: `qfleet/<run-id>/<path>/wake`.
+    pub fn wake_service_name(self, run_id: &str) -> String {
+        format!("{}/{}/{WAKE_SUFFIX}", run_root(run_id), self.path())
+    }
+}
+
+/// `qfleet/<run-id>`: the common start of all service names of a run.
+pub fn run_root(run_id: &str) -> String {
+    format!("{SERVICE_ROOT}/{run_id}")
+}
+
+/// The iceoryx2 `global.prefix` every process of the run must use: `qfleet_<run-id>_`.
+///
+/// All shared-memory and bookkeeping files of the run start with it (in `/dev/shm` and under
+/// iceoryx2's root path `/tmp/iceoryx2/`), which is what makes runs invisible to each other and
+/// lets `qfleet clean` find leftovers.
+pub fn iceoryx_prefix(run_id: &str) -> String {
+    format!("{SERVICE_ROOT}_{run_id}_")
+}
+
+/// `qfleet/<run-id>/robot/state` ([`RobotState`], latest-wins).
+pub fn robot_state(run_id: &str) -> String {
+    Topic::RobotState.service_name(run_id)
+}
+
+/// `qfleet/<run-id>/robot/discovery` ([`PseudoTargetDiscovery`], lossless).
+pub fn robot_discovery(run_id: &str) -> String {
+    Topic::Discovery.service_name(run_id)
+}
+
+/// `qfleet/<run-id>/robot/hints` ([`QHintBatch`], latest-wins).
+pub fn robot_hints(run_id: &str) -> String {
+    Topic::Hints.service_name(run_id)
+}
+
+/// `qfleet/<run-id>/robot/register` ([`Register`], lossless).
+pub fn robot_register(run_id: &str) -> String {
+    Topic::Register.service_name(run_id)
+}
+
+/// `qfleet/<run-id>/robot/report` ([`FinalReport`], lossless).
+pub fn robot_report(run_id: &str) -> String {
+    Topic::Report.service_name(run_id)
+}
+
+/// `qfleet/<run-id>/coord/control` ([`Control`], lossless).
+pub fn coord_control(run_id: &str) -> String {
+    Topic::Control.service_name(run_id)
+}
+
+/// `qfleet/<run-id>/coord/merged` ([`MergedHintBatch`], latest-wins).
+pub fn coord_merged(run_id: &str) -> String {
+    Topic::Merged.service_name(run_id)
+}
+
+/// `qfleet/<run-id>/coord/ack` ([`DiscoveryAck`], latest-wins, cumulative).
+pub fn coord_ack(run_id: &str) -> String {
+    Topic::Ack.service_name(run_id)
+}
