@@ -15,7 +15,7 @@ pub const SERVICE_ROOT: &str = "qfleet";
 
 /// Longest run id accepted (bytes); allowed characters are `A-Z a-z 0-9 _ -`.
 ///
-/// Short enough that `qfleet_<run-id>_` plus iceoryx2's own file names stay far below the
+/// Short enough that `qfleet.<run-id>.` plus iceoryx2's own file names stay far below the
 /// 255-byte file-name limit of `/dev/shm`.
 pub const RUN_ID_MAX_LEN: usize = 48;
 
@@ -170,13 +170,14 @@ pub fn run_root(run_id: &str) -> String {
     format!("{SERVICE_ROOT}/{run_id}")
 }
 
-/// The iceoryx2 `global.prefix` every process of the run must use: `qfleet_<run-id>_`.
+/// The iceoryx2 `global.prefix` every process of the run must use: `qfleet.<run-id>.`.
 ///
 /// All shared-memory and bookkeeping files of the run start with it (in `/dev/shm` and under
 /// iceoryx2's root path `/tmp/iceoryx2/`), which is what makes runs invisible to each other and
-/// lets `qfleet clean` find leftovers.
+/// lets `qfleet clean` find leftovers. The dots cannot occur in a run id, so the run id can be
+/// read back from a file name unambiguously.
 pub fn iceoryx_prefix(run_id: &str) -> String {
-    format!("{SERVICE_ROOT}_{run_id}_")
+    format!("{SERVICE_ROOT}.{run_id}.")
 }
 
 /// `qfleet/<run-id>/robot/state` ([`RobotState`], latest-wins).

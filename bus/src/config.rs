@@ -1,0 +1,208 @@
+//! Run configuration: validated run id and fleet size, the iceoryx2 `Config` of the run, nodes.
+
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::Duration;
+
+use bus_schema::names::{RUN_ID_MAX_LEN, iceoryx_prefix};
+use iceoryx2::config::Config;
+use iceoryx2::prelude::*;
+
+use crate::BusError;
+use crate::clock::monotonic_ns;
+
+/// Largest fleet the bus supports: robot ids are `0..robots` with `robots ≤ 256`.
+///
+/// Bounded so every service can be sized in advance (iceoryx2 allocates all buffers when a
+/// service or port is created): at 256 robots the largest segment, the merged-hints broadcast,
+/// stays around 10 MiB of shared memory.
+pub const MAX_ROBOTS: u32 = 256;
+
+/// Largest per-connection subscriber buffer accepted in a [`BusConfig`].
+pub const MAX_BUFFER: usize = 4096;
+
+/// Everything that sizes and names the services of one run; identical in every process of it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BusConfig {
+    /// Run id: 1–48 characters from `A-Z a-z 0-9 _ -`; names the services and the iceoryx2
+    /// prefix, so runs with different ids never see each other.
+    pub run_id: String,
+    /// Fleet size, `1..=MAX_ROBOTS`; robot ids are `0..robots`.
+    pub robots: u32,
+    /// Hint batches buffered per robot at the coordinator (latest-wins: older ones drop).
+    pub hint_buffer: usize,
+    /// Merged hint batches buffered per robot (latest-wins).
+    pub merged_buffer: usize,
+    /// States buffered per robot at the coordinator (latest-wins).
+    pub state_buffer: usize,
+    /// Discoveries buffered per robot at the coordinator (lossless: a full buffer makes the
+    /// robot wait, so deeper means fewer stalls).
+    pub discovery_buffer: usize,
+    /// Extra ports and nodes per service beyond the fleet, for monitors (`iox2`, Python) and a
+    /// restarted process whose dead predecessor is not cleaned up yet.
+    pub spare_ports: u32,
+    /// How long a lossless send keeps retrying into a full buffer before it reports
+    /// [`BusError::DeliveryTimeout`] instead of blocking forever on a stuck peer.
+    pub send_timeout: Duration,
+    /// Let iceoryx2 install SIGINT/SIGTERM handlers (off: the qfleet processes handle signals
+    /// themselves, e.g. with `ctrlc`, and iceoryx2 must not compete for them).
+    pub handle_signals: bool,
+}
+
+impl BusConfig {
+    /// Default hint buffer per robot.
+    pub const DEFAULT_HINT_BUFFER: usize = 8;
+    /// Default merged-hints buffer per robot.
+    pub const DEFAULT_MERGED_BUFFER: usize = 4;
+    /// Default state buffer per robot.
+    pub const DEFAULT_STATE_BUFFER: usize = 4;
+    /// Default discovery buffer per robot.
+    pub const DEFAULT_DISCOVERY_BUFFER: usize = 256;
+    /// Default number of spare ports per service.
+    pub const DEFAULT_SPARE_PORTS: u32 = 2;
+    /// Default lossless send timeout.
+    pub const DEFAULT_SEND_TIMEOUT: Duration = Duration::from_secs(5);
+
+    /// A validated configuration with default buffer sizes.
+    pub fn new(run_id: impl Into<String>, robots: u32) -> Result<Self, BusError> {
+        let cfg = Self {
+            run_id: run_id.into(),
+            robots,
+            hint_buffer: Self::DEFAULT_HINT_BUFFER,
+            merged_buffer: Self::DEFAULT_MERGED_BUFFER,
+            state_buffer: Self::DEFAULT_STATE_BUFFER,
+            discovery_buffer: Self::DEFAULT_DISCOVERY_BUFFER,
+            spare_ports: Self::DEFAULT_SPARE_PORTS,
+            send_timeout: Self::DEFAULT_SEND_TIMEOUT,
+            handle_signals: false,
+        };
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// Checks the run id and that every number is in range.
+    pub fn validate(&self) -> Result<(), BusError> {
+        validate_run_id(&self.run_id)?;
+        if !(1..=MAX_ROBOTS).contains(&self.robots) {
+            return Err(BusError::InvalidConfig(format!(
+                "robots = {} but must be 1..={MAX_ROBOTS}",
+                self.robots
+            )));
+        }
+        for (name, value) in [
+            ("hint_buffer", self.hint_buffer),
+            ("merged_buffer", self.merged_buffer),
+            ("state_buffer", self.state_buffer),
+            ("discovery_buffer", self.discovery_buffer),
+        ] {
+            if !(1..=MAX_BUFFER).contains(&value) {
+                return Err(BusError::InvalidConfig(format!(
+                    "{name} = {value} but must be 1..={MAX_BUFFER}"
+                )));
+            }
+        }
+        if self.spare_ports > MAX_ROBOTS {
+            return Err(BusError::InvalidConfig(format!(
+                "spare_ports = {} but must be ≤ {MAX_ROBOTS}",
+                self.spare_ports
+            )));
+        }
+        if self.send_timeout.is_zero() {
+            return Err(BusError::InvalidConfig(
+                "send_timeout must be positive".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The iceoryx2 `global.prefix` of this run, `qfleet.<run-id>.`.
+    pub fn prefix(&self) -> String {
+        iceoryx_prefix(&self.run_id)
+    }
+
+    /// The iceoryx2 `Config` of this run, built in code (no config file is read).
+    pub fn iceoryx_config(&self) -> Result<Config, BusError> {
+        self.validate()?;
+        iceoryx_config_for_prefix(&self.prefix())
+    }
+
+    /// Creates this process's iceoryx2 node in the run (one per process).
+    pub fn create_node(&self, name: &str) -> Result<Node<ipc::Service>, BusError> {
+        let config = self.iceoryx_config()?;
+        let node_err = |detail: String| BusError::Node {
+            node: name.to_string(),
+            prefix: self.prefix(),
+            detail,
+        };
+        let node_name = NodeName::new(name).map_err(|e| node_err(format!("bad node name: {e}")))?;
+        let mode = if self.handle_signals {
+            SignalHandlingMode::HandleTerminationRequests
+        } else {
+            SignalHandlingMode::Disabled
+        };
+        NodeBuilder::new()
+            .name(&node_name)
+            .config(&config)
+            .signal_handling_mode(mode)
+            .create::<ipc::Service>()
+            .map_err(|e| node_err(e.to_string()))
+    }
+}
+
+/// Checks a run id: 1..=`RUN_ID_MAX_LEN` bytes of `A-Z a-z 0-9 _ -`.
+///
+/// The run id becomes part of service names and of file names in `/dev/shm`, so anything that
+/// could be a path separator, a dot (the prefix delimiter) or invisible is refused.
+pub fn validate_run_id(run_id: &str) -> Result<(), BusError> {
+    let bad = |reason: String| BusError::InvalidRunId {
+        run_id: run_id.to_string(),
+        reason,
+    };
+    if run_id.is_empty() {
+        return Err(bad("it is empty".into()));
+    }
+    if run_id.len() > RUN_ID_MAX_LEN {
+        return Err(bad(format!(
+            "it is {} bytes long, at most {RUN_ID_MAX_LEN} are allowed",
+            run_id.len()
+        )));
+    }
+    if let Some(c) = run_id
+        .chars()
+        .find(|c| !(c.is_ascii_alphanumeric() || *c == '_' || *c == '-'))
+    {
+        return Err(bad(format!(
+            "it contains {c:?}; only A-Z a-z 0-9 _ - are allowed"
+        )));
+    }
+    Ok(())
+}
+
+/// A run id unlikely to collide with any other: `<tag>-<pid>-<counter>-<time>`.
+///
+/// Meant for tests and ad-hoc runs; `tag` is truncated so the result is always a valid run id
+/// when `tag` itself only uses valid characters.
+pub fn unique_run_id(tag: &str) -> String {
+    static COUNTER: AtomicU32 = AtomicU32::new(0);
+    let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+    let t = (monotonic_ns() >> 10) & 0xff_ffff;
+    let tag: String = tag.chars().take(20).collect();
+    format!("{tag}-{}-{n}-{t:x}", std::process::id())
+}
+
+/// The iceoryx2 `Config` for an explicit prefix (used by [`crate::clean_stale`]).
+///
+/// Starts from iceoryx2's built-in defaults (never a config file, so a stray
+/// `~/.config/iceoryx2/iceoryx2.toml` cannot change a run), sets the prefix and keeps the
+/// automatic cleanup of dead nodes on node creation and service opening switched on.
+pub fn iceoryx_config_for_prefix(prefix: &str) -> Result<Config, BusError> {
+    let mut config = Config::default();
+    config.global.prefix =
+        FileName::new(prefix.as_bytes()).map_err(|e| BusError::InvalidRunId {
+            run_id: prefix.to_string(),
+            reason: format!("not a valid iceoryx2 prefix: {e}"),
+        })?;
+    config.global.node.cleanup_dead_nodes_on_creation = true;
+    config.global.node.cleanup_dead_nodes_on_destruction = true;
+    config.global.service.cleanup_dead_nodes_on_open = true;
+    Ok(config)
+}

@@ -1,0 +1,191 @@
+//! The one error type of the bus: every variant says what went wrong and what to do about it.
+
+use std::time::Duration;
+
+/// Everything that can go wrong on the bus.
+#[derive(Debug, thiserror::Error)]
+pub enum BusError {
+    /// The run id is empty, too long, or has characters outside `A-Z a-z 0-9 _ -`.
+    #[error("invalid run id {run_id:?}: {reason}")]
+    InvalidRunId {
+        /// The offending run id.
+        run_id: String,
+        /// Why it was rejected.
+        reason: String,
+    },
+
+    /// A `BusConfig` value is out of range.
+    #[error("invalid bus configuration: {0}")]
+    InvalidConfig(String),
+
+    /// The iceoryx2 node (the process's handle on the run) could not be created.
+    #[error("cannot create the iceoryx2 node {node:?} for run prefix {prefix:?}: {detail}")]
+    Node {
+        /// Node name.
+        node: String,
+        /// iceoryx2 prefix of the run.
+        prefix: String,
+        /// iceoryx2's error.
+        detail: String,
+    },
+
+    /// A peer opened the service with another payload type name, size or alignment.
+    #[error(
+        "service {service:?} carries a different payload type than this process's {type_name:?} \
+         ({size} bytes, align {align}): the two sides were built from different bus-schema \
+         versions (this process speaks schema v{schema_version}). Rebuild every qfleet binary \
+         of the run from the same source; set IOX2_LOG_LEVEL=Debug to see iceoryx2's detail"
+    )]
+    SchemaMismatch {
+        /// Service name.
+        service: String,
+        /// This process's type name.
+        type_name: &'static str,
+        /// This process's payload size.
+        size: usize,
+        /// This process's payload alignment.
+        align: usize,
+        /// This process's `SCHEMA_VERSION`.
+        schema_version: u32,
+    },
+
+    /// The service exists with smaller limits or another overflow mode than this process needs.
+    #[error(
+        "service {service:?} exists with incompatible settings ({detail}); a process of the \
+         same run was started with a different fleet size or bus configuration — start every \
+         process of a run with the same settings, or use a fresh run id"
+    )]
+    IncompatibleService {
+        /// Service name.
+        service: String,
+        /// iceoryx2's error.
+        detail: String,
+    },
+
+    /// The service does not exist (yet): the coordinator has not created it.
+    #[error("service {service:?} does not exist; is the coordinator of this run running?")]
+    ServiceMissing {
+        /// Service name.
+        service: String,
+    },
+
+    /// Any other failure while creating or opening a service.
+    #[error("cannot open or create service {service:?}: {detail}")]
+    Service {
+        /// Service name.
+        service: String,
+        /// iceoryx2's error.
+        detail: String,
+    },
+
+    /// A publisher, subscriber, notifier or listener could not be created.
+    #[error(
+        "cannot create a {port} on {service:?}: {detail} (too many processes for the limits the service was created with?)"
+    )]
+    Port {
+        /// Kind of port.
+        port: &'static str,
+        /// Service name.
+        service: String,
+        /// iceoryx2's error.
+        detail: String,
+    },
+
+    /// No shared-memory sample could be loaned for sending.
+    #[error("cannot loan a sample on {service:?}: {detail}")]
+    Loan {
+        /// Service name.
+        service: String,
+        /// iceoryx2's error.
+        detail: String,
+    },
+
+    /// Sending failed inside iceoryx2.
+    #[error("cannot send on {service:?}: {detail}")]
+    Send {
+        /// Service name.
+        service: String,
+        /// iceoryx2's error.
+        detail: String,
+    },
+
+    /// A lossless send gave up: the subscriber's buffer stayed full for the whole send timeout.
+    #[error(
+        "lossless send on {service:?} not delivered within {timeout:?}: the subscriber does not \
+         drain its buffer (stuck or dead?)"
+    )]
+    DeliveryTimeout {
+        /// Service name.
+        service: String,
+        /// The configured send timeout.
+        timeout: Duration,
+    },
+
+    /// A lossless send reached no subscriber at all, so it was not delivered.
+    #[error(
+        "lossless send on {service:?} reached no subscriber (peer not started, gone, or not yet connected)"
+    )]
+    NoSubscriber {
+        /// Service name.
+        service: String,
+    },
+
+    /// Receiving failed inside iceoryx2.
+    #[error("cannot receive on {service:?}: {detail}")]
+    Receive {
+        /// Service name.
+        service: String,
+        /// iceoryx2's error.
+        detail: String,
+    },
+
+    /// Notifying or waiting on an event service failed.
+    #[error("event on {service:?} failed: {detail}")]
+    Event {
+        /// Event service name.
+        service: String,
+        /// iceoryx2's error.
+        detail: String,
+    },
+
+    /// The coordinator refused this robot's registration.
+    #[error("registration of robot {robot_id} refused by the coordinator: {reason}")]
+    Refused {
+        /// This robot.
+        robot_id: u32,
+        /// The coordinator's reason text.
+        reason: String,
+    },
+
+    /// A handshake step did not complete in time.
+    #[error("timed out after {timeout:?} waiting for {what}")]
+    Timeout {
+        /// What was awaited.
+        what: String,
+        /// How long.
+        timeout: Duration,
+    },
+
+    /// The wait was interrupted by SIGINT/SIGTERM (only with `handle_signals`).
+    #[error("interrupted by a termination signal")]
+    Interrupted,
+
+    /// Listing or cleaning the nodes of a run failed.
+    #[error("node liveness check for prefix {prefix:?} failed: {detail}")]
+    Liveness {
+        /// iceoryx2 prefix.
+        prefix: String,
+        /// What failed.
+        detail: String,
+    },
+
+    /// Removing leftover files failed.
+    #[error("cannot remove {path}: {source}")]
+    Cleanup {
+        /// File that could not be removed.
+        path: String,
+        /// The OS error.
+        #[source]
+        source: std::io::Error,
+    },
+}

@@ -1,0 +1,232 @@
+//! Which processes of a run are alive, cleanup after dead ones, and removal of leftovers.
+
+use std::path::{Path, PathBuf};
+
+use iceoryx2::config::Config;
+use iceoryx2::node::{NodeState, NodeView};
+use iceoryx2::prelude::*;
+
+use crate::config::iceoryx_config_for_prefix;
+use crate::{BusConfig, BusError};
+
+/// Where POSIX shared memory lives on Linux.
+const SHM_DIR: &str = "/dev/shm";
+
+/// Liveness of one iceoryx2 node (one process) of a run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Liveness {
+    /// The process is running.
+    Alive,
+    /// The process died without cleaning up (e.g. SIGKILL).
+    Dead,
+    /// Not enough permissions to tell.
+    Inaccessible,
+    /// Inconsistent bookkeeping (files altered or half-removed).
+    Undefined,
+}
+
+/// One node found in a run.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct NodeInfo {
+    /// Node name, e.g. `qfleet-robot-3` (empty if its details are unreadable).
+    pub name: String,
+    /// Process id, if known.
+    pub pid: Option<i32>,
+    /// Executable name, if known.
+    pub executable: String,
+    /// Whether it is alive.
+    pub liveness: Liveness,
+}
+
+/// Result of [`check_nodes`].
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct NodeReport {
+    /// Every node of the run's prefix, as found (before any cleanup).
+    pub nodes: Vec<NodeInfo>,
+    /// Dead nodes whose stale resources were removed.
+    pub cleaned: usize,
+    /// Dead nodes whose cleanup failed (permissions, or another process is cleaning them).
+    pub cleanup_failed: usize,
+}
+
+impl NodeReport {
+    /// The nodes whose process is running.
+    pub fn alive(&self) -> impl Iterator<Item = &NodeInfo> {
+        self.nodes.iter().filter(|n| n.liveness == Liveness::Alive)
+    }
+
+    /// The nodes whose process died without cleaning up.
+    pub fn dead(&self) -> impl Iterator<Item = &NodeInfo> {
+        self.nodes.iter().filter(|n| n.liveness == Liveness::Dead)
+    }
+}
+
+fn info(state: &NodeState<ipc::Service>) -> NodeInfo {
+    let (details, liveness) = match state {
+        NodeState::Alive(v) => (v.details().clone(), Liveness::Alive),
+        NodeState::Dead(v) => (v.details().clone(), Liveness::Dead),
+        NodeState::Inaccessible(_) => (None, Liveness::Inaccessible),
+        NodeState::Undefined(_) => (None, Liveness::Undefined),
+    };
+    match details {
+        Some(d) => NodeInfo {
+            name: d.name().as_str().to_string(),
+            pid: Some(d.process_id().value()),
+            executable: d.executable().to_string(),
+            liveness,
+        },
+        None => NodeInfo {
+            name: String::new(),
+            pid: None,
+            executable: String::new(),
+            liveness,
+        },
+    }
+}
+
+fn list_and_clean(config: &Config, prefix: &str, clean_dead: bool) -> Result<NodeReport, BusError> {
+    let mut report = NodeReport::default();
+    Node::<ipc::Service>::list(config, |state| {
+        report.nodes.push(info(&state));
+        if clean_dead && let NodeState::Dead(view) = state {
+            match view.try_remove_stale_resources() {
+                Ok(()) => report.cleaned += 1,
+                Err(_) => report.cleanup_failed += 1,
+            }
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| BusError::Liveness {
+        prefix: prefix.to_string(),
+        detail: format!("cannot list nodes: {e:?}"),
+    })?;
+    Ok(report)
+}
+
+/// Lists the nodes of the run and, if `clean_dead`, removes the stale resources of dead ones
+/// (their shared memory, and their ports' slots in every service, so a restarted process can
+/// take their place).
+pub fn check_nodes(config: &BusConfig, clean_dead: bool) -> Result<NodeReport, BusError> {
+    let prefix = config.prefix();
+    list_and_clean(&config.iceoryx_config()?, &prefix, clean_dead)
+}
+
+/// Result of [`clean_stale`].
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct CleanReport {
+    /// The iceoryx2 prefix that was cleaned.
+    pub prefix: String,
+    /// Nodes still alive; if any, no files were removed.
+    pub alive: Vec<NodeInfo>,
+    /// Dead nodes cleaned through iceoryx2.
+    pub dead_cleaned: usize,
+    /// Leftover files removed afterwards.
+    pub removed: Vec<PathBuf>,
+}
+
+/// Cleans up everything a run with iceoryx2 prefix `prefix` (e.g. `qfleet.<run-id>.`) left
+/// behind: first dead nodes through iceoryx2, then — only if no node of the prefix is alive —
+/// every remaining file of the prefix in `/dev/shm` and under iceoryx2's root path (a clean exit
+/// still leaves a small per-prefix management file). For `qfleet clean`.
+pub fn clean_stale(prefix: &str) -> Result<CleanReport, BusError> {
+    let config = iceoryx_config_for_prefix(prefix)?;
+    let nodes = list_and_clean(&config, prefix, true)?;
+    let alive: Vec<NodeInfo> = nodes.alive().cloned().collect();
+    let mut report = CleanReport {
+        prefix: prefix.to_string(),
+        dead_cleaned: nodes.cleaned,
+        alive,
+        removed: Vec::new(),
+    };
+    if !report.alive.is_empty() {
+        return Ok(report);
+    }
+    for path in leftover_files(prefix) {
+        let result = if path.is_dir() {
+            std::fs::remove_dir_all(&path)
+        } else {
+            std::fs::remove_file(&path)
+        };
+        match result {
+            Ok(()) => {
+                remove_if_empty_node_dir(&path);
+                report.removed.push(path);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(source) => {
+                return Err(BusError::Cleanup {
+                    path: path.display().to_string(),
+                    source,
+                });
+            }
+        }
+    }
+    Ok(report)
+}
+
+/// Removes the per-node directory (`<root>/nodes/<node-id>/`) that held `removed_file`, if it
+/// is now empty; it is named by node id only, so it never matches the prefix itself.
+fn remove_if_empty_node_dir(removed_file: &Path) {
+    let nodes = iceoryx_root().join("nodes");
+    if let Some(dir) = removed_file.parent()
+        && dir.parent() == Some(nodes.as_path())
+    {
+        // fails harmlessly if the directory still holds files of another run
+        let _ = std::fs::remove_dir(dir);
+    }
+}
+
+/// [`clean_stale`] for the run described by `config`.
+pub fn clean_run(config: &BusConfig) -> Result<CleanReport, BusError> {
+    config.validate()?;
+    clean_stale(&config.prefix())
+}
+
+/// iceoryx2's root path (`/tmp/iceoryx2/` unless changed at build time).
+pub fn iceoryx_root() -> PathBuf {
+    PathBuf::from(Config::default().global.root_path().to_string())
+}
+
+/// Every file or directory whose name starts with `prefix`, in `/dev/shm` and (recursively)
+/// under iceoryx2's root path. Empty once a run is fully cleaned up.
+pub fn leftover_files(prefix: &str) -> Vec<PathBuf> {
+    let mut found = Vec::new();
+    collect(Path::new(SHM_DIR), prefix, false, &mut found);
+    collect(&iceoryx_root(), prefix, true, &mut found);
+    found.sort();
+    found
+}
+
+fn collect(dir: &Path, prefix: &str, recurse: bool, found: &mut Vec<PathBuf>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if entry.file_name().to_string_lossy().starts_with(prefix) {
+            found.push(path);
+        } else if recurse && entry.file_type().is_ok_and(|t| t.is_dir()) {
+            collect(&path, prefix, true, found);
+        }
+    }
+}
+
+/// The iceoryx2 prefixes of qfleet runs that have files in `/dev/shm` or iceoryx2's root path,
+/// e.g. `qfleet.run7.`, for `qfleet clean --all`.
+pub fn find_run_prefixes() -> Vec<String> {
+    let mut found = Vec::new();
+    collect(Path::new(SHM_DIR), "qfleet.", false, &mut found);
+    collect(&iceoryx_root(), "qfleet.", true, &mut found);
+    let mut prefixes: Vec<String> = found
+        .iter()
+        .filter_map(|p| p.file_name()?.to_str().map(str::to_string))
+        .filter_map(|name| {
+            let rest = name.strip_prefix("qfleet.")?;
+            let (run_id, _) = rest.split_once('.')?;
+            Some(format!("qfleet.{run_id}."))
+        })
+        .collect();
+    prefixes.sort();
+    prefixes.dedup();
+    prefixes
+}

@@ -1,0 +1,588 @@
+//! Per-topic limits, opening services, and the typed sending/receiving halves of a topic.
+
+use core::fmt::Debug;
+use core::marker::PhantomData;
+use std::time::Duration;
+
+use bus_schema::names::{Delivery, Direction, Topic};
+use bus_schema::{
+    Control, DiscoveryAck, FinalReport, MergedHintBatch, PseudoTargetDiscovery, QHintBatch,
+    Register, RobotState, SCHEMA_VERSION,
+};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::port::{BackpressureAction, BackpressureInfo};
+use iceoryx2::prelude::*;
+use iceoryx2::sample::Sample;
+use iceoryx2::service::builder::event::{EventOpenError, EventOpenOrCreateError};
+use iceoryx2::service::builder::publish_subscribe::{
+    PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
+};
+use iceoryx2::service::port_factory::{event, publish_subscribe};
+
+use crate::{BusConfig, BusError};
+
+/// Event id a publisher's notifier sends after new data ("look at the topic").
+pub const EVENT_DATA: EventId = EventId::new(0);
+
+/// Event id iceoryx2 emits on a wake service when cleanup finds a notifier of a dead process
+/// ("a peer died: run a liveness check").
+pub const EVENT_PEER_DEAD: EventId = EventId::new(1);
+
+/// Largest event id used on the wake services.
+const EVENT_ID_MAX: usize = 1;
+
+/// A payload type that can travel on a qfleet topic.
+///
+/// # Safety
+///
+/// The type must be `#[repr(C)]` without implicit padding, and the all-zero byte pattern must
+/// be a valid value of it: [`Outbox::send_with`] zeroes the shared-memory slot and hands it out
+/// as `&mut Self`. All `bus-schema` messages qualify (checked by their layout test).
+pub unsafe trait Message: ZeroCopySend + Copy + Debug + 'static {
+    /// The topic this type travels on.
+    const TOPIC: Topic;
+}
+
+// SAFETY (all impls): bus-schema messages are repr(C) POD structs whose layout test proves they
+// have no implicit padding; every field is an integer, float, or array/struct of those.
+unsafe impl Message for Register {
+    const TOPIC: Topic = Topic::Register;
+}
+unsafe impl Message for RobotState {
+    const TOPIC: Topic = Topic::RobotState;
+}
+unsafe impl Message for PseudoTargetDiscovery {
+    const TOPIC: Topic = Topic::Discovery;
+}
+unsafe impl Message for QHintBatch {
+    const TOPIC: Topic = Topic::Hints;
+}
+unsafe impl Message for FinalReport {
+    const TOPIC: Topic = Topic::Report;
+}
+unsafe impl Message for Control {
+    const TOPIC: Topic = Topic::Control;
+}
+unsafe impl Message for MergedHintBatch {
+    const TOPIC: Topic = Topic::Merged;
+}
+unsafe impl Message for DiscoveryAck {
+    const TOPIC: Topic = Topic::Ack;
+}
+
+/// The limits a topic's publish-subscribe service and its wake event service are created with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TopicLimits {
+    /// Publishers (and wake notifiers) the service admits.
+    pub max_publishers: usize,
+    /// Subscribers (and wake listeners) the service admits.
+    pub max_subscribers: usize,
+    /// Processes (nodes) that may open the service.
+    pub max_nodes: usize,
+    /// Samples buffered per publisher→subscriber connection.
+    pub subscriber_buffer: usize,
+    /// Samples a subscriber may hold at once.
+    pub subscriber_borrowed: usize,
+    /// Samples a publisher may have loaned at once.
+    pub publisher_loans: usize,
+    /// Last samples replayed to a subscriber that connects late.
+    pub history: usize,
+    /// Latest-wins (`true`) or lossless (`false`).
+    pub safe_overflow: bool,
+}
+
+/// The limits of `topic` for the fleet described by `cfg` (see the crate docs for the table).
+pub fn limits(cfg: &BusConfig, topic: Topic) -> TopicLimits {
+    let robots = cfg.robots as usize;
+    let spare = cfg.spare_ports as usize;
+    let (max_publishers, max_subscribers, subscriber_borrowed) = match topic.direction() {
+        Direction::RobotToCoordinator => (robots + spare, 1 + spare, 4),
+        Direction::CoordinatorToRobot => (1 + spare, robots + spare, 2),
+    };
+    let (subscriber_buffer, history) = match topic {
+        // one registration per robot, plus a few re-sends while the coordinator starts
+        Topic::Register => (4, 0),
+        Topic::RobotState => (cfg.state_buffer, 1),
+        Topic::Discovery => (cfg.discovery_buffer, 0),
+        Topic::Hints => (cfg.hint_buffer, 0),
+        Topic::Report => (4, 0),
+        // broadcast: a burst of per-robot acks/goal assignments passes every robot's buffer
+        Topic::Control => (64, 0),
+        Topic::Merged => (cfg.merged_buffer, 1),
+        // broadcast and cumulative: room for one ack per robot, twice, so a robot's own latest
+        // ack is not pushed out by one round of acks to the others
+        Topic::Ack => (2 * robots + 8, 0),
+    };
+    TopicLimits {
+        max_publishers,
+        max_subscribers,
+        max_nodes: robots + 1 + spare,
+        subscriber_buffer,
+        subscriber_borrowed,
+        publisher_loans: 2,
+        history,
+        safe_overflow: topic.delivery() == Delivery::LatestWins,
+    }
+}
+
+/// Whether this process creates services (the coordinator) or only opens them (robots).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Role {
+    /// Opens or creates with the fleet's limits.
+    Creator,
+    /// Opens what the creator made; demands only a matching type and overflow mode.
+    Opener,
+}
+
+fn pubsub_open_error(
+    service: &str,
+    t: (&'static str, usize, usize),
+    e: PublishSubscribeOpenError,
+) -> BusError {
+    use PublishSubscribeOpenError as E;
+    match e {
+        E::IncompatibleTypes => BusError::SchemaMismatch {
+            service: service.to_string(),
+            type_name: t.0,
+            size: t.1,
+            align: t.2,
+            schema_version: SCHEMA_VERSION,
+        },
+        E::DoesNotExist => BusError::ServiceMissing {
+            service: service.to_string(),
+        },
+        E::IncompatibleMessagingPattern
+        | E::IncompatibleAttributes
+        | E::DoesNotSupportRequestedMinBufferSize
+        | E::DoesNotSupportRequestedMinHistorySize
+        | E::DoesNotSupportRequestedMinSubscriberBorrowedSamples
+        | E::DoesNotSupportRequestedAmountOfPublishers
+        | E::DoesNotSupportRequestedAmountOfSubscribers
+        | E::DoesNotSupportRequestedAmountOfNodes
+        | E::IncompatibleOverflowBehavior
+        | E::ExceedsMaxNumberOfNodes => BusError::IncompatibleService {
+            service: service.to_string(),
+            detail: format!("{e:?}"),
+        },
+        other => BusError::Service {
+            service: service.to_string(),
+            detail: format!("{other:?}"),
+        },
+    }
+}
+
+fn event_open_error(service: &str, e: EventOpenError) -> BusError {
+    use EventOpenError as E;
+    match e {
+        E::DoesNotExist => BusError::ServiceMissing {
+            service: service.to_string(),
+        },
+        E::IncompatibleMessagingPattern
+        | E::IncompatibleAttributes
+        | E::IncompatibleDeadline
+        | E::IncompatibleNotifierCreatedEvent
+        | E::IncompatibleNotifierDroppedEvent
+        | E::IncompatibleNotifierDeadEvent
+        | E::DoesNotSupportRequestedAmountOfNotifiers
+        | E::DoesNotSupportRequestedAmountOfListeners
+        | E::DoesNotSupportRequestedMaxEventId
+        | E::DoesNotSupportRequestedAmountOfNodes
+        | E::ExceedsMaxNumberOfNodes => BusError::IncompatibleService {
+            service: service.to_string(),
+            detail: format!("{e:?}"),
+        },
+        other => BusError::Service {
+            service: service.to_string(),
+            detail: format!("{other:?}"),
+        },
+    }
+}
+
+fn service_name(name: &str) -> Result<ServiceName, BusError> {
+    ServiceName::new(name).map_err(|e| BusError::Service {
+        service: name.to_string(),
+        detail: format!("invalid service name: {e:?}"),
+    })
+}
+
+/// Opens (or creates) the publish-subscribe service of `topic` for payload `T`.
+pub(crate) fn open_pubsub<T: Message>(
+    node: &Node<ipc::Service>,
+    cfg: &BusConfig,
+    topic: Topic,
+    role: Role,
+) -> Result<publish_subscribe::PortFactory<ipc::Service, T, ()>, BusError> {
+    let name = topic.service_name(&cfg.run_id);
+    let service = service_name(&name)?;
+    let l = limits(cfg, topic);
+    // SAFETY: `type_name` only returns the literal given to `#[type_name]`.
+    let t = (
+        unsafe { <T as ZeroCopySend>::type_name() },
+        size_of::<T>(),
+        align_of::<T>(),
+    );
+    let builder = node
+        .service_builder(&service)
+        .publish_subscribe::<T>()
+        .enable_safe_overflow(l.safe_overflow);
+    match role {
+        Role::Creator => builder
+            .history_size(l.history)
+            .subscriber_max_buffer_size(l.subscriber_buffer)
+            .subscriber_max_borrowed_samples(l.subscriber_borrowed)
+            .max_publishers(l.max_publishers)
+            .max_subscribers(l.max_subscribers)
+            .max_nodes(l.max_nodes)
+            .open_or_create()
+            .map_err(|e| match e {
+                PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(e) => {
+                    pubsub_open_error(&name, t, e)
+                }
+                other => BusError::Service {
+                    service: name.clone(),
+                    detail: format!("{other:?}"),
+                },
+            }),
+        Role::Opener => builder.open().map_err(|e| pubsub_open_error(&name, t, e)),
+    }
+}
+
+/// Opens (or creates) the wake event service of `topic`.
+pub(crate) fn open_wake(
+    node: &Node<ipc::Service>,
+    cfg: &BusConfig,
+    topic: Topic,
+    role: Role,
+) -> Result<event::PortFactory<ipc::Service>, BusError> {
+    let name = topic.wake_service_name(&cfg.run_id);
+    let service = service_name(&name)?;
+    let l = limits(cfg, topic);
+    let builder = node.service_builder(&service).event();
+    match role {
+        Role::Creator => builder
+            .max_notifiers(l.max_publishers)
+            .max_listeners(l.max_subscribers)
+            .max_nodes(l.max_nodes)
+            .event_id_max_value(EVENT_ID_MAX)
+            .disable_deadline()
+            .disable_notifier_created_event()
+            .disable_notifier_dropped_event()
+            .notifier_dead_event(EVENT_PEER_DEAD)
+            .open_or_create()
+            .map_err(|e| match e {
+                EventOpenOrCreateError::EventOpenError(e) => event_open_error(&name, e),
+                other => BusError::Service {
+                    service: name.clone(),
+                    detail: format!("{other:?}"),
+                },
+            }),
+        Role::Opener => builder.open().map_err(|e| event_open_error(&name, e)),
+    }
+}
+
+/// Sending half of a topic: a publisher plus the notifier of the topic's wake service.
+///
+/// Sending never allocates: the message is written straight into a loaned shared-memory slot.
+pub struct Outbox<T: Message> {
+    service: String,
+    delivery: Delivery,
+    send_timeout: Duration,
+    publisher: Publisher<ipc::Service, T, ()>,
+    notifier: Notifier<ipc::Service>,
+}
+
+impl<T: Message> Outbox<T> {
+    pub(crate) fn create(
+        node: &Node<ipc::Service>,
+        cfg: &BusConfig,
+        role: Role,
+    ) -> Result<Self, BusError> {
+        let topic = T::TOPIC;
+        let service = topic.service_name(&cfg.run_id);
+        let pubsub = open_pubsub::<T>(node, cfg, topic, role)?;
+        let wake = open_wake(node, cfg, topic, role)?;
+        let l = limits(cfg, topic);
+        let port_err = |port: &'static str, detail: String| BusError::Port {
+            port,
+            service: service.clone(),
+            detail,
+        };
+        let builder = pubsub
+            .publisher_builder()
+            .max_loaned_samples(l.publisher_loans);
+        let publisher = match topic.delivery() {
+            Delivery::LatestWins => {
+                builder.backpressure_strategy(BackpressureStrategy::DiscardData)
+            }
+            Delivery::Lossless => {
+                let timeout = cfg.send_timeout;
+                builder
+                    .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
+                    // retry while the subscriber drains; after the timeout fail loudly
+                    .set_backpressure_handler(move |info: &BackpressureInfo| {
+                        if info.elapsed_time < timeout {
+                            BackpressureAction::Retry
+                        } else {
+                            BackpressureAction::DiscardDataAndFail
+                        }
+                    })
+            }
+        }
+        .create()
+        .map_err(|e| port_err("publisher", format!("{e:?}")))?;
+        let notifier = wake
+            .notifier_builder()
+            .default_event_id(EVENT_DATA)
+            .create()
+            .map_err(|e| port_err("notifier", format!("{e:?}")))?;
+        Ok(Self {
+            service,
+            delivery: topic.delivery(),
+            send_timeout: cfg.send_timeout,
+            publisher,
+            notifier,
+        })
+    }
+
+    /// The service name this outbox publishes on.
+    pub fn service(&self) -> &str {
+        &self.service
+    }
+
+    /// Copies `msg` into a loaned shared-memory slot and sends it; returns the number of
+    /// subscribers reached.
+    ///
+    /// Lossless topics report [`BusError::NoSubscriber`] when nobody received it and
+    /// [`BusError::DeliveryTimeout`] when a subscriber stayed full for the send timeout.
+    pub fn send(&self, msg: &T) -> Result<usize, BusError> {
+        let sample = self.publisher.loan_uninit().map_err(|e| self.loan_err(e))?;
+        self.finish(sample.write_payload(*msg).send())
+    }
+
+    /// Loans a slot, zeroes it, lets `fill` write the message in place, and sends it.
+    ///
+    /// The zero-copy way to send the 3–6 KiB hint batches: nothing is built on the stack and
+    /// copied. Same results as [`send`](Self::send).
+    pub fn send_with(&self, fill: impl FnOnce(&mut T)) -> Result<usize, BusError> {
+        let mut sample = self.publisher.loan_uninit().map_err(|e| self.loan_err(e))?;
+        let slot = sample.payload_mut();
+        // SAFETY: `T: Message` guarantees all-zero bytes are a valid `T`; the slot is
+        // exclusively ours until sent.
+        let sample = unsafe {
+            slot.as_mut_ptr().write_bytes(0, 1);
+            sample.assume_init()
+        };
+        let mut sample = sample;
+        fill(sample.payload_mut());
+        self.finish(sample.send())
+    }
+
+    /// Sends `msg` and then wakes the subscribers.
+    pub fn send_and_notify(&self, msg: &T) -> Result<usize, BusError> {
+        let n = self.send(msg)?;
+        self.notify()?;
+        Ok(n)
+    }
+
+    /// Wakes every listener of the topic's wake service; returns how many were notified.
+    ///
+    /// Call it after a burst of sends rather than after each one: a cross-CPU wakeup costs
+    /// tens of microseconds.
+    pub fn notify(&self) -> Result<usize, BusError> {
+        self.notifier.notify().map_err(|e| BusError::Event {
+            service: format!("{}/wake", self.service),
+            detail: format!("{e:?}"),
+        })
+    }
+
+    /// Connects to subscribers that appeared since the last send (sending does this too).
+    pub fn connect(&self) -> Result<(), BusError> {
+        self.publisher
+            .update_connections()
+            .map_err(|e| BusError::Send {
+                service: self.service.clone(),
+                detail: format!("cannot update connections: {e:?}"),
+            })
+    }
+
+    fn loan_err(&self, e: impl Debug) -> BusError {
+        BusError::Loan {
+            service: self.service.clone(),
+            detail: format!("{e:?}"),
+        }
+    }
+
+    fn finish(&self, sent: Result<usize, SendError>) -> Result<usize, BusError> {
+        match sent {
+            Ok(0) if self.delivery == Delivery::Lossless => Err(BusError::NoSubscriber {
+                service: self.service.clone(),
+            }),
+            Ok(n) => Ok(n),
+            Err(SendError::UnableToDeliver) => Err(BusError::DeliveryTimeout {
+                service: self.service.clone(),
+                timeout: self.send_timeout,
+            }),
+            Err(e) => Err(BusError::Send {
+                service: self.service.clone(),
+                detail: format!("{e:?}"),
+            }),
+        }
+    }
+}
+
+use iceoryx2::port::SendError;
+
+/// Receiving half of a topic: a subscriber plus a listener on the topic's wake service.
+pub struct Inbox<T: Message> {
+    service: String,
+    subscriber: Subscriber<ipc::Service, T, ()>,
+    listener: Listener<ipc::Service>,
+    _t: PhantomData<T>,
+}
+
+impl<T: Message> Inbox<T> {
+    pub(crate) fn create(
+        node: &Node<ipc::Service>,
+        cfg: &BusConfig,
+        role: Role,
+    ) -> Result<Self, BusError> {
+        let topic = T::TOPIC;
+        let service = topic.service_name(&cfg.run_id);
+        let pubsub = open_pubsub::<T>(node, cfg, topic, role)?;
+        let wake = open_wake(node, cfg, topic, role)?;
+        let port_err = |port: &'static str, detail: String| BusError::Port {
+            port,
+            service: service.clone(),
+            detail,
+        };
+        let subscriber = pubsub
+            .subscriber_builder()
+            .create()
+            .map_err(|e| port_err("subscriber", format!("{e:?}")))?;
+        let listener = wake
+            .listener_builder()
+            .create()
+            .map_err(|e| port_err("listener", format!("{e:?}")))?;
+        Ok(Self {
+            service,
+            subscriber,
+            listener,
+            _t: PhantomData,
+        })
+    }
+
+    /// The service name this inbox subscribes to.
+    pub fn service(&self) -> &str {
+        &self.service
+    }
+
+    /// Takes the oldest buffered message, copied out of shared memory.
+    pub fn receive(&self) -> Result<Option<T>, BusError> {
+        Ok(self.receive_sample()?.map(|s| *s.payload()))
+    }
+
+    /// Takes the oldest buffered message as a zero-copy sample (released when dropped).
+    pub fn receive_sample(&self) -> Result<Option<Sample<ipc::Service, T, ()>>, BusError> {
+        self.subscriber.receive().map_err(|e| BusError::Receive {
+            service: self.service.clone(),
+            detail: format!("{e:?}"),
+        })
+    }
+
+    /// Calls `f` on up to `max` buffered messages in place (no copy); returns how many.
+    pub fn drain(&self, max: usize, mut f: impl FnMut(&T)) -> Result<usize, BusError> {
+        let mut n = 0;
+        while n < max {
+            match self.receive_sample()? {
+                Some(sample) => {
+                    f(sample.payload());
+                    n += 1;
+                }
+                None => break,
+            }
+        }
+        Ok(n)
+    }
+
+    /// Whether a message is waiting (the cheap check a spinning loop polls).
+    pub fn has_samples(&self) -> Result<bool, BusError> {
+        self.subscriber
+            .has_samples()
+            .map_err(|e| BusError::Receive {
+                service: self.service.clone(),
+                detail: format!("{e:?}"),
+            })
+    }
+
+    /// Connects to publishers that appeared since the last receive, so that lossless delivery
+    /// from them is guaranteed from now on (receiving does this too).
+    pub fn connect(&self) -> Result<(), BusError> {
+        self.subscriber
+            .update_connections()
+            .map_err(|e| BusError::Receive {
+                service: self.service.clone(),
+                detail: format!("cannot update connections: {e:?}"),
+            })
+    }
+
+    /// The wake listener, to attach to an iceoryx2 `WaitSet` or to block on directly.
+    pub fn listener(&self) -> &Listener<ipc::Service> {
+        &self.listener
+    }
+
+    /// Consumes pending wakeups without blocking; returns the number of notifications and
+    /// whether one of them was [`EVENT_PEER_DEAD`].
+    ///
+    /// Call it when the `WaitSet` reports this listener, or it keeps reporting it.
+    pub fn clear_wakeups(&self) -> Result<Wakeups, BusError> {
+        let mut w = Wakeups::default();
+        self.listener
+            .try_wait(|a| w.add(a))
+            .map_err(|e| self.event_err(e))?;
+        Ok(w)
+    }
+
+    /// Blocks until a wakeup arrives or `timeout` passes, consuming the wakeups.
+    pub fn wait(&self, timeout: Duration) -> Result<Wakeups, BusError> {
+        let mut w = Wakeups::default();
+        self.listener
+            .timed_wait(|a| w.add(a), timeout)
+            .map_err(|e| self.event_err(e))?;
+        Ok(w)
+    }
+
+    fn event_err(&self, e: impl Debug) -> BusError {
+        BusError::Event {
+            service: format!("{}/wake", self.service),
+            detail: format!("{e:?}"),
+        }
+    }
+}
+
+/// What a listener received: data notifications and peer-death notices.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Wakeups {
+    /// Number of data notifications (several notifies may collapse into one).
+    pub data: u64,
+    /// A notifier of a dead process was found: run [`crate::check_nodes`].
+    pub peer_dead: bool,
+}
+
+impl Wakeups {
+    fn add(&mut self, a: EventActivation) {
+        if a.id == EVENT_PEER_DEAD {
+            self.peer_dead = true;
+        } else {
+            self.data += a.count.max(1);
+        }
+    }
+
+    /// Whether anything at all arrived.
+    pub fn any(&self) -> bool {
+        self.data > 0 || self.peer_dead
+    }
+}
