@@ -1,1 +1,35 @@
-fn main() {}
+//! `qfleet`: learn grid paths with the paper's Q-learners, replicate its results, and run fleets.
+
+mod learn;
+mod plots;
+mod replicate;
+
+use clap::{Parser, Subcommand};
+
+/// Fleets of simulated robots learning grid paths with improved Q-learning.
+#[derive(Debug, Parser)]
+#[command(name = "qfleet", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Learn a path on one map with one learner.
+    Learn(learn::LearnCmd),
+    /// Regenerate the paper's Table 1 and figures on the built-in maps.
+    Replicate(replicate::ReplicateCmd),
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Learn(c) => c.run(),
+        Command::Replicate(c) => c.run(),
+    };
+    if let Err(e) = result {
+        eprintln!("qfleet: error: {e:#}");
+        std::process::exit(1);
+    }
+}

@@ -1,0 +1,513 @@
+//! The tabular Q-learner: one type for the traditional and the improved learner, which differ
+//! only in their [`PolicyConfig`] and whether the multi-target search is on.
+//!
+//! The step loop allocates nothing: a step is one table lookup for the move, one policy draw,
+//! one Q update. The learner can be driven an episode at a time ([`Learner::run_episode`]) or a
+//! step at a time ([`Learner::step`]) so that a fleet process can exchange Q-values between
+//! steps without this crate knowing anything of the bus.
+
+use crate::env::{CellKind, Env, Rewards, Transition};
+use crate::grid::Cell;
+use crate::metrics::{EpisodeRecord, Outcome, Summary};
+use crate::policy::{EpsilonReading, Policy, PolicyConfig};
+use crate::pseudo::PseudoConfig;
+use crate::qtable::{QTable, max4};
+use crate::rng::LearnRng;
+use crate::task::Task;
+use serde::{Deserialize, Serialize};
+
+/// Which of the paper's two learners.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum LearnerKind {
+    /// ε-greedy, no pseudo targets.
+    Traditional,
+    /// Dynamic softmax with multi-target search.
+    Improved,
+}
+
+impl std::str::FromStr for LearnerKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "traditional" => Ok(LearnerKind::Traditional),
+            "improved" => Ok(LearnerKind::Improved),
+            _ => Err(format!(
+                "unknown learner '{s}' (expected traditional or improved)"
+            )),
+        }
+    }
+}
+
+impl std::fmt::Display for LearnerKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            LearnerKind::Traditional => "traditional",
+            LearnerKind::Improved => "improved",
+        })
+    }
+}
+
+/// Everything that defines a learning run; all parameters are settable.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LearnerConfig {
+    /// α, the learning rate, in (0, 1].
+    pub alpha: f32,
+    /// γ, the discount, in [0, 1).
+    pub gamma: f32,
+    /// N, the number of episodes (> 0); also the horizon of the dynamic schedule.
+    pub episodes: u32,
+    /// Step cap per episode; 0 picks 50 × the free cells (at least 10 000).
+    pub max_steps: u32,
+    /// Rewards of goal, collision and plain moves.
+    pub rewards: Rewards,
+    /// Action selection.
+    pub policy: PolicyConfig,
+    /// Multi-target search; `None` turns it off.
+    pub pseudo: Option<PseudoConfig>,
+    /// Seed of the learner's random source.
+    pub seed: u64,
+}
+
+/// A learner parameter out of range.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ConfigError {
+    /// α must lie in (0, 1].
+    #[error("alpha must be in (0, 1], got {0}")]
+    Alpha(f32),
+    /// γ must lie in [0, 1).
+    #[error("gamma must be in [0, 1), got {0}")]
+    Gamma(f32),
+    /// At least one episode.
+    #[error("episodes must be at least 1")]
+    Episodes,
+    /// ε must lie in [0, 1].
+    #[error("epsilon must be in [0, 1], got {0}")]
+    Epsilon(f32),
+    /// The log-scale horizon must be positive and finite.
+    #[error("horizon must be positive, got {0}")]
+    Horizon(f32),
+    /// Pseudo-target parameters: δ in (0, 1], removal fraction in [0, 1], radius ≥ 1.
+    #[error(
+        "pseudo targets need radius >= 1, delta in (0, 1] and remove-at in [0, 1]; got radius {radius}, delta {delta}, remove-at {remove_at}"
+    )]
+    Pseudo {
+        /// R given.
+        radius: u32,
+        /// δ given.
+        delta: f32,
+        /// Removal fraction given.
+        remove_at: f32,
+    },
+    /// Rewards must be finite.
+    #[error("rewards must be finite numbers")]
+    Rewards,
+}
+
+impl LearnerConfig {
+    /// The paper's traditional learner: ε-greedy, ε = 0.8 as the greedy probability.
+    pub fn traditional(episodes: u32, seed: u64) -> Self {
+        LearnerConfig {
+            alpha: 0.1,
+            gamma: 0.6,
+            episodes,
+            max_steps: 0,
+            rewards: Rewards::default(),
+            policy: PolicyConfig::TRADITIONAL,
+            pseudo: None,
+            seed,
+        }
+    }
+
+    /// The improved learner with this crate's defaults (temperature schedule, log-scale softmax,
+    /// pseudo targets R = 3, δ = 0.5, removed at N/2).
+    pub fn improved(episodes: u32, seed: u64) -> Self {
+        LearnerConfig {
+            policy: PolicyConfig::IMPROVED,
+            pseudo: Some(PseudoConfig::default()),
+            ..Self::traditional(episodes, seed)
+        }
+    }
+
+    /// The default configuration of a learner kind.
+    pub fn of_kind(kind: LearnerKind, episodes: u32, seed: u64) -> Self {
+        match kind {
+            LearnerKind::Traditional => Self::traditional(episodes, seed),
+            LearnerKind::Improved => Self::improved(episodes, seed),
+        }
+    }
+
+    /// Checks every parameter's range.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if !(self.alpha > 0.0 && self.alpha <= 1.0) {
+            return Err(ConfigError::Alpha(self.alpha));
+        }
+        if !(self.gamma >= 0.0 && self.gamma < 1.0) {
+            return Err(ConfigError::Gamma(self.gamma));
+        }
+        if self.episodes == 0 {
+            return Err(ConfigError::Episodes);
+        }
+        let r = self.rewards;
+        if !(r.goal.is_finite() && r.collision.is_finite() && r.step.is_finite()) {
+            return Err(ConfigError::Rewards);
+        }
+        match self.policy {
+            PolicyConfig::EpsilonGreedy { epsilon, .. } if !(0.0..=1.0).contains(&epsilon) => {
+                return Err(ConfigError::Epsilon(epsilon));
+            }
+            PolicyConfig::Softmax { horizon, .. } if !(horizon > 0.0 && horizon.is_finite()) => {
+                return Err(ConfigError::Horizon(horizon));
+            }
+            _ => {}
+        }
+        if let Some(p) = self.pseudo {
+            if p.radius == 0
+                || !(p.delta > 0.0 && p.delta <= 1.0)
+                || !(0.0..=1.0).contains(&p.remove_at)
+            {
+                return Err(ConfigError::Pseudo {
+                    radius: p.radius,
+                    delta: p.delta,
+                    remove_at: p.remove_at,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// A short human-readable name of the policy, e.g. for tables.
+    pub fn policy_label(&self) -> String {
+        match self.policy {
+            PolicyConfig::EpsilonGreedy { epsilon, reading } => {
+                let r = if reading == EpsilonReading::Greedy {
+                    "greedy"
+                } else {
+                    "random"
+                };
+                format!("eps-greedy(eps={epsilon} as {r} prob)")
+            }
+            PolicyConfig::Softmax {
+                schedule, scale, ..
+            } => format!("softmax({schedule}, {scale} Q)"),
+        }
+    }
+}
+
+/// What one step did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepInfo {
+    /// Cell index the step started in.
+    pub state: u32,
+    /// Action taken (Q-table column).
+    pub action: u8,
+    /// Cell index after the step.
+    pub next: u32,
+    /// Q(state, action) after the update.
+    pub q: f32,
+    /// How the move ended.
+    pub transition: Transition,
+    /// Whether the episode is over (terminal cell or step cap).
+    pub done: bool,
+}
+
+/// A Q-learner on one task, with its table, policy, random source and episode counters.
+#[derive(Debug, Clone)]
+pub struct Learner {
+    cfg: LearnerConfig,
+    env: Env,
+    q: QTable,
+    policy: Policy,
+    rng: LearnRng,
+    optimal_len: u32,
+    max_steps: u32,
+    // Episode state.
+    episode: u32,
+    state: u32,
+    steps: u32,
+    collisions: u32,
+    ret: f32,
+    // Multi-target search.
+    goal_found: bool,
+    visited: Vec<bool>,
+    pseudo_targets: Vec<(u32, f32)>,
+    new_targets: Vec<(u32, f32)>,
+    pseudo_removed: bool,
+    // Scratch for greedy path extraction.
+    stamp: Vec<u32>,
+    stamp_gen: u32,
+}
+
+impl Learner {
+    /// A fresh learner (zero Q-table) for a task.
+    pub fn new(task: &Task, cfg: LearnerConfig) -> Result<Learner, ConfigError> {
+        cfg.validate()?;
+        let env = Env::new(&task.grid, task.start, task.goal, cfg.rewards);
+        let free = task.grid.free_count() as u64;
+        let max_steps = if cfg.max_steps > 0 {
+            cfg.max_steps
+        } else {
+            (free * 50).clamp(10_000, u32::MAX as u64) as u32
+        };
+        let n = task.grid.len();
+        Ok(Learner {
+            policy: Policy::new(cfg.policy, cfg.gamma),
+            rng: LearnRng::new(cfg.seed),
+            q: QTable::new(&task.grid),
+            optimal_len: task.optimal_len,
+            max_steps,
+            episode: 0,
+            state: env.start(),
+            steps: 0,
+            collisions: 0,
+            ret: 0.0,
+            goal_found: false,
+            visited: if cfg.pseudo.is_some() {
+                vec![false; n]
+            } else {
+                Vec::new()
+            },
+            pseudo_targets: Vec::new(),
+            new_targets: Vec::new(),
+            pseudo_removed: false,
+            stamp: vec![0; n],
+            stamp_gen: 0,
+            env,
+            cfg,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &LearnerConfig {
+        &self.cfg
+    }
+
+    /// The environment (grid, start, goal, active pseudo targets).
+    pub fn env(&self) -> &Env {
+        &self.env
+    }
+
+    /// The Q-table.
+    pub fn q(&self) -> &QTable {
+        &self.q
+    }
+
+    /// The Q-table, for applying values learned elsewhere (e.g. a fleet's merged hints).
+    pub fn q_mut(&mut self) -> &mut QTable {
+        &mut self.q
+    }
+
+    /// Episodes finished so far.
+    pub fn episodes_done(&self) -> u32 {
+        self.episode
+    }
+
+    /// Whether all configured episodes are done.
+    pub fn finished(&self) -> bool {
+        self.episode >= self.cfg.episodes
+    }
+
+    /// The step cap per episode in force.
+    pub fn max_steps(&self) -> u32 {
+        self.max_steps
+    }
+
+    /// The BFS optimum of the task, in moves.
+    pub fn optimal_len(&self) -> u32 {
+        self.optimal_len
+    }
+
+    /// Active pseudo targets as (cell index, value).
+    pub fn pseudo_targets(&self) -> &[(u32, f32)] {
+        if self.pseudo_removed {
+            &[]
+        } else {
+            &self.pseudo_targets
+        }
+    }
+
+    /// Pseudo targets this learner discovered itself since the last call, to share with others.
+    pub fn take_new_pseudo_targets(&mut self) -> Vec<(u32, f32)> {
+        std::mem::take(&mut self.new_targets)
+    }
+
+    /// Adds a pseudo target found by someone else; false if pseudo targets are off, already
+    /// removed, or the cell cannot be one.
+    pub fn add_pseudo_target(&mut self, cell: u32, value: f32) -> bool {
+        if self.cfg.pseudo.is_none()
+            || self.pseudo_removed
+            || self.env.kind(cell.min(self.env.grid().len() as u32 - 1)) != CellKind::Plain
+        {
+            return false;
+        }
+        if self.env.set_pseudo(cell, value) {
+            self.pseudo_targets.push((cell, value));
+            true
+        } else {
+            false
+        }
+    }
+
+    /// Resets the episode state and applies the schedule for the coming episode.
+    pub fn begin_episode(&mut self) {
+        self.policy.begin_episode(self.episode, self.cfg.episodes);
+        if let Some(p) = self.cfg.pseudo {
+            if !self.pseudo_removed && self.episode >= p.removal_episode(self.cfg.episodes) {
+                for &(c, _) in &self.pseudo_targets {
+                    self.env.clear_pseudo(c);
+                }
+                self.pseudo_removed = true;
+            }
+        }
+        self.state = self.env.start();
+        self.steps = 0;
+        self.collisions = 0;
+        self.ret = 0.0;
+    }
+
+    /// Takes one step of the current episode: choose, move, update Q.
+    #[inline]
+    pub fn step(&mut self) -> StepInfo {
+        let s = self.state;
+        let a = self.policy.choose(self.q.row(s as usize), &mut self.rng);
+        let (next, r, t) = self.env.step(s, a);
+        let terminal = matches!(t, Transition::Goal | Transition::Pseudo);
+        let target = if terminal {
+            r
+        } else {
+            r + self.cfg.gamma * max4(self.q.row(next as usize))
+        };
+        let row = self.q.row_mut(s as usize);
+        let q = row[a] + self.cfg.alpha * (target - row[a]);
+        row[a] = q;
+        self.steps += 1;
+        self.collisions += (t == Transition::Collided) as u32;
+        self.ret += r;
+        self.state = next;
+        if !self.goal_found && !self.visited.is_empty() {
+            self.visited[next as usize] = true;
+        }
+        StepInfo {
+            state: s,
+            action: a as u8,
+            next,
+            q,
+            transition: t,
+            done: terminal || self.steps >= self.max_steps,
+        }
+    }
+
+    /// Closes the current episode after `step` reported `done` (or to abandon it).
+    pub fn end_episode(&mut self, last: Transition) -> EpisodeRecord {
+        let outcome = match last {
+            Transition::Goal => Outcome::Goal,
+            Transition::Pseudo => Outcome::Pseudo,
+            _ => Outcome::Cap,
+        };
+        if outcome == Outcome::Goal && !self.goal_found {
+            self.goal_found = true;
+            self.discover_pseudo_targets();
+        }
+        let rec = EpisodeRecord {
+            episode: self.episode,
+            steps: self.steps,
+            collisions: self.collisions,
+            outcome,
+            ret: self.ret,
+            greedy_path_len: self.greedy_path_len(),
+        };
+        self.episode += 1;
+        rec
+    }
+
+    /// Runs one whole episode.
+    pub fn run_episode(&mut self) -> EpisodeRecord {
+        self.begin_episode();
+        loop {
+            let s = self.step();
+            if s.done {
+                return self.end_episode(s.transition);
+            }
+        }
+    }
+
+    /// Runs the remaining episodes, calling `on_episode` after each; returns the summary.
+    pub fn run(
+        &mut self,
+        mut on_episode: impl FnMut(&EpisodeRecord),
+    ) -> (Vec<EpisodeRecord>, Summary) {
+        let mut records =
+            Vec::with_capacity(self.cfg.episodes.saturating_sub(self.episode) as usize);
+        while !self.finished() {
+            let r = self.run_episode();
+            on_episode(&r);
+            records.push(r);
+        }
+        let summary = Summary::from_records(&records, self.optimal_len, self.greedy_path_len());
+        (records, summary)
+    }
+
+    fn discover_pseudo_targets(&mut self) {
+        let Some(p) = self.cfg.pseudo else { return };
+        if self.pseudo_removed {
+            return;
+        }
+        let grid = self.env.grid();
+        let goal = grid.cell(self.env.goal() as usize);
+        let mut found = Vec::new();
+        for (idx, seen) in self.visited.iter().enumerate() {
+            let d = grid.cell(idx).manhattan(goal);
+            if *seen && d >= 1 && d <= p.radius {
+                found.push((idx as u32, p.value(d, self.cfg.rewards.goal)));
+            }
+        }
+        for (c, v) in found {
+            if self.env.set_pseudo(c, v) {
+                self.pseudo_targets.push((c, v));
+                self.new_targets.push((c, v));
+            }
+        }
+        self.visited = Vec::new();
+    }
+
+    /// Moves of the greedy path from the start to the true goal, or `None` if it loops or collides.
+    pub fn greedy_path_len(&mut self) -> Option<u32> {
+        self.stamp_gen = self.stamp_gen.wrapping_add(1);
+        if self.stamp_gen == 0 {
+            self.stamp.fill(0);
+            self.stamp_gen = 1;
+        }
+        let (mut s, goal) = (self.env.start(), self.env.goal());
+        let mut len = 0;
+        while s != goal {
+            if self.stamp[s as usize] == self.stamp_gen {
+                return None;
+            }
+            self.stamp[s as usize] = self.stamp_gen;
+            s = self.env.peek(s, self.q.argmax(s as usize))?;
+            len += 1;
+        }
+        Some(len)
+    }
+
+    /// The greedy path from the start as cells (start and goal included), or `None` if it loops.
+    pub fn greedy_path(&self) -> Option<Vec<Cell>> {
+        greedy_path(&self.env, &self.q)
+    }
+}
+
+/// The greedy path of a Q-table in an environment, or `None` if it loops or collides.
+pub fn greedy_path(env: &Env, q: &QTable) -> Option<Vec<Cell>> {
+    let grid = env.grid();
+    let mut seen = vec![false; grid.len()];
+    let mut s = env.start();
+    let mut path = vec![grid.cell(s as usize)];
+    while s != env.goal() {
+        if std::mem::replace(&mut seen[s as usize], true) {
+            return None;
+        }
+        s = env.peek(s, q.argmax(s as usize))?;
+        path.push(grid.cell(s as usize));
+    }
+    Some(path)
+}

@@ -1,0 +1,231 @@
+//! `qfleet learn`: one learner on one task, with a JSON summary, a per-episode CSV and plots.
+
+use crate::plots::{self, Series};
+use anyhow::{Context, Result};
+use clap::Args;
+use planner::{EpisodeRecord, Learner, LearnerConfig, Summary};
+use qfleet_args::{LearnerArgs, MapArgs};
+use serde::Serialize;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Options of `qfleet learn`.
+#[derive(Debug, Args)]
+pub struct LearnCmd {
+    #[command(flatten)]
+    map: MapArgs,
+    #[command(flatten)]
+    learner: LearnerArgs,
+    /// Print one JSON object on stdout instead of a human summary.
+    #[arg(long)]
+    json: bool,
+    /// Directory for episodes.csv, summary.json, steps.svg and path.svg.
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+/// The JSON result of one learning run.
+#[derive(Debug, Serialize)]
+pub struct LearnResult {
+    /// Map name.
+    pub map: String,
+    /// `traditional` or `improved`.
+    pub learner: String,
+    /// Policy in words.
+    pub policy: String,
+    /// Episodes run.
+    pub episodes: u32,
+    /// Seed.
+    pub seed: u64,
+    /// Start cell `x,y`.
+    pub start: String,
+    /// Goal cell `x,y`.
+    pub goal: String,
+    /// BFS optimum in moves.
+    pub optimal_path_len: u32,
+    /// Greedy path moves at the end (null: it loops).
+    pub final_path_len: Option<u32>,
+    /// Mean steps per episode.
+    pub avg_steps: f64,
+    /// Largest steps in one episode.
+    pub max_steps: u32,
+    /// First episode after which the greedy path was optimal (null: never).
+    pub first_optimal_episode: Option<u32>,
+    /// Actions taken in all.
+    pub env_steps: u64,
+    /// Wall time of the learning loop.
+    pub elapsed_s: f64,
+    /// Learning throughput.
+    pub env_steps_per_s: f64,
+    /// Episodes that reached the goal / a pseudo target / the step cap.
+    pub outcomes: Outcomes,
+    /// The full learner configuration.
+    pub config: LearnerConfig,
+}
+
+/// Counts of how episodes ended.
+#[derive(Debug, Serialize)]
+pub struct Outcomes {
+    /// Reached the goal.
+    pub goal: u32,
+    /// Ended on a pseudo target.
+    pub pseudo: u32,
+    /// Hit the step cap.
+    pub cap: u32,
+}
+
+impl LearnCmd {
+    /// Runs the command.
+    pub fn run(self) -> Result<()> {
+        let task = self.map.task()?;
+        let cfg = self.learner.config()?;
+        let mut learner = Learner::new(&task, cfg)?;
+        let t0 = Instant::now();
+        let (records, summary) = learner.run(|_| {});
+        let elapsed = t0.elapsed().as_secs_f64();
+        let result = LearnResult::new(
+            &task.map_name,
+            self.learner.learner.to_string(),
+            &cfg,
+            &task,
+            &summary,
+            elapsed,
+        );
+        if let Some(dir) = &self.out {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+            write_episodes_csv(&dir.join("episodes.csv"), &records)?;
+            std::fs::write(
+                dir.join("summary.json"),
+                serde_json::to_string_pretty(&result)?,
+            )
+            .with_context(|| format!("writing {}", dir.join("summary.json").display()))?;
+            let steps: Vec<f64> = records.iter().map(|r| r.steps as f64).collect();
+            plots::line_chart(
+                &dir.join("steps.svg"),
+                &format!("{} on {}: steps per episode", result.learner, task.map_name),
+                "episode",
+                "steps",
+                &[Series {
+                    label: &result.learner,
+                    values: &steps,
+                }],
+            )?;
+            let learned = learner.greedy_path();
+            let bfs =
+                planner::path::bfs_path(&task.grid, task.start, task.goal).unwrap_or_default();
+            let mut paths: Vec<(&str, &[planner::Cell])> = vec![("BFS optimum", &bfs)];
+            if let Some(p) = &learned {
+                paths.push(("learned greedy path", p));
+            }
+            plots::paths_on_grid(
+                &dir.join("path.svg"),
+                &format!("{} on {}", result.learner, task.map_name),
+                &task.grid,
+                task.start,
+                task.goal,
+                &paths,
+            )?;
+        }
+        if self.json {
+            println!("{}", serde_json::to_string(&result)?);
+        } else {
+            let fmt_opt = |v: Option<u32>| v.map_or("none (loops)".to_string(), |x| x.to_string());
+            println!(
+                "map {}  learner {} [{}]  episodes {}  seed {}",
+                result.map, result.learner, result.policy, result.episodes, result.seed
+            );
+            println!(
+                "  optimal path      {} moves (BFS)",
+                result.optimal_path_len
+            );
+            println!("  final path        {}", fmt_opt(result.final_path_len));
+            println!(
+                "  avg / max steps   {:.2} / {}",
+                result.avg_steps, result.max_steps
+            );
+            println!(
+                "  first optimal     episode {}",
+                result
+                    .first_optimal_episode
+                    .map_or("never".into(), |e| e.to_string())
+            );
+            println!(
+                "  env steps         {} in {:.3} s ({:.1} M steps/s)",
+                result.env_steps,
+                result.elapsed_s,
+                result.env_steps_per_s / 1e6
+            );
+            if let Some(dir) = &self.out {
+                println!(
+                    "  wrote             {}/{{episodes.csv,summary.json,steps.svg,path.svg}}",
+                    dir.display()
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
+impl LearnResult {
+    /// Builds the result of a finished run.
+    pub fn new(
+        map: &str,
+        learner: String,
+        cfg: &LearnerConfig,
+        task: &planner::task::Task,
+        s: &Summary,
+        elapsed_s: f64,
+    ) -> Self {
+        LearnResult {
+            map: map.to_string(),
+            learner,
+            policy: cfg.policy_label(),
+            episodes: s.episodes,
+            seed: cfg.seed,
+            start: task.start.to_string(),
+            goal: task.goal.to_string(),
+            optimal_path_len: s.optimal_path_len,
+            final_path_len: s.final_path_len,
+            avg_steps: s.avg_steps,
+            max_steps: s.max_steps,
+            first_optimal_episode: s.first_optimal_episode,
+            env_steps: s.env_steps,
+            elapsed_s,
+            env_steps_per_s: if elapsed_s > 0.0 {
+                s.env_steps as f64 / elapsed_s
+            } else {
+                0.0
+            },
+            outcomes: Outcomes {
+                goal: s.goal_episodes,
+                pseudo: s.pseudo_episodes,
+                cap: s.capped_episodes,
+            },
+            config: *cfg,
+        }
+    }
+}
+
+/// Writes `episode,steps,collisions,outcome,return,greedy_path_len` rows.
+pub fn write_episodes_csv(path: &Path, records: &[EpisodeRecord]) -> Result<()> {
+    let f = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+    let mut w = std::io::BufWriter::new(f);
+    writeln!(w, "episode,steps,collisions,outcome,return,greedy_path_len")?;
+    for r in records {
+        let g = r.greedy_path_len.map_or(String::new(), |x| x.to_string());
+        writeln!(
+            w,
+            "{},{},{},{},{},{}",
+            r.episode,
+            r.steps,
+            r.collisions,
+            r.outcome.as_str(),
+            r.ret,
+            g
+        )?;
+    }
+    w.flush()
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}

@@ -1,0 +1,169 @@
+//! SVG figures: steps per episode (like the paper's learning curves) and paths drawn on the grid.
+
+use anyhow::{Context, Result};
+use planner::{Cell, Grid};
+use plotters::prelude::*;
+use std::path::Path;
+
+/// Colours of successive series.
+pub const PALETTE: [RGBColor; 8] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(255, 127, 14),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(23, 190, 207),
+];
+
+/// A named series of y-values over x = 0, 1, 2, ….
+pub struct Series<'a> {
+    /// Legend label.
+    pub label: &'a str,
+    /// y-values.
+    pub values: &'a [f64],
+}
+
+/// Draws line series on a log-scaled y axis (steps span several decades) into an SVG file.
+pub fn line_chart(
+    path: &Path,
+    title: &str,
+    x_label: &str,
+    y_label: &str,
+    series: &[Series<'_>],
+) -> Result<()> {
+    let n = series
+        .iter()
+        .map(|s| s.values.len())
+        .max()
+        .unwrap_or(1)
+        .max(2);
+    let ymax = series
+        .iter()
+        .flat_map(|s| s.values.iter().copied())
+        .fold(1.0f64, f64::max)
+        * 1.5;
+    let ymin = series
+        .iter()
+        .flat_map(|s| s.values.iter().copied())
+        .filter(|v| *v > 0.0)
+        .fold(ymax, f64::min)
+        .max(0.5)
+        * 0.7;
+    let root = SVGBackend::new(path, (900, 520)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0f64..(n - 1) as f64, (ymin..ymax).log_scale())?;
+    chart
+        .configure_mesh()
+        .x_desc(x_label)
+        .y_desc(y_label)
+        .draw()?;
+    for (i, s) in series.iter().enumerate() {
+        let color = PALETTE[i % PALETTE.len()];
+        chart
+            .draw_series(LineSeries::new(
+                s.values
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, v)| **v > 0.0)
+                    .map(|(x, v)| (x as f64, *v)),
+                color.stroke_width(2),
+            ))?
+            .label(s.label)
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
+            });
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
+
+/// Draws the grid (obstacles dark), start, goal and any number of labelled paths into an SVG file.
+pub fn paths_on_grid(
+    path: &Path,
+    title: &str,
+    grid: &Grid,
+    start: Cell,
+    goal: Cell,
+    paths: &[(&str, &[Cell])],
+) -> Result<()> {
+    let (w, h) = (grid.width() as i32, grid.height() as i32);
+    let cell_px = (720 / w.max(h)).clamp(2, 40);
+    let root = SVGBackend::new(path, ((w * cell_px + 40) as u32, (h * cell_px + 90) as u32))
+        .into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 18))
+        .margin(20)
+        .build_cartesian_2d(0f64..w as f64, h as f64..0f64)?;
+    chart.draw_series((0..grid.len()).filter_map(|i| {
+        let c = grid.cell(i);
+        (!grid.is_free(c)).then(|| {
+            Rectangle::new(
+                [
+                    (c.x as f64, c.y as f64),
+                    (c.x as f64 + 1.0, c.y as f64 + 1.0),
+                ],
+                RGBColor(60, 60, 60).filled(),
+            )
+        })
+    }))?;
+    chart.draw_series((0..=w).map(|x| {
+        PathElement::new(
+            vec![(x as f64, 0.0), (x as f64, h as f64)],
+            RGBColor(220, 220, 220),
+        )
+    }))?;
+    chart.draw_series((0..=h).map(|y| {
+        PathElement::new(
+            vec![(0.0, y as f64), (w as f64, y as f64)],
+            RGBColor(220, 220, 220),
+        )
+    }))?;
+    let centre = |c: &Cell| (c.x as f64 + 0.5, c.y as f64 + 0.5);
+    for (i, (label, cells)) in paths.iter().enumerate() {
+        let color = PALETTE[i % PALETTE.len()];
+        let off = i as f64 * 0.12;
+        chart
+            .draw_series(std::iter::once(PathElement::new(
+                cells
+                    .iter()
+                    .map(|c| (centre(c).0 + off, centre(c).1 + off))
+                    .collect::<Vec<_>>(),
+                color.stroke_width(3),
+            )))?
+            .label(format!("{label} ({} moves)", cells.len().saturating_sub(1)))
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(3))
+            });
+    }
+    let r = (cell_px / 3).max(2);
+    chart.draw_series(
+        [(start, GREEN), (goal, RED)]
+            .into_iter()
+            .map(|(c, col)| Circle::new(centre(&c), r, col.filled())),
+    )?;
+    if !paths.is_empty() {
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::LowerLeft)
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()?;
+    }
+    root.present()
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
