@@ -13,8 +13,8 @@ use crate::clock::monotonic_ns;
 /// Largest fleet the bus supports: robot ids are `0..robots` with `robots ≤ 256`.
 ///
 /// Bounded so every service can be sized in advance (iceoryx2 allocates all buffers when a
-/// service or port is created): at 256 robots the largest segment, the merged-hints broadcast,
-/// stays around 10 MiB of shared memory.
+/// service or port is created): at 256 robots the largest segments, the merged-hints and ack
+/// broadcasts, stay around 10 MB of shared memory each.
 pub const MAX_ROBOTS: u32 = 256;
 
 /// Largest per-connection subscriber buffer accepted in a [`BusConfig`].

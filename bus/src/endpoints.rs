@@ -15,7 +15,7 @@ use iceoryx2::prelude::*;
 use crate::clock::monotonic_ns;
 use crate::handshake::{Admission, Expected, check_register, control, reason, set_reason};
 use crate::liveness::{CleanReport, clean_stale};
-use crate::topic::{Inbox, Outbox, Role};
+use crate::topic::{Inbox, Outbox, Role, Wakeups};
 use crate::{BusConfig, BusError};
 
 /// How often a robot re-sends its `Register` while no answer has come.
@@ -152,14 +152,23 @@ impl CoordinatorBus {
         };
         match verdict {
             Err(why) => {
-                self.refuse(reg.robot_id, &why)?;
+                match self.refuse(reg.robot_id, &why) {
+                    // the refused robot (and every other) is already gone: nobody to tell
+                    Ok(_) | Err(BusError::NoSubscriber { .. }) => {}
+                    Err(e) => return Err(e),
+                }
                 Ok(Admission::Refused(why))
             }
             Ok(admission) => {
                 self.connect_all()?;
-                accepted.insert(reg.robot_id, *reg);
-                self.send_control(control(Command::Ack, reg.robot_id))?;
-                Ok(admission)
+                match self.send_control(control(Command::Ack, reg.robot_id)) {
+                    Ok(_) => {
+                        accepted.insert(reg.robot_id, *reg);
+                        Ok(admission)
+                    }
+                    Err(BusError::NoSubscriber { .. }) => Ok(Admission::Gone),
+                    Err(e) => Err(e),
+                }
             }
         }
     }
@@ -234,6 +243,23 @@ impl CoordinatorBus {
         let prefix = self.config.prefix();
         drop(self);
         clean_stale(&prefix)
+    }
+
+    /// Consumes the pending wakeups of all five inboxes (call after a `WaitSet` wakeup, or it
+    /// fires again); returns them summed.
+    pub fn clear_wakeups(&self) -> Result<Wakeups, BusError> {
+        let mut all = Wakeups::default();
+        for w in [
+            self.register.clear_wakeups()?,
+            self.state.clear_wakeups()?,
+            self.discovery.clear_wakeups()?,
+            self.hints.clear_wakeups()?,
+            self.report.clear_wakeups()?,
+        ] {
+            all.data += w.data;
+            all.peer_dead |= w.peer_dead;
+        }
+        Ok(all)
     }
 
     /// Whether any inbox holds a message (what a spinning coordinator polls).
@@ -350,6 +376,8 @@ impl RobotBus {
     /// is filled in.
     pub fn register(&self, reg: &Register, timeout: Duration) -> Result<Control, BusError> {
         let deadline = Instant::now() + timeout;
+        // answers to an earlier registration (re-sends are answered too) are older than this
+        let asked_ns = monotonic_ns();
         let mut last_sent: Option<Instant> = None;
         loop {
             if last_sent.is_none_or(|t| t.elapsed() >= REGISTER_RESEND) {
@@ -368,8 +396,10 @@ impl RobotBus {
                 }
             }
             while let Some(ctl) = self.next_control_from_bus()? {
+                let answer = ctl.robot_id == self.robot_id && ctl.time_ns >= asked_ns;
                 match Command::try_from(ctl.command) {
-                    Ok(Command::Ack) if ctl.robot_id == self.robot_id => {
+                    Ok(Command::Ack | Command::Refuse) if !answer => {}
+                    Ok(Command::Ack) => {
                         if ctl.schema_version != SCHEMA_VERSION {
                             return Err(BusError::Refused {
                                 robot_id: self.robot_id,
@@ -381,7 +411,7 @@ impl RobotBus {
                         }
                         return Ok(ctl);
                     }
-                    Ok(Command::Refuse) if ctl.robot_id == self.robot_id => {
+                    Ok(Command::Refuse) => {
                         return Err(BusError::Refused {
                             robot_id: self.robot_id,
                             reason: reason(&ctl),

@@ -89,6 +89,8 @@ pub enum Admission {
     Reaccepted,
     /// Refused with this reason (also sent to the robot).
     Refused(String),
+    /// Acceptable, but no robot was listening for the answer any more; not recorded.
+    Gone,
 }
 
 #[cfg(test)]

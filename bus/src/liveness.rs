@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use iceoryx2::config::Config;
-use iceoryx2::node::{NodeState, NodeView};
+use iceoryx2::node::{NodeCleanupFailure, NodeState, NodeView};
 use iceoryx2::prelude::*;
 
 use crate::config::iceoryx_config_for_prefix;
@@ -84,13 +84,33 @@ fn info(state: &NodeState<ipc::Service>) -> NodeInfo {
     }
 }
 
+/// Lists the nodes; with `clean_dead`, cleans dead ones, retrying failed cleanups a few times:
+/// when several dead nodes shared services, cleaning the first leaves the next one's bookkeeping
+/// half-removed and iceoryx2 reports an internal error that a second pass resolves.
 fn list_and_clean(config: &Config, prefix: &str, clean_dead: bool) -> Result<NodeReport, BusError> {
+    let mut report = list_and_clean_once(config, prefix, clean_dead)?;
+    for _ in 0..3 {
+        if report.cleanup_failed == 0 {
+            break;
+        }
+        let again = list_and_clean_once(config, prefix, true)?;
+        report.cleaned += again.cleaned;
+        report.cleanup_failed = again.cleanup_failed;
+    }
+    Ok(report)
+}
+
+fn list_and_clean_once(
+    config: &Config,
+    prefix: &str,
+    clean_dead: bool,
+) -> Result<NodeReport, BusError> {
     let mut report = NodeReport::default();
     Node::<ipc::Service>::list(config, |state| {
         report.nodes.push(info(&state));
         if clean_dead && let NodeState::Dead(view) = state {
             match view.try_remove_stale_resources() {
-                Ok(()) => report.cleaned += 1,
+                Ok(()) | Err(NodeCleanupFailure::ResourcesAlreadyCleanedUp) => report.cleaned += 1,
                 Err(_) => report.cleanup_failed += 1,
             }
         }

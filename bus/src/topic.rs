@@ -296,6 +296,12 @@ pub struct Outbox<T: Message> {
 }
 
 impl<T: Message> Outbox<T> {
+    /// Opens a publisher on `T`'s topic of an existing run, for a process other than the
+    /// coordinator and robots (a replayer, a test); it takes one of the spare ports.
+    pub fn open(node: &Node<ipc::Service>, cfg: &BusConfig) -> Result<Self, BusError> {
+        Self::create(node, cfg, Role::Opener)
+    }
+
     pub(crate) fn create(
         node: &Node<ipc::Service>,
         cfg: &BusConfig,
@@ -445,6 +451,13 @@ pub struct Inbox<T: Message> {
 }
 
 impl<T: Message> Inbox<T> {
+    /// Opens a subscriber on `T`'s topic of an existing run, for a monitor (`qfleet topic
+    /// echo`, a recorder); it takes one of the spare ports. On a lossless topic it must keep
+    /// up, or it stalls the publishers until their send timeout.
+    pub fn open(node: &Node<ipc::Service>, cfg: &BusConfig) -> Result<Self, BusError> {
+        Self::create(node, cfg, Role::Opener)
+    }
+
     pub(crate) fn create(
         node: &Node<ipc::Service>,
         cfg: &BusConfig,
