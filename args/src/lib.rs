@@ -103,7 +103,7 @@ pub struct LearnerArgs {
     #[arg(long, default_value = "improved")]
     pub learner: LearnerKind,
     /// Number of episodes N (also the horizon of the dynamic schedule).
-    #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..))]
     pub episodes: u32,
     /// Seed of the learner's random source.
     #[arg(long, default_value_t = 1)]

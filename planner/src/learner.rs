@@ -161,17 +161,16 @@ impl LearnerConfig {
             }
             _ => {}
         }
-        if let Some(p) = self.pseudo {
-            if p.radius == 0
+        if let Some(p) = self.pseudo
+            && (p.radius == 0
                 || !(p.delta > 0.0 && p.delta <= 1.0)
-                || !(0.0..=1.0).contains(&p.remove_at)
-            {
-                return Err(ConfigError::Pseudo {
-                    radius: p.radius,
-                    delta: p.delta,
-                    remove_at: p.remove_at,
-                });
-            }
+                || !(0.0..=1.0).contains(&p.remove_at))
+        {
+            return Err(ConfigError::Pseudo {
+                radius: p.radius,
+                delta: p.delta,
+                remove_at: p.remove_at,
+            });
         }
         Ok(())
     }
@@ -351,13 +350,14 @@ impl Learner {
     /// Resets the episode state and applies the schedule for the coming episode.
     pub fn begin_episode(&mut self) {
         self.policy.begin_episode(self.episode, self.cfg.episodes);
-        if let Some(p) = self.cfg.pseudo {
-            if !self.pseudo_removed && self.episode >= p.removal_episode(self.cfg.episodes) {
-                for &(c, _) in &self.pseudo_targets {
-                    self.env.clear_pseudo(c);
-                }
-                self.pseudo_removed = true;
+        if let Some(p) = self.cfg.pseudo
+            && !self.pseudo_removed
+            && self.episode >= p.removal_episode(self.cfg.episodes)
+        {
+            for &(c, _) in &self.pseudo_targets {
+                self.env.clear_pseudo(c);
             }
+            self.pseudo_removed = true;
         }
         self.state = self.env.start();
         self.steps = 0;

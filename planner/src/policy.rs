@@ -92,10 +92,11 @@ impl PolicyConfig {
     };
 }
 
-/// The paper's dynamic factor ε(k) = 1 − 0.49·2^(k/N): 0.51 at k = 0, 0.02 at k = N.
+/// The paper's dynamic factor ε(k) = 1 − 0.49·2^(k/N): 0.51 at k = 0, 0.02 at k = N (and
+/// after: a learner that runs on past N keeps the final value instead of going negative).
 pub fn dynamic_epsilon(k: u32, n: u32) -> f32 {
-    let n = n.max(1) as f64;
-    (1.0 - 0.49 * (k as f64 / n).exp2()) as f32
+    let n = n.max(1);
+    (1.0 - 0.49 * (k.min(n) as f64 / n as f64).exp2()) as f32
 }
 
 /// A policy ready to act: the configuration plus the per-episode inverse temperature.
@@ -292,7 +293,7 @@ fn greedy_random_ties(q: &[f32; 4], bits: u64) -> usize {
     }
     // Pick the j-th set bit, j uniform in 0..ties (16 spare bits; bias < 1e-4).
     let ties = mask.count_ones();
-    let mut j = (((bits >> 2) & 0xffff) * ties as u64 >> 16) as u32;
+    let mut j = ((((bits >> 2) & 0xffff) * ties as u64) >> 16) as u32;
     let mut m = mask;
     while j > 0 {
         m &= m - 1;
@@ -328,12 +329,22 @@ kebab_enum!(QScale, "raw" => QScale::Raw, "range" => QScale::Range, "log" => QSc
 mod tests {
     use super::*;
 
+    const TEMP_LOG: PolicyConfig = PolicyConfig::Softmax {
+        schedule: Schedule::Temperature,
+        scale: QScale::Log,
+        horizon: 8.0,
+    };
+
     #[test]
     fn schedule_values() {
         assert!((dynamic_epsilon(0, 100) - 0.51).abs() < 1e-6);
         assert!((dynamic_epsilon(100, 100) - 0.02).abs() < 1e-6);
         assert!(dynamic_epsilon(99, 100) > 0.02 && dynamic_epsilon(99, 100) < 0.04);
-        let mut p = Policy::new(PolicyConfig::IMPROVED, 0.6);
+        assert!(
+            (dynamic_epsilon(500, 100) - 0.02).abs() < 1e-6,
+            "clamped past N"
+        );
+        let mut p = Policy::new(TEMP_LOG, 0.6);
         p.begin_episode(0, 10);
         assert!((p.beta() - 1.0 / 0.51).abs() < 1e-5);
         let mut lit = Policy::new(
@@ -382,7 +393,7 @@ mod tests {
 
     #[test]
     fn log_scale_is_scale_free() {
-        let p = Policy::new(PolicyConfig::IMPROVED, 0.6);
+        let p = Policy::new(TEMP_LOG, 0.6);
         let near = p.probabilities(&[0.6, 0.36, 0.0, -1.0]);
         let far = p.probabilities(&[0.6f32.powi(20), 0.6f32.powi(21), 0.0, -1.0]);
         for a in 0..4 {
@@ -424,7 +435,7 @@ mod tests {
     fn sampling_follows_probabilities() {
         let mut rng = LearnRng::new(7);
         let q = [0.6, 0.36, 0.0, -1.0];
-        for cfg in [PolicyConfig::IMPROVED, PolicyConfig::TRADITIONAL] {
+        for cfg in [PolicyConfig::IMPROVED, TEMP_LOG, PolicyConfig::TRADITIONAL] {
             let p = Policy::new(cfg, 0.6);
             let pr = p.probabilities(&q);
             let mut counts = [0u32; 4];

@@ -24,7 +24,7 @@ pub struct ReplicateCmd {
     #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..=10_000))]
     seeds: u32,
     /// Episodes per run (N).
-    #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(u32).range(1..))]
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..))]
     episodes: u32,
     /// Also run every named reading of the paper's ambiguous parts (the ablation table).
     #[arg(long)]

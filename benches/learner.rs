@@ -1,0 +1,53 @@
+//! Learner throughput: environment steps per second on paper-30, both learners.
+//!
+//! `cargo bench --bench learner`. One iteration runs a fixed number of steps of an already
+//! warmed-up learner (episodes restart as they end), so the figure is the steady-state step
+//! cost: the policy draw, the move and the Q update. N is set very large so the dynamic
+//! schedule stays at its start (ε(k) ≈ 0.51: half the steps explore through the softmax), the
+//! improved learner's most expensive phase.
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use planner::map::builtin;
+use planner::task::resolve_task;
+use planner::{Learner, LearnerConfig};
+use std::hint::black_box;
+
+const STEPS: u64 = 1_000_000;
+
+fn steps(l: &mut Learner, n: u64) -> u64 {
+    let mut done = 0;
+    while done < n {
+        l.begin_episode();
+        loop {
+            let s = l.step();
+            done += 1;
+            if s.done || done >= n {
+                black_box(s);
+                break;
+            }
+        }
+    }
+    done
+}
+
+fn bench(c: &mut Criterion) {
+    let task = resolve_task(&builtin("paper-30").expect("paper-30"), None, None).expect("task");
+    let mut g = c.benchmark_group("learner-step/paper-30");
+    g.throughput(Throughput::Elements(STEPS));
+    g.sample_size(20);
+    for (name, cfg) in [
+        ("traditional", LearnerConfig::traditional(1 << 30, 1)),
+        ("improved", LearnerConfig::improved(1 << 30, 1)),
+    ] {
+        // Warm up: learn for 100 episodes so Q-values and episode lengths are realistic.
+        let mut l = Learner::new(&task, cfg).expect("config");
+        for _ in 0..100 {
+            l.run_episode();
+        }
+        g.bench_function(name, |b| b.iter(|| steps(&mut l, STEPS)));
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
