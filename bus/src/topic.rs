@@ -1,7 +1,6 @@
 //! Per-topic limits, opening services, and the typed sending/receiving halves of a topic.
 
 use core::fmt::Debug;
-use core::marker::PhantomData;
 use std::time::Duration;
 
 use bus_schema::names::{Delivery, Direction, Topic};
@@ -14,7 +13,7 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
-use iceoryx2::port::{BackpressureAction, BackpressureInfo};
+use iceoryx2::port::{BackpressureAction, BackpressureInfo, SendError};
 use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
 use iceoryx2::service::builder::event::{EventOpenError, EventOpenOrCreateError};
@@ -374,15 +373,13 @@ impl<T: Message> Outbox<T> {
     /// The zero-copy way to send the 3–6 KiB hint batches: nothing is built on the stack and
     /// copied. Same results as [`send`](Self::send).
     pub fn send_with(&self, fill: impl FnOnce(&mut T)) -> Result<usize, BusError> {
-        let mut sample = self.publisher.loan_uninit().map_err(|e| self.loan_err(e))?;
-        let slot = sample.payload_mut();
+        let mut uninit = self.publisher.loan_uninit().map_err(|e| self.loan_err(e))?;
         // SAFETY: `T: Message` guarantees all-zero bytes are a valid `T`; the slot is
         // exclusively ours until sent.
-        let sample = unsafe {
-            slot.as_mut_ptr().write_bytes(0, 1);
-            sample.assume_init()
+        let mut sample = unsafe {
+            uninit.payload_mut().as_mut_ptr().write_bytes(0, 1);
+            uninit.assume_init()
         };
-        let mut sample = sample;
         fill(sample.payload_mut());
         self.finish(sample.send())
     }
@@ -440,14 +437,11 @@ impl<T: Message> Outbox<T> {
     }
 }
 
-use iceoryx2::port::SendError;
-
 /// Receiving half of a topic: a subscriber plus a listener on the topic's wake service.
 pub struct Inbox<T: Message> {
     service: String,
     subscriber: Subscriber<ipc::Service, T, ()>,
     listener: Listener<ipc::Service>,
-    _t: PhantomData<T>,
 }
 
 impl<T: Message> Inbox<T> {
@@ -484,7 +478,6 @@ impl<T: Message> Inbox<T> {
             service,
             subscriber,
             listener,
-            _t: PhantomData,
         })
     }
 
