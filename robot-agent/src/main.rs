@@ -1,1 +1,49 @@
-fn main() {}
+//! `robot-agent`: one simulated robot of a qfleet run (started by `qfleet run`).
+
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use clap::Parser;
+use robot_agent::{AgentArgs, AgentError};
+
+/// One robot of a qfleet run: learns its path and shares Q-values with the coordinator.
+#[derive(Debug, Parser)]
+#[command(name = "robot-agent", version, about)]
+struct Cli {
+    #[command(flatten)]
+    args: AgentArgs,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = Arc::clone(&stop);
+    // SIGINT/SIGTERM: stop learning, report, exit cleanly (the launcher kills after a grace period)
+    if let Err(e) = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)) {
+        eprintln!("robot-agent: warning: cannot install the signal handler: {e}");
+    }
+    let id = cli.args.robot_id;
+    match robot_agent::run(&cli.args, stop) {
+        Ok(r) => {
+            eprintln!(
+                "robot-agent {id}: {} after {} episodes, final path {} (optimal {}), {} hints applied",
+                r.status,
+                r.episodes,
+                r.final_path_len
+                    .map_or("loops".to_string(), |v| v.to_string()),
+                r.optimal_path_len,
+                r.counters.merged.entries_applied
+            );
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("robot-agent {id}: error: {e}");
+            match e {
+                AgentError::Input(_) => ExitCode::from(2),
+                AgentError::Refused(_) => ExitCode::from(3),
+                _ => ExitCode::FAILURE,
+            }
+        }
+    }
+}

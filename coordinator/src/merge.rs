@@ -1,0 +1,291 @@
+//! The fleet table: one merged Q-value per (cell, action) of a goal, and the merge rules.
+//!
+//! # Merge rules (selectable with `--merge`)
+//! - `max` (default): the fleet value is the largest value any robot reported last. A new value
+//!   replaces the fleet value when it is larger, or when it comes from the robot that set the
+//!   current one (so a robot can correct its own value downwards). With the planner's rewards
+//!   every positive learned Q-value is at most Q*, so the largest is the best estimate.
+//! - `mean`: visit-weighted mean, `q ← q + v/(v + V)·(q_new − q)` with `v` the reporting robot's
+//!   visit count for the entry and `V` the largest visit count seen for it; values resting on
+//!   more updates weigh more, and the table still follows changes.
+//! - `latest`: the newest report wins.
+//!
+//! An entry that changes is queued for the next `MergedHintBatch` with the origin time and robot
+//! of the update that changed it (the end-to-end latency is measured from there).
+
+use bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, ROBOT_ID_ALL};
+use clap::ValueEnum;
+use serde::{Deserialize, Serialize};
+
+/// How the coordinator merges robots' Q-values into the fleet table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MergeRule {
+    /// Largest last-reported value (the owner may lower its own).
+    Max,
+    /// Visit-weighted mean.
+    Mean,
+    /// Newest value wins.
+    Latest,
+}
+
+impl std::fmt::Display for MergeRule {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            MergeRule::Max => "max",
+            MergeRule::Mean => "mean",
+            MergeRule::Latest => "latest",
+        })
+    }
+}
+
+/// `owner` of an entry no robot has reported yet.
+const NO_OWNER: u32 = u32::MAX;
+
+#[derive(Debug, Clone, Copy)]
+struct Entry {
+    q: f32,
+    visits: u16,
+    owner: u32,
+}
+
+/// The merged Q-table of one goal, plus the merged batch being filled for the robots.
+pub struct FleetTable {
+    rule: MergeRule,
+    entries: Vec<Entry>,
+    out: Box<MergedHintBatch>,
+    /// Per (cell·4 + action): position + 1 in `out`, 0 = not queued.
+    slot: Vec<u16>,
+    /// Entries changed by a merge, over the run.
+    pub changes: u64,
+}
+
+impl FleetTable {
+    /// An empty table for a grid of `cells` cells.
+    pub fn new(cells: usize, rule: MergeRule) -> Self {
+        FleetTable {
+            rule,
+            entries: vec![
+                Entry {
+                    q: 0.0,
+                    visits: 0,
+                    owner: NO_OWNER,
+                };
+                cells * 4
+            ],
+            out: Box::new(MergedHintBatch::ZEROED),
+            slot: vec![0; cells * 4],
+            changes: 0,
+        }
+    }
+
+    /// Number of cells covered.
+    pub fn cells(&self) -> usize {
+        self.entries.len() / 4
+    }
+
+    /// The fleet value of (cell, action), if any robot reported it.
+    pub fn get(&self, cell: usize, action: usize) -> Option<f32> {
+        self.entries
+            .get(cell * 4 + action)
+            .filter(|e| e.owner != NO_OWNER)
+            .map(|e| e.q)
+    }
+
+    /// Merges one validated hint from `robot`; queues the entry for the robots when it changed.
+    /// Returns true when the pending merged batch is full and must be sent before the next call.
+    pub fn merge(&mut self, robot: u32, h: &QHint, origin_ns: u64) -> bool {
+        let idx = h.cell as usize * 4 + h.action as usize;
+        let Some(e) = self.entries.get_mut(idx) else {
+            return false;
+        };
+        let before = e.q;
+        let fresh = e.owner == NO_OWNER;
+        match self.rule {
+            MergeRule::Max => {
+                if fresh || h.q > e.q || e.owner == robot {
+                    e.q = h.q;
+                    e.owner = robot;
+                }
+            }
+            MergeRule::Mean => {
+                if fresh {
+                    e.q = h.q;
+                } else {
+                    let v = f32::from(h.visits.max(1));
+                    let w = v / (v + f32::from(e.visits.max(1)));
+                    e.q += w * (h.q - e.q);
+                }
+                e.visits = e.visits.max(h.visits);
+                e.owner = robot;
+            }
+            MergeRule::Latest => {
+                e.q = h.q;
+                e.owner = robot;
+            }
+        }
+        e.visits = e.visits.max(h.visits);
+        if !(fresh || e.q != before) {
+            return false;
+        }
+        self.changes += 1;
+        let (q, visits, owner) = (e.q, e.visits, e.owner);
+        self.queue(idx, q, visits, origin_ns, owner)
+    }
+
+    fn queue(&mut self, idx: usize, q: f32, visits: u16, origin_ns: u64, origin: u32) -> bool {
+        let out = &mut self.out;
+        let pos = self.slot[idx] as usize;
+        if pos != 0 {
+            let i = pos - 1;
+            out.entries[i].q = q;
+            out.entries[i].visits = visits;
+            // keep the oldest origin: the latency of the slowest update it carries
+            if origin_ns < out.origin_ns[i] {
+                out.origin_ns[i] = origin_ns;
+                out.origin_robot[i] = origin;
+            }
+            return false;
+        }
+        let i = out.count as usize;
+        out.entries[i] = QHint {
+            cell: (idx / 4) as u32,
+            action: (idx % 4) as u8,
+            visits,
+            q,
+            ..QHint::ZEROED
+        };
+        out.origin_ns[i] = origin_ns;
+        out.origin_robot[i] = origin;
+        out.count += 1;
+        self.slot[idx] = out.count as u16;
+        out.count as usize >= HINT_BATCH_CAP
+    }
+
+    /// Entries waiting in the pending merged batch.
+    pub fn pending(&self) -> usize {
+        self.out.count as usize
+    }
+
+    /// Copies the pending batch into `m` (a zeroed, loaned sample) and empties it; the caller
+    /// sets `coordinator_seq`, `goal_id` and `send_time_ns`. Returns the number of entries.
+    pub fn take_into(&mut self, m: &mut MergedHintBatch) -> usize {
+        let n = self.out.count as usize;
+        m.count = n as u32;
+        m.entries[..n].copy_from_slice(&self.out.entries[..n]);
+        m.origin_ns[..n].copy_from_slice(&self.out.origin_ns[..n]);
+        m.origin_robot[..n].copy_from_slice(&self.out.origin_robot[..n]);
+        m.oldest_origin_ns = self.out.origin_ns[..n].iter().copied().min().unwrap_or(0);
+        for e in &self.out.entries[..n] {
+            self.slot[e.cell as usize * 4 + e.action as usize] = 0;
+        }
+        self.out.count = 0;
+        n
+    }
+
+    /// Queues every known entry (positive ones first) as a fleet-table resend: origin robot
+    /// `ROBOT_ID_ALL`, origin time 0 (no latency sample). Calls `send` whenever a batch is full
+    /// and once at the end; returns the number of entries resent.
+    pub fn resend_all(&mut self, mut send: impl FnMut(&mut Self)) -> usize {
+        let mut n = 0;
+        for positive in [true, false] {
+            for idx in 0..self.entries.len() {
+                let e = self.entries[idx];
+                if e.owner == NO_OWNER || (e.q > 0.0) != positive {
+                    continue;
+                }
+                n += 1;
+                if self.queue(idx, e.q, e.visits, 0, ROBOT_ID_ALL) {
+                    send(self);
+                }
+            }
+        }
+        if self.pending() > 0 {
+            send(self);
+        }
+        n
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn h(cell: u32, action: u8, q: f32, visits: u16) -> QHint {
+        QHint {
+            cell,
+            action,
+            q,
+            visits,
+            ..QHint::ZEROED
+        }
+    }
+
+    #[test]
+    fn max_keeps_the_largest_and_lets_the_owner_correct_it() {
+        let mut t = FleetTable::new(4, MergeRule::Max);
+        t.merge(0, &h(1, 2, 0.5, 1), 10);
+        t.merge(1, &h(1, 2, 0.3, 1), 20);
+        assert_eq!(t.get(1, 2), Some(0.5));
+        t.merge(0, &h(1, 2, 0.4, 2), 30);
+        assert_eq!(t.get(1, 2), Some(0.4), "owner lowers its own value");
+        t.merge(1, &h(1, 2, 0.45, 2), 40);
+        assert_eq!(t.get(1, 2), Some(0.45));
+        assert_eq!(t.get(2, 0), None);
+        // one pending entry, origin = the oldest update merged into it
+        assert_eq!(t.pending(), 1);
+        let mut m = MergedHintBatch::ZEROED;
+        assert_eq!(t.take_into(&mut m), 1);
+        assert_eq!(
+            (m.entries[0].q, m.origin_ns[0], m.origin_robot[0]),
+            (0.45, 10, 0)
+        );
+        assert_eq!(m.oldest_origin_ns, 10);
+        assert_eq!(t.pending(), 0);
+        // no change, nothing queued; out-of-range entries are ignored
+        t.merge(0, &h(1, 2, 0.1, 1), 50);
+        t.merge(0, &h(99, 0, 1.0, 1), 50);
+        assert_eq!(t.pending(), 0);
+    }
+
+    #[test]
+    fn mean_weights_by_visits_and_latest_overwrites() {
+        let mut t = FleetTable::new(2, MergeRule::Mean);
+        t.merge(0, &h(0, 0, 1.0, 3), 1);
+        t.merge(1, &h(0, 0, 0.0, 1), 2);
+        assert_eq!(t.get(0, 0), Some(0.75));
+        let mut t = FleetTable::new(2, MergeRule::Latest);
+        t.merge(0, &h(0, 0, 1.0, 3), 1);
+        t.merge(1, &h(0, 0, -1.0, 1), 2);
+        assert_eq!(t.get(0, 0), Some(-1.0));
+    }
+
+    #[test]
+    fn full_batches_are_signalled_and_resend_covers_the_table() {
+        let mut t = FleetTable::new(100, MergeRule::Max);
+        let mut full = 0;
+        for i in 0..300u32 {
+            if t.merge(0, &h(i / 4, (i % 4) as u8, 0.1 + i as f32, 1), 5) {
+                full += 1;
+                let mut m = MergedHintBatch::ZEROED;
+                assert_eq!(t.take_into(&mut m), HINT_BATCH_CAP);
+            }
+        }
+        assert_eq!(full, 1);
+        let mut m = MergedHintBatch::ZEROED;
+        t.take_into(&mut m);
+        let mut sent = Vec::new();
+        let n = t.resend_all(|t| {
+            let mut m = MergedHintBatch::ZEROED;
+            t.take_into(&mut m);
+            sent.push(m);
+        });
+        assert_eq!(n, 300);
+        assert_eq!(sent.len(), 2);
+        assert!(sent.iter().all(|m| {
+            m.origin_robot[..m.count as usize]
+                .iter()
+                .all(|r| *r == ROBOT_ID_ALL)
+        }));
+    }
+}

@@ -1,0 +1,717 @@
+//! The robot-agent's run: register, wait for `Start`, learn while exchanging with the fleet,
+//! synchronise with the fleet table at the end, report.
+//!
+//! # Topics, from the robot's side
+//! - `robot/state` (latest-wins): every `--state-every` steps and at each episode end; only the
+//!   newest progress matters, so a slow coordinator loses nothing of value.
+//! - `robot/hints` (latest-wins): batches of changed Q-values; a newer batch carries newer
+//!   values, and a lost batch only delays sharing (the values are sent again when they change,
+//!   and the coordinator resends its whole table before the end).
+//! - `robot/discovery` (lossless): every pseudo target this robot finds, numbered `seq` 0, 1, …;
+//!   kept until the coordinator's cumulative `DiscoveryAck` covers it and re-sent if no ack came
+//!   within 100 ms. They are few (at most the cells within the pseudo-target radius).
+//! - `robot/report` (lossless): the final report.
+//! - It reads `coord/control` (lossless), `coord/merged` (latest-wins), `coord/ack` (latest-wins).
+//!
+//! # Never blocking learning
+//! The inbox is looked at every `--poll-every` steps without waiting; states and hints use
+//! latest-wins topics that never block; only a discovery send could wait, for a full
+//! 256-deep buffer at the coordinator, which a few dozen discoveries cannot fill.
+//!
+//! # The end of a run
+//! After its episodes the robot flushes its hints, waits for all discoveries to be
+//! acknowledged, publishes `Finished`, and keeps applying merged hints until the coordinator's
+//! `Stop` (sent once every robot has finished, right after the coordinator resent its merged
+//! table). Its final greedy path is computed after that, so every robot ends with what the
+//! whole fleet learned. The path it had on its own is reported too (`own_final_path_len`).
+
+use std::collections::VecDeque;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use bus::bus_schema::{
+    Command, Control, FinalReport, MergedHintBatch, PseudoTargetDiscovery, Register, RobotStatus,
+    SCHEMA_VERSION,
+};
+use bus::{BusConfig, BusError, RobotBus, check_nodes, monotonic_ns};
+use clap::Args;
+use hdrhistogram::Histogram;
+use planner::task::Task;
+use planner::{EpisodeRecord, Learner, Summary};
+use qfleet_args::{LearnerArgs, MapArgs};
+use serde::Serialize;
+
+use crate::hist::{self, LatencyStats, new_hist, record};
+use crate::share::{
+    ApplyCounters, ApplyCtx, HintBatcher, ShareArgs, ShareMode, apply_merged, map_fingerprint,
+};
+
+/// Every option of the robot-agent process.
+#[derive(Debug, Clone, Args)]
+pub struct AgentArgs {
+    /// Run id shared by all processes of the run (names its services and shared memory).
+    #[arg(long)]
+    pub run_id: String,
+    /// This robot's id, `0..robots`.
+    #[arg(long)]
+    pub robot_id: u32,
+    /// Fleet size.
+    #[arg(long, default_value_t = 4)]
+    pub robots: u32,
+    /// Map and task.
+    #[command(flatten)]
+    pub map: MapArgs,
+    /// Learner parameters (`--seed` is this robot's own seed).
+    #[command(flatten)]
+    pub learner: LearnerArgs,
+    /// Sharing options.
+    #[command(flatten)]
+    pub share: ShareArgs,
+    /// Directory for `robot-<id>.json` and the robot's latency histograms.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Seconds to wait for the coordinator at start-up and for its `Stop` at the end.
+    #[arg(long, default_value_t = 30.0)]
+    pub timeout: f64,
+    /// Test hook: register with this schema version instead of the real one.
+    #[arg(long, hide = true)]
+    pub schema_version_override: Option<u32>,
+}
+
+/// Why a robot-agent failed.
+#[derive(Debug, thiserror::Error)]
+pub enum AgentError {
+    /// A bad option, map or learner parameter.
+    #[error("{0}")]
+    Input(String),
+    /// The coordinator refused this robot (schema version, map, id).
+    #[error("{0}")]
+    Refused(BusError),
+    /// Any other bus failure.
+    #[error(transparent)]
+    Bus(#[from] BusError),
+    /// The coordinator's process is gone.
+    #[error("the coordinator of run {0:?} is gone (its process died or exited)")]
+    CoordinatorGone(String),
+    /// Writing the result files failed.
+    #[error("writing results: {0}")]
+    Output(String),
+}
+
+/// Bus traffic counters of one robot, reported in its result.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct Counters {
+    /// States published.
+    pub states_sent: u64,
+    /// Hint batches published.
+    pub hint_batches_sent: u64,
+    /// Hint entries published.
+    pub hint_entries_sent: u64,
+    /// Distinct discoveries published (re-sends not counted).
+    pub discoveries_sent: u64,
+    /// Discoveries the coordinator acknowledged.
+    pub discoveries_acked: u64,
+    /// Discovery re-sends after a missing ack.
+    pub discoveries_resent: u64,
+    /// Discovery sends that failed (retried later).
+    pub discovery_send_errors: u64,
+    /// State or hint sends that failed (latest-wins: dropped).
+    pub send_errors: u64,
+    /// Received messages dropped as invalid (bad robot id, unknown command).
+    pub rejected: u64,
+    /// Merged-hint handling.
+    pub merged: ApplyCounters,
+}
+
+/// What a robot writes to `robot-<id>.json` (its learning metrics as in `qfleet learn --json`
+/// plus its bus counters and latencies).
+#[derive(Debug, Clone, Serialize)]
+pub struct RobotResult {
+    /// Robot id.
+    pub robot_id: u32,
+    /// `finished` or `stopped` (stopped early by the coordinator or a signal).
+    pub status: String,
+    /// Map name.
+    pub map: String,
+    /// Learner kind.
+    pub learner: String,
+    /// Seed of this robot.
+    pub seed: u64,
+    /// Goal id learned.
+    pub goal_id: u32,
+    /// Start cell.
+    pub start: String,
+    /// Goal cell.
+    pub goal: String,
+    /// Episodes run.
+    pub episodes: u32,
+    /// BFS optimum.
+    pub optimal_path_len: u32,
+    /// Greedy path length at the end, after the fleet sync (null: it loops).
+    pub final_path_len: Option<u32>,
+    /// Greedy path length when its own episodes ended, before the fleet sync.
+    pub own_final_path_len: Option<u32>,
+    /// Mean steps per episode.
+    pub avg_steps: f64,
+    /// Most steps in one episode.
+    pub max_steps: u32,
+    /// First episode after which the greedy path was optimal.
+    pub first_optimal_episode: Option<u32>,
+    /// Steps taken in all.
+    pub env_steps: u64,
+    /// Episodes ending at the goal / a pseudo target / the step cap.
+    pub outcomes: [u32; 3],
+    /// Seconds from `Start` to the end of the last episode.
+    pub learn_s: f64,
+    /// Sharing mode.
+    pub share: ShareMode,
+    /// Traffic counters.
+    pub counters: Counters,
+    /// Origin of a Q update at another robot → applied here.
+    pub loop_latency_ns: LatencyStats,
+    /// Coordinator sent a merged batch → received here.
+    pub merged_latency_ns: LatencyStats,
+}
+
+struct Discoveries {
+    next_seq: u64,
+    /// (seq, discovery, last send time) not yet acknowledged.
+    unacked: VecDeque<(u64, PseudoTargetDiscovery, Instant)>,
+    acked_up_to: Option<u64>,
+    /// A discovery was sent since the last wakeup of the coordinator.
+    dirty: bool,
+}
+
+const DISCOVERY_RESEND: Duration = Duration::from_millis(100);
+
+struct Agent<'a> {
+    args: &'a AgentArgs,
+    bus: RobotBus,
+    task: Task,
+    goal_id: u32,
+    learner: Learner,
+    batcher: HintBatcher,
+    ctx: ApplyCtx,
+    c: Counters,
+    disc: Discoveries,
+    loop_hist: Histogram<u64>,
+    merged_hist: Histogram<u64>,
+    last_merged_seq: Option<u64>,
+    state_seq: u64,
+    hint_seq: u64,
+    stop: Arc<AtomicBool>,
+    stopped: bool,
+    steps: u64,
+    episode_step: u32,
+    last_episode_steps: u32,
+}
+
+fn secs(s: f64) -> Result<Duration, AgentError> {
+    Duration::try_from_secs_f64(s)
+        .ok()
+        .filter(|d| !d.is_zero())
+        .ok_or_else(|| {
+            AgentError::Input(format!(
+                "--timeout must be a positive number of seconds, got {s}"
+            ))
+        })
+}
+
+/// Runs one robot-agent to the end; `stop` is set by a signal handler (graceful stop).
+pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, AgentError> {
+    let timeout = secs(args.timeout)?;
+    args.share.validate().map_err(AgentError::Input)?;
+    let mut task = args
+        .map
+        .task()
+        .map_err(|e| AgentError::Input(e.to_string()))?;
+    let cfg = args
+        .learner
+        .config()
+        .map_err(|e| AgentError::Input(e.to_string()))?;
+    let width = u16::try_from(task.grid.width())
+        .map_err(|_| AgentError::Input("maps wider than 65535 cells are not supported".into()))?;
+    let height = u16::try_from(task.grid.height())
+        .map_err(|_| AgentError::Input("maps taller than 65535 cells are not supported".into()))?;
+    let bus_cfg = BusConfig::new(args.run_id.clone(), args.robots)?;
+    if args.robot_id >= args.robots {
+        return Err(AgentError::Input(format!(
+            "--robot-id {} is outside 0..{} (--robots)",
+            args.robot_id, args.robots
+        )));
+    }
+    let bus = RobotBus::open(&bus_cfg, args.robot_id, timeout)?;
+    let reg = Register {
+        schema_version: args.schema_version_override.unwrap_or(SCHEMA_VERSION),
+        robot_id: args.robot_id,
+        pid: std::process::id(),
+        episodes: cfg.episodes,
+        width,
+        height,
+        start_x: task.start.x,
+        start_y: task.start.y,
+        map_hash: map_fingerprint(&task.grid),
+        seed: cfg.seed,
+        ..Register::ZEROED
+    };
+    match bus.register(&reg, timeout) {
+        Ok(_) => {}
+        Err(e @ BusError::Refused { .. }) => return Err(AgentError::Refused(e)),
+        Err(e) => return Err(e.into()),
+    }
+    let mut goal: Option<Control> = None;
+    let mut bad_goal: Option<String> = None;
+    let start = bus.wait_start(timeout, |c| {
+        if Command::try_from(c.command) == Ok(Command::AssignGoal) {
+            goal = Some(*c);
+        }
+    })?;
+    let mut goal_id = 0;
+    if let Some(g) = goal {
+        goal_id = g.goal_id;
+        let cell = planner::Cell::new(g.goal_x, g.goal_y);
+        if cell != task.goal {
+            let mut m = args.map.clone();
+            m.goal = Some(cell);
+            match m.task() {
+                Ok(t) => task = t,
+                Err(e) => bad_goal = Some(format!("assigned goal {cell} is unusable: {e}")),
+            }
+        }
+    }
+    if let Some(why) = bad_goal {
+        return Err(AgentError::Input(why));
+    }
+    let learner = Learner::new(&task, cfg).map_err(|e| AgentError::Input(e.to_string()))?;
+    let cells = task.grid.len();
+    let mut agent = Agent {
+        args,
+        batcher: HintBatcher::new(
+            cells,
+            args.share.hint_batch as usize,
+            args.share.hint_min_change,
+        ),
+        ctx: ApplyCtx {
+            robot_id: args.robot_id,
+            robots: args.robots,
+            goal_id,
+            rule: args.share.apply,
+        },
+        bus,
+        task,
+        goal_id,
+        learner,
+        c: Counters::default(),
+        disc: Discoveries {
+            next_seq: 0,
+            unacked: VecDeque::new(),
+            acked_up_to: None,
+            dirty: false,
+        },
+        loop_hist: new_hist(),
+        merged_hist: new_hist(),
+        last_merged_seq: None,
+        state_seq: 0,
+        hint_seq: 0,
+        stop,
+        stopped: Command::try_from(start.command) == Ok(Command::Stop),
+        steps: 0,
+        episode_step: 0,
+        last_episode_steps: 0,
+    };
+    let result = agent.run(timeout);
+    let closed = agent.close();
+    let result = result?;
+    closed?;
+    Ok(result)
+}
+
+impl Agent<'_> {
+    fn run(&mut self, timeout: Duration) -> Result<RobotResult, AgentError> {
+        let t0 = Instant::now();
+        let mut records: Vec<EpisodeRecord> =
+            Vec::with_capacity(self.learner.config().episodes as usize);
+        let share = self.args.share.share == ShareMode::Hints;
+        let state_every = u64::from(self.args.share.state_every);
+        let poll_every = u64::from(self.args.share.poll_every);
+        let flush_steps = u64::from(self.args.share.hint_flush_steps);
+        while !self.learner.finished() && !self.stopped {
+            self.learner.begin_episode();
+            self.episode_step = 0;
+            loop {
+                let info = self.learner.step();
+                self.steps += 1;
+                self.episode_step += 1;
+                if share
+                    && self
+                        .batcher
+                        .note(info.state, info.action, info.q, self.steps, monotonic_ns)
+                {
+                    self.send_hints();
+                }
+                if self.steps.is_multiple_of(state_every) {
+                    self.send_state(RobotStatus::Running, info.next);
+                }
+                if self.steps.is_multiple_of(poll_every) {
+                    if share && self.batcher.due(self.steps, flush_steps) {
+                        self.send_hints();
+                    }
+                    self.poll_inbox(share)?;
+                    if self.stopped {
+                        break;
+                    }
+                }
+                if info.done {
+                    let rec = self.learner.end_episode(info.transition);
+                    self.last_episode_steps = rec.steps;
+                    records.push(rec);
+                    break;
+                }
+            }
+            for (cell, value) in self.learner.take_new_pseudo_targets() {
+                self.queue_discovery(cell, value, records.len() as u32);
+            }
+            self.resend_discoveries();
+            let at = self.learner.env().start();
+            self.send_state(RobotStatus::EpisodeDone, at);
+        }
+        let learn_s = t0.elapsed().as_secs_f64();
+        let own_final = self.learner.greedy_path_len();
+        if share && !self.batcher.is_empty() {
+            self.send_hints();
+        }
+        // make sure every discovery reached the coordinator before saying "finished"
+        let deadline = Instant::now() + timeout;
+        while !self.disc.unacked.is_empty() && !self.stop.load(Ordering::Relaxed) {
+            self.poll_inbox(share)?;
+            self.resend_discoveries();
+            if Instant::now() >= deadline {
+                eprintln!(
+                    "robot-agent {}: {} discoveries still unacknowledged after {timeout:?}",
+                    self.args.robot_id,
+                    self.disc.unacked.len()
+                );
+                break;
+            }
+            self.wait_for_coordinator(Duration::from_millis(5))?;
+        }
+        let at = self.learner.env().start();
+        self.send_state(RobotStatus::Finished, at);
+        let _ = self.bus.state.notify();
+        // fleet sync: apply merged hints until the coordinator says Stop
+        let deadline = Instant::now() + timeout;
+        let mut last_liveness = Instant::now();
+        while !self.stopped {
+            self.poll_inbox(share)?;
+            if self.stopped {
+                break;
+            }
+            if self.stop.load(Ordering::Relaxed) {
+                break;
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return Err(BusError::Timeout {
+                    what: "the coordinator's Stop after the last episode".into(),
+                    timeout,
+                }
+                .into());
+            }
+            if now.duration_since(last_liveness) >= Duration::from_millis(250) {
+                last_liveness = now;
+                self.check_coordinator()?;
+            }
+            self.wait_for_coordinator(Duration::from_millis(2))?;
+        }
+        // everything the coordinator sent before Stop is buffered by now
+        self.poll_inbox(share)?;
+        let finished = self.learner.finished();
+        let final_len = self.learner.greedy_path_len();
+        let summary = Summary::from_records(&records, self.learner.optimal_len(), final_len);
+        let result = self.result(&summary, own_final, learn_s, finished);
+        self.write_files(&result)?;
+        self.send_report(&summary, finished, t0)?;
+        Ok(result)
+    }
+
+    fn wait_for_coordinator(&self, d: Duration) -> Result<(), AgentError> {
+        self.bus.control.wait(d)?;
+        Ok(())
+    }
+
+    fn check_coordinator(&self) -> Result<(), AgentError> {
+        let report = check_nodes(self.bus.config(), false)?;
+        if report.alive().any(|n| n.name == "qfleet-coordinator") {
+            Ok(())
+        } else {
+            Err(AgentError::CoordinatorGone(
+                self.bus.config().run_id.clone(),
+            ))
+        }
+    }
+
+    fn send_state(&mut self, status: RobotStatus, cell_idx: u32) {
+        let cell = self.task.grid.cell(cell_idx as usize);
+        let (robot_id, goal_id, episode, step, last, seq) = (
+            self.args.robot_id,
+            self.goal_id,
+            self.learner.episodes_done(),
+            self.episode_step,
+            self.last_episode_steps,
+            self.state_seq,
+        );
+        let sent = self.bus.state.send_with(|m| {
+            m.robot_id = robot_id;
+            m.goal_id = goal_id;
+            m.episode = episode;
+            m.step = step;
+            m.last_episode_steps = last;
+            m.cell_x = cell.x;
+            m.cell_y = cell.y;
+            m.status = status.as_u8();
+            m.seq = seq;
+            m.send_time_ns = monotonic_ns();
+        });
+        self.state_seq += 1;
+        match sent {
+            Ok(_) => self.c.states_sent += 1,
+            Err(_) => self.c.send_errors += 1,
+        }
+    }
+
+    fn send_hints(&mut self) {
+        let (robot_id, goal_id, seq) = (self.args.robot_id, self.goal_id, self.hint_seq);
+        let batcher = &mut self.batcher;
+        let mut n = 0;
+        let sent = self.bus.hints.send_with(|b| {
+            b.robot_id = robot_id;
+            b.goal_id = goal_id;
+            b.seq = seq;
+            n = batcher.fill(b);
+            b.send_time_ns = monotonic_ns();
+        });
+        if n == 0 {
+            // the loan failed before `fill`: drop the pending values (latest-wins)
+            batcher.clear_shared();
+        }
+        self.hint_seq += 1;
+        match sent {
+            Ok(_) => {
+                self.c.hint_batches_sent += 1;
+                self.c.hint_entries_sent += n as u64;
+                // waking the coordinator costs a syscall; once per batch is cheap enough
+                let _ = self.bus.hints.notify();
+            }
+            Err(_) => self.c.send_errors += 1,
+        }
+    }
+
+    fn queue_discovery(&mut self, cell: u32, value: f32, episode: u32) {
+        let c = self.task.grid.cell(cell as usize);
+        let seq = self.disc.next_seq;
+        self.disc.next_seq += 1;
+        let d = PseudoTargetDiscovery {
+            robot_id: self.args.robot_id,
+            goal_id: self.goal_id,
+            cell_x: c.x,
+            cell_y: c.y,
+            value,
+            seq,
+            time_ns: monotonic_ns(),
+            episode,
+            ..PseudoTargetDiscovery::ZEROED
+        };
+        self.c.discoveries_sent += 1;
+        // first send happens now; a failure leaves it for the re-send timer
+        let sent = self.bus.discovery.send_with(|m| {
+            *m = d;
+            m.send_time_ns = monotonic_ns();
+        });
+        if sent.is_err() {
+            self.c.discovery_send_errors += 1;
+        }
+        self.disc.unacked.push_back((seq, d, Instant::now()));
+        self.disc.dirty = true;
+    }
+
+    fn resend_discoveries(&mut self) {
+        let mut any = false;
+        let now = Instant::now();
+        for (_, d, last) in self.disc.unacked.iter_mut() {
+            if now.duration_since(*last) < DISCOVERY_RESEND {
+                continue;
+            }
+            *last = now;
+            let d = *d;
+            match self.bus.discovery.send_with(|m| {
+                *m = d;
+                m.send_time_ns = monotonic_ns();
+            }) {
+                Ok(_) => self.c.discoveries_resent += 1,
+                Err(_) => self.c.discovery_send_errors += 1,
+            }
+            any = true;
+        }
+        if any || std::mem::take(&mut self.disc.dirty) {
+            let _ = self.bus.discovery.notify();
+        }
+    }
+
+    fn poll_inbox(&mut self, share: bool) -> Result<(), AgentError> {
+        // merged hints: applied in place, straight from shared memory
+        loop {
+            let Some(sample) = self.bus.merged.receive_sample()? else {
+                break;
+            };
+            let m: &MergedHintBatch = sample.payload();
+            let now = monotonic_ns();
+            if m.send_time_ns != 0 && m.send_time_ns <= now {
+                record(&mut self.merged_hist, now - m.send_time_ns);
+            }
+            if share {
+                apply_merged(
+                    m,
+                    &self.ctx,
+                    self.learner.q_mut(),
+                    self.batcher.visits(),
+                    now,
+                    &mut self.loop_hist,
+                    &mut self.last_merged_seq,
+                    &mut self.c.merged,
+                );
+            }
+        }
+        while let Some(ack) = self.bus.ack.receive()? {
+            if ack.robot_id != self.args.robot_id {
+                continue;
+            }
+            if ack.up_to_seq >= self.disc.next_seq {
+                self.c.rejected += 1; // acks something never sent
+                continue;
+            }
+            if self.disc.acked_up_to.is_none_or(|a| ack.up_to_seq > a) {
+                self.disc.acked_up_to = Some(ack.up_to_seq);
+                self.c.discoveries_acked = ack.up_to_seq + 1;
+                while self
+                    .disc
+                    .unacked
+                    .front()
+                    .is_some_and(|(s, _, _)| *s <= ack.up_to_seq)
+                {
+                    self.disc.unacked.pop_front();
+                }
+            }
+        }
+        while let Some(ctl) = self.bus.recv_control()? {
+            match Command::try_from(ctl.command) {
+                Ok(Command::Stop) => self.stopped = true,
+                Ok(Command::AssignGoal) if ctl.goal_id != self.goal_id => {
+                    eprintln!(
+                        "robot-agent {}: ignoring a goal change to goal {} during the run (not supported yet)",
+                        self.args.robot_id, ctl.goal_id
+                    );
+                }
+                Ok(_) => {}
+                Err(_) => self.c.rejected += 1,
+            }
+        }
+        if self.stop.load(Ordering::Relaxed) {
+            self.stopped = true;
+        }
+        Ok(())
+    }
+
+    fn result(
+        &self,
+        s: &Summary,
+        own_final: Option<u32>,
+        learn_s: f64,
+        finished: bool,
+    ) -> RobotResult {
+        RobotResult {
+            robot_id: self.args.robot_id,
+            status: if finished { "finished" } else { "stopped" }.into(),
+            map: self.task.map_name.clone(),
+            learner: self.args.learner.learner.to_string(),
+            seed: self.learner.config().seed,
+            goal_id: self.goal_id,
+            start: self.task.start.to_string(),
+            goal: self.task.goal.to_string(),
+            episodes: s.episodes,
+            optimal_path_len: s.optimal_path_len,
+            final_path_len: s.final_path_len,
+            own_final_path_len: own_final,
+            avg_steps: s.avg_steps,
+            max_steps: s.max_steps,
+            first_optimal_episode: s.first_optimal_episode,
+            env_steps: s.env_steps,
+            outcomes: [s.goal_episodes, s.pseudo_episodes, s.capped_episodes],
+            learn_s,
+            share: self.args.share.share,
+            counters: self.c,
+            loop_latency_ns: LatencyStats::of(&self.loop_hist),
+            merged_latency_ns: LatencyStats::of(&self.merged_hist),
+        }
+    }
+
+    fn write_files(&self, r: &RobotResult) -> Result<(), AgentError> {
+        let Some(dir) = &self.args.out else {
+            return Ok(());
+        };
+        let out = |e: String| AgentError::Output(e);
+        std::fs::create_dir_all(dir).map_err(|e| out(format!("{}: {e}", dir.display())))?;
+        let id = self.args.robot_id;
+        let json = serde_json::to_string_pretty(r).map_err(|e| out(e.to_string()))?;
+        let path = dir.join(format!("robot-{id}.json"));
+        std::fs::write(&path, json).map_err(|e| out(format!("{}: {e}", path.display())))?;
+        hist::write_binary(&self.loop_hist, &dir.join(format!("robot-{id}-loop.hdr")))
+            .map_err(|e| out(e.to_string()))?;
+        hist::write_binary(
+            &self.merged_hist,
+            &dir.join(format!("robot-{id}-merged.hdr")),
+        )
+        .map_err(|e| out(e.to_string()))?;
+        Ok(())
+    }
+
+    fn send_report(&mut self, s: &Summary, finished: bool, t0: Instant) -> Result<(), AgentError> {
+        let to_i32 = |v: Option<u32>| v.map_or(-1, |x| x.min(i32::MAX as u32) as i32);
+        let rep = FinalReport {
+            robot_id: self.args.robot_id,
+            schema_version: SCHEMA_VERSION,
+            goal_id: self.goal_id,
+            episodes: s.episodes,
+            final_path_len: to_i32(s.final_path_len),
+            optimal_path_len: to_i32(Some(s.optimal_path_len)),
+            first_optimal_episode: to_i32(s.first_optimal_episode),
+            max_steps: s.max_steps,
+            status: if finished {
+                RobotStatus::Finished
+            } else {
+                RobotStatus::Failed
+            }
+            .as_u8(),
+            avg_steps: s.avg_steps,
+            env_steps: s.env_steps,
+            elapsed_ns: t0.elapsed().as_nanos().min(u128::from(u64::MAX)) as u64,
+            discoveries_sent: self.c.discoveries_sent,
+            discoveries_acked: self.c.discoveries_acked,
+            hints_sent: self.c.hint_batches_sent,
+            hints_received: self.c.merged.batches,
+            hints_applied: self.c.merged.entries_applied,
+            merged_latency: hist::summary(&self.loop_hist),
+            send_time_ns: monotonic_ns(),
+            ..FinalReport::ZEROED
+        };
+        self.bus.report.send_and_notify(&rep)?;
+        Ok(())
+    }
+
+    /// Consumes the bus, cleaning up the run's files if this was its last process.
+    fn close(self) -> Result<(), AgentError> {
+        self.bus.close()?;
+        Ok(())
+    }
+}

@@ -1,0 +1,534 @@
+//! What a robot shares and how it takes in what the fleet shares: the options, the Q-hint
+//! batcher of the hot loop, and the rule that applies merged hints to the local Q-table.
+//!
+//! # Applying merged hints (the documented rule)
+//!
+//! Every entry of a `MergedHintBatch` is checked first (goal id of this robot, `count` within
+//! the batch capacity, cell inside the grid, action `0..4`, a finite value, an origin robot
+//! inside the fleet); a bad entry is counted as rejected and skipped, never used as an index.
+//! Entries whose origin is this robot are skipped (they are its own values coming back). The
+//! others are applied by [`ApplyRule`]:
+//!
+//! - `max` (default): `q_local = max(q_local, q_hint)` for positive `q_hint` only. With the
+//!   planner's rewards (goal > 0, plain moves 0, collisions < 0) and pseudo-target values below
+//!   the goal's discounted value, every positive Q-value a robot learns is at most the optimal
+//!   Q*, so the maximum over robots is a better estimate of Q* than any single robot's and
+//!   never overshoots; negative values (collisions) stay local.
+//! - `blend`: `q_local += w·(q_hint − q_local)` with the visit weight
+//!   `w = v_hint / (v_hint + v_local)`, `v` the number of updates each value rests on: a value
+//!   learned from many visits pulls harder. Also applies negative values.
+//!
+//! Every applied foreign entry also gives one sample of the end-to-end loop latency: the
+//! monotonic time of the oldest robot update merged into it (`origin_ns`) to the moment this
+//! robot applied it. Fleet-table resends (`origin_robot == ROBOT_ID_ALL`) carry no origin time
+//! and give no sample.
+
+use bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, QHintBatch, ROBOT_ID_ALL};
+use clap::{Args, ValueEnum};
+use hdrhistogram::Histogram;
+use planner::QTable;
+use serde::Serialize;
+
+use crate::hist::record;
+
+/// Whether the robot takes part in Q-value sharing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ShareMode {
+    /// Learn alone: no hints sent or applied (states, discoveries and the report still flow).
+    None,
+    /// Send Q-hint batches and apply the fleet's merged hints.
+    Hints,
+}
+
+/// How a robot applies a merged hint to its own Q-table (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ApplyRule {
+    /// Raise to the hint for positive hints: `q = max(q, q_hint)` if `q_hint > 0`.
+    Max,
+    /// Visit-weighted blend towards the hint.
+    Blend,
+}
+
+impl std::fmt::Display for ShareMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            ShareMode::None => "none",
+            ShareMode::Hints => "hints",
+        })
+    }
+}
+
+impl std::fmt::Display for ApplyRule {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            ApplyRule::Max => "max",
+            ApplyRule::Blend => "blend",
+        })
+    }
+}
+
+/// Sharing options of a robot; `qfleet run` takes the same ones and forwards them.
+#[derive(Debug, Clone, Args)]
+pub struct ShareArgs {
+    /// Share Q-values with the fleet (`hints`) or learn alone (`none`).
+    #[arg(long, value_enum, default_value_t = ShareMode::Hints)]
+    pub share: ShareMode,
+    /// How merged hints are applied to the local Q-table.
+    #[arg(long, value_enum, default_value_t = ApplyRule::Max)]
+    pub apply: ApplyRule,
+    /// Publish the robot's state every k-th step (and at every episode end).
+    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..))]
+    pub state_every: u32,
+    /// Look at the inbox (merged hints, acks, controls) every this many steps.
+    #[arg(long, default_value_t = 64, value_parser = clap::value_parser!(u32).range(1..))]
+    pub poll_every: u32,
+    /// Entries per Q-hint batch before it is sent (1..=256).
+    #[arg(long, default_value_t = HINT_BATCH_CAP as u32,
+          value_parser = clap::value_parser!(u32).range(1..=HINT_BATCH_CAP as i64))]
+    pub hint_batch: u32,
+    /// Send a non-full hint batch once its oldest update is this many steps old.
+    #[arg(long, default_value_t = 1024, value_parser = clap::value_parser!(u32).range(1..))]
+    pub hint_flush_steps: u32,
+    /// Share a Q-value only when it moved by more than this fraction since it was last shared.
+    #[arg(long, default_value_t = 1e-3)]
+    pub hint_min_change: f32,
+}
+
+impl Default for ShareArgs {
+    fn default() -> Self {
+        ShareArgs {
+            share: ShareMode::Hints,
+            apply: ApplyRule::Max,
+            state_every: 256,
+            poll_every: 64,
+            hint_batch: HINT_BATCH_CAP as u32,
+            hint_flush_steps: 1024,
+            hint_min_change: 1e-3,
+        }
+    }
+}
+
+impl ShareArgs {
+    /// Checks the values clap cannot (floats).
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.hint_min_change >= 0.0 && self.hint_min_change.is_finite()) {
+            return Err(format!(
+                "--hint-min-change must be a finite number >= 0, got {}",
+                self.hint_min_change
+            ));
+        }
+        Ok(())
+    }
+
+    /// The options as command-line words, to forward to a robot-agent.
+    pub fn to_cli(&self) -> Vec<String> {
+        vec![
+            "--share".into(),
+            self.share.to_string(),
+            "--apply".into(),
+            self.apply.to_string(),
+            "--state-every".into(),
+            self.state_every.to_string(),
+            "--poll-every".into(),
+            self.poll_every.to_string(),
+            "--hint-batch".into(),
+            self.hint_batch.to_string(),
+            "--hint-flush-steps".into(),
+            self.hint_flush_steps.to_string(),
+            "--hint-min-change".into(),
+            self.hint_min_change.to_string(),
+        ]
+    }
+}
+
+/// Collects the Q-values a robot changes into one pending `QHintBatch`, one entry per
+/// (cell, action) — a value changed twice before sending is sent once, with its newest value.
+///
+/// Allocation-free after construction; `note` is the only call in the hot loop.
+pub struct HintBatcher {
+    entries: Box<[QHint; HINT_BATCH_CAP]>,
+    len: usize,
+    cap: usize,
+    /// Per (cell·4 + action): position + 1 in `entries`, 0 = not pending.
+    slot: Vec<u16>,
+    /// Per (cell·4 + action): the value last shared (to skip insignificant changes).
+    last_shared: Vec<f32>,
+    /// Per (cell·4 + action): updates made to it by this robot (saturating).
+    visits: Vec<u16>,
+    min_change: f32,
+    /// Monotonic time of the first update in the pending batch.
+    oldest_ns: u64,
+    /// Step counter value when the pending batch got its first entry.
+    first_step: u64,
+}
+
+impl HintBatcher {
+    /// A batcher for a grid of `cells` cells sending up to `cap` entries per batch.
+    pub fn new(cells: usize, cap: usize, min_change: f32) -> Self {
+        HintBatcher {
+            entries: Box::new([QHint::ZEROED; HINT_BATCH_CAP]),
+            len: 0,
+            cap: cap.clamp(1, HINT_BATCH_CAP),
+            slot: vec![0; cells * 4],
+            last_shared: vec![0.0; cells * 4],
+            visits: vec![0; cells * 4],
+            min_change,
+            oldest_ns: 0,
+            first_step: 0,
+        }
+    }
+
+    /// Records one Q update; returns true when the batch is full and must be sent.
+    ///
+    /// `state`, `action` come from the learner, so they are in range; `now_ns` is called only
+    /// when the batch gets its first entry (a clock read costs as much as a learner step).
+    #[inline]
+    pub fn note(
+        &mut self,
+        state: u32,
+        action: u8,
+        q: f32,
+        step: u64,
+        now_ns: impl FnOnce() -> u64,
+    ) -> bool {
+        let idx = state as usize * 4 + (action as usize & 3);
+        let Some(v) = self.visits.get_mut(idx) else {
+            return false;
+        };
+        *v = v.saturating_add(1);
+        let visits = *v;
+        let last = self.last_shared[idx];
+        if (q - last).abs() <= self.min_change * q.abs().max(last.abs()) {
+            return false;
+        }
+        let pos = self.slot[idx];
+        if pos != 0 {
+            let e = &mut self.entries[pos as usize - 1];
+            e.q = q;
+            e.visits = visits;
+            return false;
+        }
+        if self.len == 0 {
+            self.oldest_ns = now_ns();
+            self.first_step = step;
+        }
+        self.entries[self.len] = QHint {
+            cell: state,
+            action: action & 3,
+            visits,
+            q,
+            ..QHint::ZEROED
+        };
+        self.len += 1;
+        self.slot[idx] = self.len as u16;
+        self.len >= self.cap
+    }
+
+    /// Entries waiting to be sent.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether nothing is waiting.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Whether the pending batch is older than `flush_steps` steps.
+    #[inline]
+    pub fn due(&self, step: u64, flush_steps: u64) -> bool {
+        self.len > 0 && step.wrapping_sub(self.first_step) >= flush_steps
+    }
+
+    /// Updates this robot made to (cell, action), for the visit-weighted blend.
+    pub fn visits(&self) -> &[u16] {
+        &self.visits
+    }
+
+    /// Writes the pending entries into `out` (a zeroed, loaned batch) and empties the batcher;
+    /// returns the number of entries.
+    pub fn fill(&mut self, out: &mut QHintBatch) -> usize {
+        let n = self.len;
+        out.count = n as u32;
+        out.oldest_update_ns = self.oldest_ns;
+        out.entries[..n].copy_from_slice(&self.entries[..n]);
+        self.clear_shared();
+        n
+    }
+
+    /// Empties the batcher as if the batch had been sent.
+    pub fn clear_shared(&mut self) {
+        for e in &self.entries[..self.len] {
+            let idx = e.cell as usize * 4 + e.action as usize;
+            self.slot[idx] = 0;
+            self.last_shared[idx] = e.q;
+        }
+        self.len = 0;
+    }
+}
+
+/// Counters of merged-hint handling, reported in the robot's result.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct ApplyCounters {
+    /// Merged batches received.
+    pub batches: u64,
+    /// Batches skipped whole: another goal, or a `count` above the capacity.
+    pub batches_rejected: u64,
+    /// Entries looked at (valid, foreign).
+    pub entries_seen: u64,
+    /// Entries that changed the local Q-table.
+    pub entries_applied: u64,
+    /// Entries of this robot's own coming back, skipped.
+    pub entries_own: u64,
+    /// Entries with an out-of-range cell, action, origin robot or a non-finite value.
+    pub entries_rejected: u64,
+    /// Batches the robot never saw (gaps in `coordinator_seq`: overwritten, latest-wins).
+    pub batches_missed: u64,
+}
+
+/// Who this robot is, for checking merged batches.
+#[derive(Debug, Clone, Copy)]
+pub struct ApplyCtx {
+    /// This robot.
+    pub robot_id: u32,
+    /// Fleet size (origin robots must be below it).
+    pub robots: u32,
+    /// Goal this robot learns.
+    pub goal_id: u32,
+    /// The rule.
+    pub rule: ApplyRule,
+}
+
+/// Applies one merged batch to `q` by `ctx.rule` (module docs), recording the end-to-end
+/// latency of every foreign entry at `now_ns`; `last_seq` tracks gaps in `coordinator_seq`.
+// The hot-path state is passed apart so the caller can borrow the learner's table mutably
+// next to the batcher's visits; bundling it would force a copy or a RefCell.
+#[allow(clippy::too_many_arguments)]
+pub fn apply_merged(
+    batch: &MergedHintBatch,
+    ctx: &ApplyCtx,
+    q: &mut QTable,
+    visits: &[u16],
+    now_ns: u64,
+    loop_hist: &mut Histogram<u64>,
+    last_seq: &mut Option<u64>,
+    c: &mut ApplyCounters,
+) {
+    c.batches += 1;
+    if let Some(prev) = *last_seq
+        && batch.coordinator_seq > prev + 1
+    {
+        c.batches_missed += batch.coordinator_seq - prev - 1;
+    }
+    *last_seq = Some(batch.coordinator_seq);
+    let n = batch.count as usize;
+    if batch.goal_id != ctx.goal_id || n > HINT_BATCH_CAP {
+        c.batches_rejected += 1;
+        return;
+    }
+    let cells = q.cells();
+    for i in 0..n {
+        let h = &batch.entries[i];
+        let origin = batch.origin_robot[i];
+        if origin == ctx.robot_id {
+            c.entries_own += 1;
+            continue;
+        }
+        let cell = h.cell as usize;
+        let action = h.action as usize;
+        if cell >= cells
+            || action >= 4
+            || !h.q.is_finite()
+            || (origin != ROBOT_ID_ALL && origin >= ctx.robots)
+        {
+            c.entries_rejected += 1;
+            continue;
+        }
+        c.entries_seen += 1;
+        let local = q.row(cell)[action];
+        let new = match ctx.rule {
+            ApplyRule::Max => {
+                if h.q > 0.0 && h.q > local {
+                    h.q
+                } else {
+                    local
+                }
+            }
+            ApplyRule::Blend => {
+                let vh = f32::from(h.visits.max(1));
+                let vl = f32::from(visits.get(cell * 4 + action).copied().unwrap_or(0));
+                local + vh / (vh + vl) * (h.q - local)
+            }
+        };
+        if new != local && q.set_checked(cell, action, new) {
+            c.entries_applied += 1;
+        }
+        let origin_ns = batch.origin_ns[i];
+        if origin != ROBOT_ID_ALL && origin_ns != 0 && origin_ns <= now_ns {
+            record(loop_hist, now_ns - origin_ns);
+        }
+    }
+}
+
+/// 64-bit FNV-1a fingerprint of a grid's size and walls, sent in `Register` so that a robot
+/// started on another map is refused.
+pub fn map_fingerprint(grid: &planner::Grid) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |b: u8| {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    };
+    for b in (grid.width() as u64)
+        .to_le_bytes()
+        .into_iter()
+        .chain((grid.height() as u64).to_le_bytes())
+    {
+        eat(b);
+    }
+    for &free in grid.free_flags() {
+        eat(free as u8);
+    }
+    h
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::hist::new_hist;
+
+    fn grid() -> planner::Grid {
+        planner::Grid::new(4, 2, vec![true; 8]).unwrap()
+    }
+
+    #[test]
+    fn batcher_dedups_and_skips_small_changes() {
+        let mut b = HintBatcher::new(8, 3, 1e-3);
+        let mut clock_reads = 0;
+        let mut now = || {
+            clock_reads += 1;
+            77
+        };
+        assert!(!b.note(1, 2, 0.5, 10, &mut now));
+        assert!(!b.note(1, 2, 0.6, 11, &mut now)); // same entry, newer value
+        assert!(!b.note(2, 0, 0.0, 12, &mut now)); // 0 -> 0: nothing to share
+        assert_eq!(b.len(), 1);
+        assert!(!b.note(3, 1, -0.1, 13, &mut now));
+        assert!(b.note(4, 3, 0.2, 14, &mut now), "third entry fills cap 3");
+        assert_eq!(clock_reads, 1);
+        assert!(b.due(1034, 1024) && !b.due(1033, 1024));
+        let mut out = QHintBatch::ZEROED;
+        assert_eq!(b.fill(&mut out), 3);
+        assert_eq!((out.count, out.oldest_update_ns), (3, 77));
+        assert_eq!(
+            (out.entries[0].cell, out.entries[0].q, out.entries[0].visits),
+            (1, 0.6, 2)
+        );
+        assert!(b.is_empty());
+        // unchanged since shared: not sent again; a real change is
+        assert!(!b.note(1, 2, 0.6, 20, || 1));
+        assert!(b.is_empty());
+        assert!(!b.note(1, 2, 0.7, 21, || 1));
+        assert_eq!(b.len(), 1);
+        assert_eq!(b.visits()[6], 4);
+        // out-of-grid states are ignored rather than indexing out of bounds
+        assert!(!b.note(99, 0, 1.0, 22, || 1));
+    }
+
+    fn merged(entries: &[(u32, u8, f32, u32)]) -> MergedHintBatch {
+        let mut m = MergedHintBatch {
+            coordinator_seq: 5,
+            goal_id: 0,
+            count: entries.len() as u32,
+            ..MergedHintBatch::ZEROED
+        };
+        for (i, &(cell, action, q, origin)) in entries.iter().enumerate() {
+            m.entries[i] = QHint {
+                cell,
+                action,
+                q,
+                visits: 3,
+                ..QHint::ZEROED
+            };
+            m.origin_ns[i] = 100;
+            m.origin_robot[i] = origin;
+        }
+        m
+    }
+
+    #[test]
+    fn max_rule_raises_positive_values_only_and_validates() {
+        let mut q = QTable::new(&grid());
+        q.set_checked(1, 0, 0.5);
+        let ctx = ApplyCtx {
+            robot_id: 0,
+            robots: 2,
+            goal_id: 0,
+            rule: ApplyRule::Max,
+        };
+        let m = merged(&[
+            (1, 0, 0.4, 1),            // lower: kept local
+            (2, 1, 0.3, 1),            // raised
+            (3, 2, -0.5, 1),           // negative: ignored
+            (4, 0, 0.9, 0),            // own
+            (99, 0, 0.9, 1),           // cell out of range
+            (5, 7, 0.9, 1),            // action out of range
+            (5, 0, f32::NAN, 1),       // not finite
+            (5, 0, 0.9, 9),            // origin outside the fleet
+            (6, 3, 0.2, ROBOT_ID_ALL), // fleet resend: applied, no latency sample
+        ]);
+        let (mut h, mut seq, mut c) = (new_hist(), Some(3), ApplyCounters::default());
+        apply_merged(&m, &ctx, &mut q, &[0; 32], 1100, &mut h, &mut seq, &mut c);
+        assert_eq!(q.row(1)[0], 0.5);
+        assert_eq!(q.row(2)[1], 0.3);
+        assert_eq!(q.row(3)[2], 0.0);
+        assert_eq!(q.row(4)[0], 0.0);
+        assert_eq!(q.row(6)[3], 0.2);
+        assert_eq!(c.entries_applied, 2);
+        assert_eq!(c.entries_rejected, 4);
+        assert_eq!(c.entries_own, 1);
+        assert_eq!(c.batches_missed, 1);
+        assert_eq!(h.len(), 3);
+        assert_eq!(h.max(), h.highest_equivalent(1000));
+        // another goal, or a lying count: the batch is skipped whole
+        let mut bad = m;
+        bad.count = 10_000;
+        apply_merged(&bad, &ctx, &mut q, &[0; 32], 1100, &mut h, &mut seq, &mut c);
+        bad.count = 1;
+        bad.goal_id = 4;
+        apply_merged(&bad, &ctx, &mut q, &[0; 32], 1100, &mut h, &mut seq, &mut c);
+        assert_eq!(c.batches_rejected, 2);
+    }
+
+    #[test]
+    fn blend_rule_weights_by_visits() {
+        let mut q = QTable::new(&grid());
+        q.set_checked(2, 1, 1.0);
+        let mut visits = [0u16; 32];
+        visits[9] = 3; // cell 2, action 1: as many visits as the hint
+        let ctx = ApplyCtx {
+            robot_id: 0,
+            robots: 2,
+            goal_id: 0,
+            rule: ApplyRule::Blend,
+        };
+        let (mut h, mut seq, mut c) = (new_hist(), None, ApplyCounters::default());
+        let m = merged(&[(2, 1, 0.0, 1), (3, 0, -1.0, 1)]);
+        apply_merged(&m, &ctx, &mut q, &visits, 1100, &mut h, &mut seq, &mut c);
+        assert_eq!(q.row(2)[1], 0.5);
+        assert_eq!(q.row(3)[0], -1.0);
+    }
+
+    #[test]
+    fn fingerprint_tells_maps_apart() {
+        let a = planner::Grid::new(4, 2, vec![true; 8]).unwrap();
+        let mut free = vec![true; 8];
+        free[3] = false;
+        let b = planner::Grid::new(4, 2, free).unwrap();
+        let c = planner::Grid::new(2, 4, vec![true; 8]).unwrap();
+        assert_ne!(map_fingerprint(&a), map_fingerprint(&b));
+        assert_ne!(map_fingerprint(&a), map_fingerprint(&c));
+        assert_eq!(map_fingerprint(&a), map_fingerprint(&a.clone()));
+    }
+}
