@@ -3,6 +3,7 @@
 mod learn;
 mod plots;
 mod replicate;
+mod run;
 
 use clap::{Parser, Subcommand};
 
@@ -20,6 +21,8 @@ enum Command {
     Learn(learn::LearnCmd),
     /// Regenerate the paper's Table 1 and figures on the built-in maps.
     Replicate(replicate::ReplicateCmd),
+    /// Run a fleet: a coordinator and N robot-agents sharing Q-values over shared memory.
+    Run(run::RunCmd),
 }
 
 fn main() {
@@ -27,6 +30,7 @@ fn main() {
     let result = match cli.command {
         Command::Learn(c) => c.run(),
         Command::Replicate(c) => c.run(),
+        Command::Run(c) => c.run(),
     };
     if let Err(e) = result {
         eprintln!("qfleet: error: {e:#}");
