@@ -333,8 +333,10 @@ impl Learner {
     /// Adds a pseudo target found by someone else; false if pseudo targets are off, already
     /// removed, or the cell cannot be one.
     pub fn add_pseudo_target(&mut self, cell: u32, value: f32) -> bool {
+        // The robot's own cell never becomes terminal under its feet.
         if self.cfg.pseudo.is_none()
             || self.pseudo_removed
+            || cell == self.state
             || self.env.kind(cell.min(self.env.grid().len() as u32 - 1)) != CellKind::Plain
         {
             return false;

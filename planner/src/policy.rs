@@ -182,26 +182,21 @@ impl Policy {
                 }
             }
             PolicyConfig::Softmax { schedule, .. } => {
-                if schedule == Schedule::Explore {
-                    let bits = rng.bits();
-                    if LearnRng::unit_from(bits) >= self.p_random {
-                        return greedy_random_ties(q, bits);
-                    }
+                // One draw serves every decision: bits 40..64 the explore coin, bits 2..18 the
+                // greedy tie-break, bits 16..40 the softmax sample (the last two never both).
+                let bits = rng.bits();
+                if schedule == Schedule::Explore && LearnRng::unit_from(bits) >= self.p_random {
+                    return greedy_random_ties(q, bits);
                 }
                 let w = self.weights(q);
-                let u = rng.unit() * (w[0] + w[1] + w[2] + w[3]);
+                let u = ((bits >> 16) & 0xff_ffff) as f32
+                    * (1.0 / (1u32 << 24) as f32)
+                    * (w[0] + w[1] + w[2] + w[3]);
                 let c0 = w[0];
                 let c1 = c0 + w[1];
                 let c2 = c1 + w[2];
-                if u < c0 {
-                    0
-                } else if u < c1 {
-                    1
-                } else if u < c2 {
-                    2
-                } else {
-                    3
-                }
+                // Branch-free inverse-CDF lookup: the outcome is random, a branch would mispredict.
+                (u >= c0) as usize + (u >= c1) as usize + (u >= c2) as usize
             }
         }
     }
