@@ -1,1 +1,151 @@
-//! Support for the end-to-end tests.
+//! Support for the end-to-end tests: builds the real binaries once, runs processes with a
+//! time bound, makes unique run ids, and finds files a run left in shared memory.
+//!
+//! `cargo test` builds only the package under test, so the first test that needs a binary runs
+//! `cargo build --bins -p robot-agent -p coordinator -p qfleet` into the same target directory
+//! and profile (guarded by a `OnceLock`; cargo's own lock serialises parallel test binaries).
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Output, Stdio};
+use std::sync::OnceLock;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
+
+/// Upper bound for any process a test starts; generous, so slow CI never fails on time alone,
+/// but nothing can hang forever.
+pub const PROCESS_TIMEOUT: Duration = Duration::from_secs(120);
+
+/// The directory holding the built binaries (`target/<profile>/`), building them on first use.
+pub fn bin_dir() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        // the test executable lives in target/<profile>/deps/
+        let exe = std::env::current_exe().expect("test executable path");
+        let profile_dir = exe
+            .parent()
+            .and_then(Path::parent)
+            .expect("target/<profile>/deps/<test>")
+            .to_path_buf();
+        let target_dir = profile_dir.parent().expect("target dir").to_path_buf();
+        let profile = profile_dir
+            .file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or("debug")
+            .to_string();
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let mut cmd = Command::new(cargo);
+        cmd.current_dir(env!("CARGO_MANIFEST_DIR"))
+            .args([
+                "build",
+                "--bins",
+                "-p",
+                "robot-agent",
+                "-p",
+                "coordinator",
+                "-p",
+                "qfleet",
+            ])
+            .env("CARGO_TARGET_DIR", &target_dir);
+        if profile != "debug" {
+            cmd.args(["--profile", &profile]);
+        }
+        let status = cmd.status().expect("running cargo build");
+        assert!(status.success(), "building the qfleet binaries failed");
+        profile_dir
+    })
+}
+
+/// Path of one of the built binaries (`qfleet`, `robot-agent`, `qfleet-coordinator`).
+pub fn bin(name: &str) -> PathBuf {
+    bin_dir().join(name)
+}
+
+/// A run id no other test or test process uses.
+pub fn run_id(tag: &str) -> String {
+    static N: AtomicU32 = AtomicU32::new(0);
+    let t = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.subsec_nanos())
+        .unwrap_or(0);
+    format!(
+        "t-{tag}-{}-{}-{t:x}",
+        std::process::id(),
+        N.fetch_add(1, Ordering::Relaxed)
+    )
+}
+
+/// A fresh scratch directory for one test.
+pub fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("qfleet-test-{name}"));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).expect("scratch dir");
+    d
+}
+
+/// Waits for a child with a time bound; kills it (and says so) when the bound passes.
+pub fn wait_bounded(mut child: Child, timeout: Duration) -> Output {
+    let deadline = Instant::now() + timeout;
+    loop {
+        match child.try_wait().expect("try_wait") {
+            Some(_) => return child.wait_with_output().expect("collect output"),
+            None if Instant::now() >= deadline => {
+                let _ = child.kill();
+                let out = child.wait_with_output().expect("collect output");
+                panic!(
+                    "process did not finish within {timeout:?}; stderr:\n{}",
+                    String::from_utf8_lossy(&out.stderr)
+                );
+            }
+            None => std::thread::sleep(Duration::from_millis(20)),
+        }
+    }
+}
+
+/// Starts `cmd` with piped stdout/stderr.
+pub fn spawn(cmd: &mut Command) -> Child {
+    cmd.stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn")
+}
+
+/// Runs `cmd` to completion within [`PROCESS_TIMEOUT`].
+pub fn run_bounded(cmd: &mut Command) -> Output {
+    wait_bounded(spawn(cmd), PROCESS_TIMEOUT)
+}
+
+/// Every file or directory in `/dev/shm` and `/tmp/iceoryx2` whose name contains `run_id`.
+pub fn leftovers(run_id: &str) -> Vec<PathBuf> {
+    fn walk(dir: &Path, needle: &str, found: &mut Vec<PathBuf>) {
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            return;
+        };
+        for e in entries.flatten() {
+            if e.file_name().to_string_lossy().contains(needle) {
+                found.push(e.path());
+            } else if e.file_type().is_ok_and(|t| t.is_dir()) {
+                walk(&e.path(), needle, found);
+            }
+        }
+    }
+    let mut found = Vec::new();
+    walk(Path::new("/dev/shm"), run_id, &mut found);
+    walk(Path::new("/tmp/iceoryx2"), run_id, &mut found);
+    found
+}
+
+/// Exit status and both streams of a process, for assertion messages.
+pub fn describe(out: &Output) -> String {
+    format!(
+        "status {:?}\n--- stdout\n{}\n--- stderr\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+/// Whether the process exited with success.
+pub fn ok(status: ExitStatus) -> bool {
+    status.success()
+}
