@@ -120,7 +120,7 @@ impl LearnerConfig {
     }
 
     /// The improved learner with this crate's defaults (temperature schedule, log-scale softmax,
-    /// pseudo targets R = 3, δ = 0.5, removed at N/2).
+    /// pseudo targets R = 3, δ = 0.5, removed after N/10).
     pub fn improved(episodes: u32, seed: u64) -> Self {
         LearnerConfig {
             policy: PolicyConfig::IMPROVED,

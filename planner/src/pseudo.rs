@@ -30,7 +30,7 @@ impl Default for PseudoConfig {
         PseudoConfig {
             radius: 3,
             delta: 0.5,
-            remove_at: 0.5,
+            remove_at: 0.1,
         }
     }
 }

@@ -140,7 +140,18 @@ fn improved_learner_finds_the_optimum_on_paper_10() {
 #[test]
 fn pseudo_targets_appear_after_the_goal_and_are_removed() {
     let task = paper("paper-10");
-    let mut l = Learner::new(&task, LearnerConfig::improved(40, 5)).unwrap();
+    let pseudo = planner::PseudoConfig {
+        remove_at: 0.5,
+        ..Default::default()
+    };
+    let mut l = Learner::new(
+        &task,
+        LearnerConfig {
+            pseudo: Some(pseudo),
+            ..LearnerConfig::improved(40, 5)
+        },
+    )
+    .unwrap();
     let mut first_goal = None;
     let mut pseudo_endings = 0;
     while !l.finished() {

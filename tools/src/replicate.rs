@@ -11,7 +11,9 @@ use crossbeam::channel;
 use indicatif::{ProgressBar, ProgressStyle};
 use planner::map;
 use planner::task::{self, Task};
-use planner::{EpsilonReading, Learner, LearnerConfig, PolicyConfig, QScale, Schedule, Summary};
+use planner::{
+    EpsilonReading, Learner, LearnerConfig, PolicyConfig, PseudoConfig, QScale, Schedule, Summary,
+};
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -63,12 +65,6 @@ struct Variant {
 }
 
 fn variants(ablation: bool) -> Vec<Variant> {
-    let sm = |schedule, scale| PolicyConfig::Softmax {
-        schedule,
-        scale,
-        horizon: 8.0,
-    };
-    let _ = sm;
     let mut v = vec![
         Variant {
             name: "traditional",
@@ -163,6 +159,17 @@ fn variants(ablation: bool) -> Vec<Variant> {
                         scale: QScale::Range,
                         horizon: 8.0,
                     },
+                    ..LearnerConfig::improved(n, 0)
+                },
+            },
+            Variant {
+                name: "imp-pseudo-half",
+                what: "our default with pseudo targets kept until N/2",
+                cfg: |n| LearnerConfig {
+                    pseudo: Some(PseudoConfig {
+                        remove_at: 0.5,
+                        ..PseudoConfig::default()
+                    }),
                     ..LearnerConfig::improved(n, 0)
                 },
             },
