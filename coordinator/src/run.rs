@@ -589,27 +589,25 @@ impl Coord {
         self.robots.get_mut(id as usize).filter(|r| r.accepted)
     }
 
-    /// Takes everything waiting in every inbox; returns the number of messages.
+    /// Takes what is waiting in every inbox, at most `DRAIN_MAX` per inbox so the periodic work
+    /// (liveness, stop requests) still runs under a flood; returns the number of messages.
     fn drain(&mut self, bus: &CoordinatorBus) -> Result<usize, CoordError> {
+        const DRAIN_MAX: usize = 256;
         let mut n = 0;
         // late or repeated registrations (a robot that missed its Ack): answer them again
         while let Some(reg) = bus.register.receive()? {
             n += 1;
             let _ = reg;
         }
-        while let Some(s) = bus.state.receive()? {
-            n += 1;
-            self.on_state(&s);
-        }
+        n += bus.state.drain(DRAIN_MAX, |s| self.on_state(s))?;
         let mut acks = false;
-        while let Some(d) = bus.discovery.receive()? {
-            n += 1;
-            acks |= self.on_discovery(&d);
-        }
+        n += bus
+            .discovery
+            .drain(DRAIN_MAX, |d| acks |= self.on_discovery(d))?;
         if acks {
             self.send_acks(bus)?;
         }
-        loop {
+        for _ in 0..DRAIN_MAX {
             let Some(sample) = bus.hints.receive_sample()? else {
                 break;
             };

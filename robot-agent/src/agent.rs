@@ -331,8 +331,8 @@ pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, Agent
 impl Agent<'_> {
     fn run(&mut self, timeout: Duration) -> Result<RobotResult, AgentError> {
         let t0 = Instant::now();
-        let mut records: Vec<EpisodeRecord> =
-            Vec::with_capacity(self.learner.config().episodes as usize);
+        // grown on demand: preallocating N records costs gigabytes for very long runs
+        let mut records: Vec<EpisodeRecord> = Vec::new();
         let share = self.args.share.share == ShareMode::Hints;
         let state_every = u64::from(self.args.share.state_every);
         let poll_every = u64::from(self.args.share.poll_every);
@@ -374,8 +374,6 @@ impl Agent<'_> {
                 self.queue_discovery(cell, value, records.len() as u32);
             }
             self.resend_discoveries();
-            let at = self.learner.env().start();
-            self.send_state(RobotStatus::EpisodeDone, at);
         }
         let learn_s = t0.elapsed().as_secs_f64();
         let own_final = self.learner.greedy_path_len();

@@ -78,7 +78,7 @@ pub struct ShareArgs {
     /// How merged hints are applied to the local Q-table.
     #[arg(long, value_enum, default_value_t = ApplyRule::Max)]
     pub apply: ApplyRule,
-    /// Publish the robot's state every k-th step (and at every episode end).
+    /// Publish the robot's state every k-th step (counted over the whole run, not per episode).
     #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..))]
     pub state_every: u32,
     /// Look at the inbox (merged hints, acks, controls) every this many steps.

@@ -356,7 +356,7 @@ impl RunCmd {
                 seen_interrupts = n;
                 if n == 1 && stopping.is_none() {
                     why_stopped = Some("interrupted by Ctrl-C".into());
-                    bar.println("qfleet: stopping the run (Ctrl-C again to kill it now)");
+                    eprintln!("qfleet: stopping the run (Ctrl-C again to kill it now)");
                     stopping = Some(Instant::now());
                     procs[0].signal(libc::SIGTERM);
                 } else if !killed {
