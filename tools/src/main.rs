@@ -1,5 +1,6 @@
 //! `qfleet`: learn grid paths with the paper's Q-learners, replicate its results, and run fleets.
 
+mod bench;
 mod learn;
 mod plots;
 mod replicate;
@@ -23,6 +24,8 @@ enum Command {
     Replicate(replicate::ReplicateCmd),
     /// Run a fleet: a coordinator and N robot-agents sharing Q-values over shared memory.
     Run(run::RunCmd),
+    /// Benchmark the update loop against raw iceoryx2, Unix sockets and crossbeam; fleet scale.
+    Bench(bench::BenchCmd),
 }
 
 fn main() {
@@ -31,6 +34,7 @@ fn main() {
         Command::Learn(c) => c.run(),
         Command::Replicate(c) => c.run(),
         Command::Run(c) => c.run(),
+        Command::Bench(c) => c.run(),
     };
     if let Err(e) = result {
         eprintln!("qfleet: error: {e:#}");

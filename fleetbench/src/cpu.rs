@@ -1,0 +1,66 @@
+//! CPU time of this process (getrusage) and of another process (`/proc/<pid>/stat`).
+
+/// User + system CPU time this process used so far, ns.
+pub fn self_cpu_ns() -> u64 {
+    // SAFETY: an all-zero rusage is a valid value to be overwritten; RUSAGE_SELF always exists.
+    let mut ru: libc::rusage = unsafe { core::mem::zeroed() };
+    // SAFETY: `ru` is a valid, writable rusage.
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut ru) } != 0 {
+        return 0;
+    }
+    let tv = |t: libc::timeval| t.tv_sec as u64 * 1_000_000_000 + t.tv_usec as u64 * 1_000;
+    tv(ru.ru_utime) + tv(ru.ru_stime)
+}
+
+/// User + system CPU time process `pid` used so far, ns (clock-tick resolution, 10 ms on
+/// Linux); `None` when the process is gone or `/proc` is unreadable.
+pub fn pid_cpu_ns(pid: u32) -> Option<u64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // the command name (field 2) is in parentheses and may contain spaces: split after it
+    let rest = &stat[stat.rfind(')')? + 1..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    // after ')' come field 3 (state) … ; utime = field 14, stime = field 15
+    let utime: u64 = fields.get(11)?.parse().ok()?;
+    let stime: u64 = fields.get(12)?.parse().ok()?;
+    // SAFETY: sysconf has no preconditions.
+    let tck = unsafe { libc::sysconf(libc::_SC_CLK_TCK) };
+    let tck = if tck > 0 { tck as u64 } else { 100 };
+    Some((utime + stime) * (1_000_000_000 / tck))
+}
+
+/// Whether process `pid` exists and is not a zombie.
+pub fn pid_alive(pid: u32) -> bool {
+    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+        Ok(stat) => stat
+            .rfind(')')
+            .and_then(|i| stat[i + 1..].split_whitespace().next())
+            .is_some_and(|state| state != "Z" && state != "X"),
+        Err(_) => false,
+    }
+}
+
+/// CPU use as percent of one core: `cpu_ns` spent over `wall_ns`.
+pub fn pct(cpu_ns: u64, wall_ns: u64) -> f64 {
+    if wall_ns == 0 {
+        0.0
+    } else {
+        cpu_ns as f64 * 100.0 / wall_ns as f64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reads_own_cpu_both_ways() {
+        let t = std::time::Instant::now();
+        while t.elapsed().as_millis() < 30 {
+            std::hint::spin_loop();
+        }
+        assert!(self_cpu_ns() > 0);
+        assert!(pid_cpu_ns(std::process::id()).is_some());
+        assert!(pid_alive(std::process::id()));
+        assert!(!pid_alive(u32::MAX - 1));
+    }
+}

@@ -1,0 +1,526 @@
+//! The results: latency rows, scale points, goal verdicts, and their text, JSON, CSV, `.hgrm`,
+//! Markdown and SVG forms.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use hdrhistogram::Histogram;
+use serde::Serialize;
+
+use crate::spec::ChildReport;
+use crate::{BenchError, Machine};
+
+/// CPU use of one process of a row over its measurement window.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct ProcessCpu {
+    /// What the process does (`coordinator`, `robots`, `pong`, …).
+    pub name: String,
+    /// Percent of one core.
+    pub cpu_pct: f64,
+}
+
+/// One latency row: a round-trip (or update-loop) distribution and what it cost.
+#[derive(Debug, Clone)]
+pub struct Row {
+    /// `iox2-raw-spin`, `loop-hybrid`, … (see [`crate::ROW_LABELS`]).
+    pub label: String,
+    /// Payload bytes of the request message (`QHintBatch`).
+    pub bytes: usize,
+    /// The recorded latencies, ns.
+    pub hist: Histogram<u64>,
+    /// Samples recorded.
+    pub count: u64,
+    /// Smallest sample, ns.
+    pub min_ns: u64,
+    /// Mean, ns.
+    pub mean_ns: f64,
+    /// Median, ns.
+    pub p50_ns: u64,
+    /// 90th percentile, ns.
+    pub p90_ns: u64,
+    /// 95th percentile, ns.
+    pub p95_ns: u64,
+    /// 99th percentile, ns.
+    pub p99_ns: u64,
+    /// 99.9th percentile, ns.
+    pub p999_ns: u64,
+    /// Largest sample, ns.
+    pub max_ns: u64,
+    /// Messages per second over the window: two per round trip (request and answer).
+    pub msgs_per_s: f64,
+    /// Sum of the processes' CPU use, percent of one core.
+    pub cpu_pct: f64,
+    /// CPU use per process.
+    pub processes: Vec<ProcessCpu>,
+    /// CPU use of the serving side while the measuring side was idle, percent of one core.
+    pub idle_peer_cpu_pct: Option<f64>,
+}
+
+impl Row {
+    /// Builds a row from the measuring child's report and histogram.
+    pub fn new(
+        label: &str,
+        bytes: usize,
+        hist: Histogram<u64>,
+        m: &ChildReport,
+        processes: Vec<ProcessCpu>,
+    ) -> Self {
+        let q = |p: f64| {
+            if hist.is_empty() {
+                0
+            } else {
+                hist.value_at_quantile(p)
+            }
+        };
+        let wall_s = m.wall_ns as f64 / 1e9;
+        Row {
+            label: label.to_string(),
+            bytes,
+            count: hist.len(),
+            min_ns: if hist.is_empty() { 0 } else { hist.min() },
+            mean_ns: hist.mean(),
+            p50_ns: q(0.5),
+            p90_ns: q(0.9),
+            p95_ns: q(0.95),
+            p99_ns: q(0.99),
+            p999_ns: q(0.999),
+            max_ns: if hist.is_empty() { 0 } else { hist.max() },
+            msgs_per_s: if wall_s > 0.0 {
+                2.0 * hist.len() as f64 / wall_s
+            } else {
+                0.0
+            },
+            cpu_pct: processes.iter().map(|p| p.cpu_pct).sum(),
+            processes,
+            idle_peer_cpu_pct: m.peer_idle_cpu_pct,
+            hist,
+        }
+    }
+}
+
+/// One point of the scale section.
+#[derive(Debug, Clone, Default, Serialize, PartialEq)]
+pub struct ScaleRow {
+    /// Robot processes.
+    pub robots: u32,
+    /// Entries per hint batch.
+    pub batch: u32,
+    /// Q-updates the coordinator merged per second (its own figure, over its active time).
+    pub merged_per_s: f64,
+    /// Q-updates the robots sent per second (latest-wins: the excess is overwritten).
+    pub offered_per_s: f64,
+    /// End-to-end loop samples (update at one robot → applied at another).
+    pub loop_count: u64,
+    /// Loop latency median, ns.
+    pub loop_p50_ns: u64,
+    /// Loop latency 99th percentile, ns.
+    pub loop_p99_ns: u64,
+    /// CPU of all processes, percent of one core.
+    pub cpu_pct: f64,
+    /// CPU of the robots together.
+    pub cpu_robots_pct: f64,
+    /// CPU of the coordinator.
+    pub cpu_coordinator_pct: f64,
+    /// Whether every process ran to completion.
+    pub completed: bool,
+    /// Why not.
+    pub error: Option<String>,
+}
+
+/// One goal of the issue and whether this run met it.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Goal {
+    /// The goal.
+    pub goal: String,
+    /// What was measured.
+    pub measured: String,
+    /// Met (`Some(true)`), missed, or not measured in this run (`None`).
+    pub met: Option<bool>,
+}
+
+/// Everything one `qfleet bench` run measured.
+#[derive(Debug, Clone)]
+pub struct Report {
+    /// The machine.
+    pub machine: Machine,
+    /// Latency rows.
+    pub rows: Vec<Row>,
+    /// Scale points.
+    pub scale: Vec<ScaleRow>,
+}
+
+/// A row as `--json` prints it: exactly the fields the issue names.
+#[derive(Debug, Serialize)]
+struct JsonRow<'a> {
+    label: &'a str,
+    p50_ns: u64,
+    p90_ns: u64,
+    p99_ns: u64,
+    p999_ns: u64,
+    max_ns: u64,
+    count: u64,
+    msgs_per_s: f64,
+    cpu_pct: f64,
+}
+
+fn us(ns: u64) -> String {
+    format!("{:.2}", ns as f64 / 1e3)
+}
+
+fn io(path: &Path) -> impl Fn(std::io::Error) -> BenchError + '_ {
+    move |source| BenchError::Io {
+        what: format!("write {}", path.display()),
+        source,
+    }
+}
+
+impl Report {
+    /// The row with this label.
+    pub fn row(&self, label: &str) -> Option<&Row> {
+        self.rows.iter().find(|r| r.label == label)
+    }
+
+    /// `{"machine": {...}, "rows": [...]}` (plus `"scale": [...]` when the scale section ran).
+    pub fn to_json(&self) -> serde_json::Value {
+        let rows: Vec<JsonRow<'_>> = self
+            .rows
+            .iter()
+            .map(|r| JsonRow {
+                label: &r.label,
+                p50_ns: r.p50_ns,
+                p90_ns: r.p90_ns,
+                p99_ns: r.p99_ns,
+                p999_ns: r.p999_ns,
+                max_ns: r.max_ns,
+                count: r.count,
+                msgs_per_s: r.msgs_per_s,
+                cpu_pct: r.cpu_pct,
+            })
+            .collect();
+        let mut v = serde_json::json!({ "machine": self.machine, "rows": rows });
+        if !self.scale.is_empty() {
+            v["scale"] = serde_json::json!(self.scale);
+        }
+        v
+    }
+
+    /// The issue's goals, judged on this run (ratios from rows measured side by side).
+    pub fn goals(&self) -> Vec<Goal> {
+        let mut g = Vec::new();
+        let ratio = |a: u64, b: u64| {
+            if b == 0 {
+                f64::INFINITY
+            } else {
+                a as f64 / b as f64
+            }
+        };
+        match (self.row("loop-spin"), self.row("iox2-raw-spin")) {
+            (Some(l), Some(r)) => {
+                let p50 = ratio(l.p50_ns, r.p50_ns);
+                g.push(Goal {
+                    goal: "spin: loop p50 ≤ 2× raw iceoryx2 spin round trip".into(),
+                    measured: format!("{} / {} µs = {p50:.2}×", us(l.p50_ns), us(r.p50_ns)),
+                    met: Some(p50 <= 2.0),
+                });
+                let p999 = ratio(l.p999_ns, r.p999_ns);
+                g.push(Goal {
+                    goal: "spin: loop p99.9 ≤ 5× raw iceoryx2 spin round trip".into(),
+                    measured: format!("{} / {} µs = {p999:.2}×", us(l.p999_ns), us(r.p999_ns)),
+                    met: Some(p999 <= 5.0),
+                });
+            }
+            _ => g.push(Goal {
+                goal: "spin ratios".into(),
+                measured: "loop-spin or iox2-raw-spin not run".into(),
+                met: None,
+            }),
+        }
+        match (self.row("loop-hybrid"), self.row("uds-loop-blocking")) {
+            (Some(h), Some(u)) => g.push(Goal {
+                goal: "hybrid: loop p50 below the blocking Unix-socket loop".into(),
+                measured: format!("{} vs {} µs", us(h.p50_ns), us(u.p50_ns)),
+                met: Some(h.p50_ns < u.p50_ns),
+            }),
+            _ => g.push(Goal {
+                goal: "hybrid vs blocking UDS".into(),
+                measured: "loop-hybrid or uds-loop-blocking not run".into(),
+                met: None,
+            }),
+        }
+        if let Some(h) = self.row("loop-hybrid") {
+            let idle = h.idle_peer_cpu_pct;
+            g.push(Goal {
+                goal: "hybrid: coordinator under 10% of a core while idle".into(),
+                measured: idle.map_or("not measured".into(), |c| format!("{c:.1}% of a core")),
+                met: idle.map(|c| c < 10.0),
+            });
+        }
+        let four = self
+            .scale
+            .iter()
+            .filter(|s| s.robots == 4 && s.completed)
+            .max_by(|a, b| a.merged_per_s.total_cmp(&b.merged_per_s));
+        g.push(Goal {
+            goal: "≥ 20 M Q-updates/s merged with 4 robots and batching".into(),
+            measured: four.map_or("4-robot point not run".into(), |s| {
+                format!("{:.1} M/s (batch {})", s.merged_per_s / 1e6, s.batch)
+            }),
+            met: four.map(|s| s.merged_per_s >= 20e6),
+        });
+        let big = self.scale.iter().find(|s| s.robots == 64);
+        g.push(Goal {
+            goal: "64 robots run to completion".into(),
+            measured: big.map_or("64-robot point not run".into(), |s| {
+                s.error
+                    .clone()
+                    .unwrap_or_else(|| "all 65 processes finished".into())
+            }),
+            met: big.map(|s| s.completed),
+        });
+        g
+    }
+
+    /// The human-readable report (header, tables, goals).
+    pub fn to_text(&self) -> String {
+        let m = &self.machine;
+        let mut s = String::new();
+        let _ = writeln!(s, "qfleet bench — {}", m.date);
+        let _ = writeln!(
+            s,
+            "machine: {} · {} cores · Linux {} · {}",
+            m.cpu_model, m.cores, m.kernel, m.rustc
+        );
+        if !self.rows.is_empty() {
+            let _ = writeln!(
+                s,
+                "\n{:<18} {:>8} {:>8} {:>8} {:>8} {:>8} {:>9}  {:>10} {:>6}  {:<32} {:>9}",
+                "row (µs)",
+                "n",
+                "p50",
+                "p90",
+                "p99",
+                "p99.9",
+                "max",
+                "msgs/s",
+                "cpu%",
+                "per process",
+                "idle cpu%"
+            );
+            for r in &self.rows {
+                let per: Vec<String> = r
+                    .processes
+                    .iter()
+                    .map(|p| format!("{} {:.0}", p.name, p.cpu_pct))
+                    .collect();
+                let _ = writeln!(
+                    s,
+                    "{:<18} {:>8} {:>8} {:>8} {:>8} {:>8} {:>9}  {:>10.0} {:>6.0}  {:<32} {:>9}",
+                    r.label,
+                    r.count,
+                    us(r.p50_ns),
+                    us(r.p90_ns),
+                    us(r.p99_ns),
+                    us(r.p999_ns),
+                    us(r.max_ns),
+                    r.msgs_per_s,
+                    r.cpu_pct,
+                    per.join(", "),
+                    r.idle_peer_cpu_pct
+                        .map_or("-".into(), |c| format!("{c:.1}")),
+                );
+            }
+        }
+        if !self.scale.is_empty() {
+            let _ = writeln!(
+                s,
+                "\n{:>6} {:>6} {:>14} {:>14} {:>10} {:>10} {:>8} {:>8} {:>8}  status",
+                "robots",
+                "batch",
+                "merged/s",
+                "offered/s",
+                "loop p50",
+                "loop p99",
+                "cpu%",
+                "coord%",
+                "robots%"
+            );
+            for r in &self.scale {
+                let _ = writeln!(
+                    s,
+                    "{:>6} {:>6} {:>14.0} {:>14.0} {:>10} {:>10} {:>8.0} {:>8.0} {:>8.0}  {}",
+                    r.robots,
+                    r.batch,
+                    r.merged_per_s,
+                    r.offered_per_s,
+                    us(r.loop_p50_ns),
+                    us(r.loop_p99_ns),
+                    r.cpu_pct,
+                    r.cpu_coordinator_pct,
+                    r.cpu_robots_pct,
+                    r.error.as_deref().unwrap_or("ok")
+                );
+            }
+        }
+        let _ = writeln!(s, "\ngoals:");
+        for g in self.goals() {
+            let verdict = match g.met {
+                Some(true) => "met   ",
+                Some(false) => "MISSED",
+                None => "n/a   ",
+            };
+            let _ = writeln!(s, "  [{verdict}] {} — {}", g.goal, g.measured);
+        }
+        s
+    }
+
+    /// The same tables as Markdown (for BENCHMARKS.md).
+    pub fn to_markdown(&self) -> String {
+        let m = &self.machine;
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "Measured {} on {} ({} cores), Linux {}, {}.\n",
+            m.date, m.cpu_model, m.cores, m.kernel, m.rustc
+        );
+        if !self.rows.is_empty() {
+            s.push_str("| row | n | p50 µs | p90 µs | p99 µs | p99.9 µs | max µs | msgs/s | CPU % (sum) | CPU % per process | peer idle CPU % |\n");
+            s.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|\n");
+            for r in &self.rows {
+                let per: Vec<String> = r
+                    .processes
+                    .iter()
+                    .map(|p| format!("{} {:.0}", p.name, p.cpu_pct))
+                    .collect();
+                let _ = writeln!(
+                    s,
+                    "| `{}` | {} | {} | {} | {} | {} | {} | {:.0} | {:.0} | {} | {} |",
+                    r.label,
+                    r.count,
+                    us(r.p50_ns),
+                    us(r.p90_ns),
+                    us(r.p99_ns),
+                    us(r.p999_ns),
+                    us(r.max_ns),
+                    r.msgs_per_s,
+                    r.cpu_pct,
+                    per.join(", "),
+                    r.idle_peer_cpu_pct
+                        .map_or("–".into(), |c| format!("{c:.1}"))
+                );
+            }
+        }
+        if !self.scale.is_empty() {
+            s.push_str("\n| robots | batch | Q-updates merged/s | offered/s | loop p50 µs | loop p99 µs | CPU % | coordinator % | robots % | status |\n");
+            s.push_str("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n");
+            for r in &self.scale {
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {:.2} M | {:.2} M | {} | {} | {:.0} | {:.0} | {:.0} | {} |",
+                    r.robots,
+                    r.batch,
+                    r.merged_per_s / 1e6,
+                    r.offered_per_s / 1e6,
+                    us(r.loop_p50_ns),
+                    us(r.loop_p99_ns),
+                    r.cpu_pct,
+                    r.cpu_coordinator_pct,
+                    r.cpu_robots_pct,
+                    r.error.as_deref().unwrap_or("ok")
+                );
+            }
+        }
+        s.push_str("\n| goal | measured | verdict |\n|---|---|---|\n");
+        for g in self.goals() {
+            let v = match g.met {
+                Some(true) => "met",
+                Some(false) => "**missed**",
+                None => "not run",
+            };
+            let _ = writeln!(s, "| {} | {} | {v} |", g.goal, g.measured);
+        }
+        s
+    }
+
+    /// The dora-rs style CSV: one `latency,<bytes>,<label>,<n>,<avg_ns>,<p50_ns>,<p95_ns>,
+    /// <p99_ns>,<p999_ns>,<min_ns>,<max_ns>` line per row, no header.
+    pub fn to_csv(&self) -> String {
+        let mut s = String::new();
+        for r in &self.rows {
+            let _ = writeln!(
+                s,
+                "latency,{},{},{},{:.0},{},{},{},{},{},{}",
+                r.bytes,
+                r.label,
+                r.count,
+                r.mean_ns,
+                r.p50_ns,
+                r.p95_ns,
+                r.p99_ns,
+                r.p999_ns,
+                r.min_ns,
+                r.max_ns
+            );
+        }
+        s
+    }
+
+    /// Writes `latency.csv`, one `<label>.hgrm` per row, `latency.svg`, `report.json`,
+    /// `summary.md` and, with a scale section, `scale.csv` and `scale.svg` into `dir`.
+    pub fn write_dir(&self, dir: &Path) -> Result<(), BenchError> {
+        std::fs::create_dir_all(dir).map_err(io(dir))?;
+        let csv = dir.join("latency.csv");
+        std::fs::write(&csv, self.to_csv()).map_err(io(&csv))?;
+        for r in &self.rows {
+            robot_agent::hist::write_hgrm(&r.hist, &dir.join(format!("{}.hgrm", r.label)))?;
+        }
+        if !self.rows.is_empty() {
+            crate::plot::percentiles(&dir.join("latency.svg"), &self.rows)?;
+        }
+        let mut full = self.to_json();
+        full["processes"] = serde_json::json!(
+            self.rows
+                .iter()
+                .map(|r| serde_json::json!({
+                    "label": r.label,
+                    "processes": r.processes,
+                    "idle_peer_cpu_pct": r.idle_peer_cpu_pct,
+                    "p95_ns": r.p95_ns,
+                    "min_ns": r.min_ns,
+                    "mean_ns": r.mean_ns,
+                }))
+                .collect::<Vec<_>>()
+        );
+        full["goals"] = serde_json::json!(self.goals());
+        let json = dir.join("report.json");
+        let text =
+            serde_json::to_string_pretty(&full).map_err(|e| BenchError::Spec(e.to_string()))?;
+        std::fs::write(&json, text).map_err(io(&json))?;
+        let md = dir.join("summary.md");
+        std::fs::write(&md, self.to_markdown()).map_err(io(&md))?;
+        if !self.scale.is_empty() {
+            let mut s = String::from(
+                "robots,batch,merged_per_s,offered_per_s,loop_p50_ns,loop_p99_ns,cpu_pct,cpu_coordinator_pct,cpu_robots_pct,completed\n",
+            );
+            for r in &self.scale {
+                let _ = writeln!(
+                    s,
+                    "{},{},{:.0},{:.0},{},{},{:.1},{:.1},{:.1},{}",
+                    r.robots,
+                    r.batch,
+                    r.merged_per_s,
+                    r.offered_per_s,
+                    r.loop_p50_ns,
+                    r.loop_p99_ns,
+                    r.cpu_pct,
+                    r.cpu_coordinator_pct,
+                    r.cpu_robots_pct,
+                    r.completed
+                );
+            }
+            let p = dir.join("scale.csv");
+            std::fs::write(&p, s).map_err(io(&p))?;
+            crate::plot::scale(&dir.join("scale.svg"), &self.scale)?;
+        }
+        Ok(())
+    }
+}

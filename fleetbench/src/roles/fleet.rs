@@ -1,0 +1,339 @@
+//! Roles on the real fleet path: the real coordinator (`coordinator::run`, with its own wait
+//! strategies and merge), the two-robot loop process, and the scale benchmark's robots.
+//!
+//! Robots here are lightweight: no learner. They make Q updates with [`super::Updates`], batch
+//! them with the robot-agent's own `HintBatcher`, send them with the `bus` crate exactly as
+//! `robot-agent` does (`send_with` + `fill`, then `notify`), and apply merged hints with the
+//! robot-agent's own `apply_merged` into a `planner::QTable`, which records the end-to-end
+//! latency (origin time of the update → applied) in the histogram this harness reports.
+
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use std::time::{Duration, Instant};
+
+use bus::bus_schema::{
+    Command, FinalReport, QHintBatch, Register, RobotState, RobotStatus, SCHEMA_VERSION,
+};
+use bus::{BusConfig, RobotBus, monotonic_ns};
+use coordinator::{CoordArgs, MergeRule};
+use planner::QTable;
+use planner::task::Task;
+use qfleet_args::MapArgs;
+use robot_agent::hist::new_hist;
+use robot_agent::share::{ApplyCounters, ApplyCtx, ApplyRule, HintBatcher, apply_merged};
+
+use super::{Deadline, Updates, Window, idle_peer_cpu, save, window_ns};
+use crate::BenchError;
+use crate::spec::{ChildReport, RoleSpec};
+
+fn map_args(map: &str) -> MapArgs {
+    MapArgs {
+        map: map.to_string(),
+        start: None,
+        goal: None,
+        scen: None,
+        scen_index: None,
+    }
+}
+
+/// Loads the map every process of a fleet row uses.
+pub(crate) fn task(map: &str) -> Result<Task, BenchError> {
+    map_args(map)
+        .task()
+        .map_err(|e| BenchError::Input(format!("map {map}: {e}")))
+}
+
+/// Runs the real coordinator until its robots finished; reports its whole-process CPU.
+pub fn coordinator(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
+    let RoleSpec::Coordinator {
+        run_id,
+        robots,
+        wait,
+        spin_us,
+        map,
+        out,
+        timeout_s,
+    } = spec
+    else {
+        return Err(BenchError::Spec("not a coordinator spec".into()));
+    };
+    let args = CoordArgs {
+        run_id: run_id.clone(),
+        robots: *robots,
+        map: map_args(map),
+        wait: *wait,
+        spin_us: *spin_us,
+        merge: MergeRule::Max,
+        out: out.clone(),
+        timeout: *timeout_s,
+        progress: false,
+        hint_buffer: 64,
+        merged_buffer: 0,
+    };
+    let t = Window::start(None);
+    let result = coordinator::run(args, Arc::new(AtomicBool::new(false)))
+        .map_err(|e| BenchError::Coordinator(e.to_string()))?;
+    let mut r = ChildReport {
+        samples: result.throughput.q_updates_merged,
+        merged_per_s: result.throughput.q_updates_merged_per_s,
+        ..ChildReport::default()
+    };
+    t.finish(&mut r);
+    Ok(r)
+}
+
+/// Opens, registers and starts one robot of a fleet row.
+fn join(
+    cfg: &BusConfig,
+    task: &Task,
+    robot_id: u32,
+    timeout: Duration,
+) -> Result<RobotBus, BenchError> {
+    let bus = RobotBus::open(cfg, robot_id, timeout)?;
+    let reg = Register {
+        schema_version: SCHEMA_VERSION,
+        robot_id,
+        pid: std::process::id(),
+        episodes: 1,
+        width: task.grid.width() as u16,
+        height: task.grid.height() as u16,
+        start_x: task.start.x,
+        start_y: task.start.y,
+        map_hash: robot_agent::map_fingerprint(&task.grid),
+        seed: u64::from(robot_id),
+        ..Register::ZEROED
+    };
+    bus.register(&reg, timeout)?;
+    Ok(bus)
+}
+
+fn wait_start(bus: &RobotBus, timeout: Duration) -> Result<bool, BenchError> {
+    let ctl = bus.wait_start(timeout, |_| {})?;
+    Ok(ctl.command == Command::Start.as_u8())
+}
+
+/// Sends the batcher's pending entries exactly like the robot-agent does.
+#[inline]
+fn send_hints(
+    bus: &RobotBus,
+    batcher: &mut HintBatcher,
+    seq: u64,
+    notify: bool,
+) -> Result<usize, BenchError> {
+    let robot_id = bus.robot_id();
+    let mut n = 0;
+    bus.hints.send_with(|b: &mut QHintBatch| {
+        b.robot_id = robot_id;
+        b.goal_id = 0;
+        b.seq = seq;
+        n = batcher.fill(b);
+        b.send_time_ns = monotonic_ns();
+    })?;
+    if notify {
+        bus.hints.notify()?;
+    }
+    Ok(n)
+}
+
+/// Tells the coordinator these robots are done, waits for its `Stop` (merged hints meanwhile
+/// are latest-wins and may be left unread), sends each final report and closes.
+fn finish(buses: Vec<RobotBus>, timeout: Duration) -> Result<(), BenchError> {
+    for bus in &buses {
+        bus.state.send(&RobotState {
+            robot_id: bus.robot_id(),
+            status: RobotStatus::Finished.as_u8(),
+            send_time_ns: monotonic_ns(),
+            ..RobotState::ZEROED
+        })?;
+        bus.state.notify()?;
+    }
+    for bus in &buses {
+        bus.wait_control(timeout, |c| c.command == Command::Stop.as_u8())?;
+        bus.report.send(&FinalReport {
+            robot_id: bus.robot_id(),
+            schema_version: SCHEMA_VERSION,
+            episodes: 1,
+            status: RobotStatus::Finished.as_u8(),
+            final_path_len: -1,
+            optimal_path_len: -1,
+            first_optimal_episode: -1,
+            send_time_ns: monotonic_ns(),
+            ..FinalReport::ZEROED
+        })?;
+        bus.report.notify()?;
+    }
+    for bus in buses {
+        bus.close()?;
+    }
+    Ok(())
+}
+
+/// The update loop, closed: robot 0 makes one Q update and sends it as a one-entry hint
+/// batch; the coordinator merges it and publishes a merged batch; robot 1 (same process)
+/// applies it; the next update is made once it was applied.
+pub fn loop_robots(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
+    let RoleSpec::LoopRobots {
+        run_id,
+        map,
+        notify,
+        plan,
+        peer_pid,
+        hist_path,
+    } = spec
+    else {
+        return Err(BenchError::Spec("not a loop-robots spec".into()));
+    };
+    let timeout = Duration::from_millis(plan.timeout_ms);
+    let task = task(map)?;
+    let cells = task.grid.len() as u32;
+    let cfg = BusConfig::new(run_id.clone(), 2)?;
+    let r0 = join(&cfg, &task, 0, timeout)?;
+    let r1 = join(&cfg, &task, 1, timeout)?;
+    if !(wait_start(&r0, timeout)? && wait_start(&r1, timeout)?) {
+        return Err(BenchError::Coordinator("stopped before the start".into()));
+    }
+    let mut batcher = HintBatcher::new(cells as usize, 1, 1e-3);
+    let mut q1 = QTable::new(&task.grid);
+    let visits1 = vec![0u16; cells as usize * 4];
+    let ctx = ApplyCtx {
+        robot_id: 1,
+        robots: 2,
+        goal_id: 0,
+        rule: ApplyRule::Max,
+    };
+    let updates = Updates::new(cells, 64, 0);
+    let (mut h, mut warm) = (new_hist(), new_hist());
+    let mut c = ApplyCounters::default();
+    let mut last_seq = None;
+    let mut deadline = Deadline::new(timeout, "the coordinator's merged hint", Some(*peer_pid));
+    let mut window = None;
+    let mut i = 0;
+    while plan.more(i, || window_ns(&window)) {
+        if i == plan.warmup {
+            window = Some(Window::start(Some(*peer_pid)));
+        }
+        let hist = if i >= plan.warmup { &mut h } else { &mut warm };
+        let (cell, action, q) = updates.get(i, cells);
+        batcher.note(cell, action, q, i, monotonic_ns);
+        send_hints(&r0, &mut batcher, i, *notify)?;
+        // robot 1 polls its inbox until the merged hint is applied
+        let seen = c.entries_seen;
+        deadline.reset();
+        let mut spins: u32 = 0;
+        while c.entries_seen == seen {
+            match r1.merged.receive_sample()? {
+                Some(sample) => apply_merged(
+                    sample.payload(),
+                    &ctx,
+                    &mut q1,
+                    &visits1,
+                    monotonic_ns(),
+                    hist,
+                    &mut last_seq,
+                    &mut c,
+                ),
+                None => {
+                    spins = spins.wrapping_add(1);
+                    if spins.is_multiple_of(4096) {
+                        deadline.check()?;
+                    }
+                    core::hint::spin_loop();
+                }
+            }
+        }
+        // robot 0 sees the same broadcast (its own values: skipped by a real robot)
+        while r0.merged.receive_sample()?.is_some() {}
+        i += 1;
+    }
+    let mut r = ChildReport {
+        samples: h.len(),
+        merged_seen: c.entries_seen,
+        ..ChildReport::default()
+    };
+    if let Some(w) = &window {
+        w.finish(&mut r);
+    }
+    r.peer_idle_cpu_pct = idle_peer_cpu(*peer_pid, plan.idle_ms);
+    save(&h, hist_path)?;
+    finish(vec![r0, r1], timeout)?;
+    Ok(r)
+}
+
+/// One robot of the scale benchmark: for `duration_ms` after Start, makes Q updates as fast
+/// as it can, sends them in batches of `batch` entries (notifying after each, like the
+/// robot-agent), and applies every merged batch it finds before the next one.
+pub fn scale_robot(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
+    let RoleSpec::ScaleRobot {
+        run_id,
+        map,
+        robot_id,
+        robots,
+        batch,
+        duration_ms,
+        timeout_ms,
+        peer_pid,
+        hist_path,
+    } = spec
+    else {
+        return Err(BenchError::Spec("not a scale-robot spec".into()));
+    };
+    let timeout = Duration::from_millis(*timeout_ms);
+    let task = task(map)?;
+    let cells = task.grid.len() as u32;
+    let cfg = BusConfig::new(run_id.clone(), *robots)?;
+    let bus = join(&cfg, &task, *robot_id, timeout)?;
+    if !wait_start(&bus, timeout)? {
+        return Err(BenchError::Coordinator("stopped before the start".into()));
+    }
+    let mut batcher = HintBatcher::new(cells as usize, *batch as usize, 1e-3);
+    let mut q = QTable::new(&task.grid);
+    let ctx = ApplyCtx {
+        robot_id: *robot_id,
+        robots: *robots,
+        goal_id: 0,
+        rule: ApplyRule::Max,
+    };
+    // each robot walks its own stretch of the table (wide enough for a full batch)
+    let first = robot_id.wrapping_mul(cells / (*robots).max(1));
+    let updates = Updates::new(cells, 256, first);
+    let mut h = new_hist();
+    let mut c = ApplyCounters::default();
+    let mut last_seq = None;
+    let mut r = ChildReport::default();
+    let window = Window::start(*peer_pid);
+    let end = Instant::now() + Duration::from_millis(*duration_ms);
+    let mut i: u64 = 0;
+    let mut seq = 0;
+    while Instant::now() < end {
+        for _ in 0..*batch {
+            let (cell, action, v) = updates.get(i, cells);
+            i += 1;
+            if batcher.note(cell, action, v, i, monotonic_ns) {
+                break;
+            }
+        }
+        if !batcher.is_empty() {
+            r.updates_sent += send_hints(&bus, &mut batcher, seq, true)? as u64;
+            r.batches_sent += 1;
+            seq += 1;
+        }
+        while let Some(sample) = bus.merged.receive_sample()? {
+            apply_merged(
+                sample.payload(),
+                &ctx,
+                &mut q,
+                batcher.visits(),
+                monotonic_ns(),
+                &mut h,
+                &mut last_seq,
+                &mut c,
+            );
+        }
+    }
+    window.finish(&mut r);
+    r.samples = h.len();
+    r.merged_seen = c.entries_seen;
+    save(&h, hist_path)?;
+    finish(vec![bus], timeout)?;
+    Ok(r)
+}
