@@ -1,6 +1,6 @@
 //! Messages the coordinator publishes and every robot-agent subscribes to.
 //!
-//! All three topics are broadcast: each robot receives every message and keeps those whose
+//! All four topics are broadcast: each robot receives every message and keeps those whose
 //! `robot_id` is its own (or [`ROBOT_ID_ALL`]). Layout rules as in
 //! [`robot_to_coordinator`](crate::robot_to_coordinator).
 
@@ -135,6 +135,38 @@ pub struct DiscoveryAck {
     pub time_ns: u64,
 }
 
+/// A pseudo-target discovery relayed by the coordinator to every robot (lossless, broadcast).
+///
+/// The coordinator relays each distinct (goal, cell) once, the first time any robot reports it;
+/// a robot learning goal `goal_id` that is not `origin_robot` may make the cell a pseudo target
+/// of its own (the planner's `Learner::add_pseudo_target`). `relay_seq` numbers relays 0, 1, …
+/// over the run, so a gap is a bug.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("qfleet::v1::DiscoveryRelay")]
+pub struct DiscoveryRelay {
+    /// Coordinator-wide relay sequence number: 0, 1, 2, … without gaps.
+    pub relay_seq: u64,
+    /// Robot that discovered the cell.
+    pub origin_robot: u32,
+    /// Goal the value refers to.
+    pub goal_id: u32,
+    /// Cell column.
+    pub cell_x: u16,
+    /// Cell row.
+    pub cell_y: u16,
+    /// Value of the pseudo target, as the discovering robot set it.
+    pub value: f32,
+    /// The discovering robot's `seq` of this discovery.
+    pub origin_seq: u64,
+    /// Monotonic time of the discovery in the discovering robot's learner.
+    pub origin_ns: u64,
+    /// Monotonic time the relay was written.
+    pub send_time_ns: u64,
+}
+
 const _: () = assert!(size_of::<Control>() == 112 && align_of::<Control>() == 8);
 const _: () = assert!(size_of::<MergedHintBatch>() == 6176 && align_of::<MergedHintBatch>() == 8);
 const _: () = assert!(size_of::<DiscoveryAck>() == 24 && align_of::<DiscoveryAck>() == 8);
+const _: () =
+    assert!(size_of::<DiscoveryRelay>() == 48 && align_of::<DiscoveryRelay>() == 8);

@@ -171,6 +171,17 @@ fn layouts() -> Vec<Layout> {
             up_to_seq,
             time_ns
         }),
+        layout!(DiscoveryRelay {
+            relay_seq,
+            origin_robot,
+            goal_id,
+            cell_x,
+            cell_y,
+            value,
+            origin_seq,
+            origin_ns,
+            send_time_ns,
+        }),
         layout!(QHint {
             cell,
             action,

@@ -9,7 +9,7 @@ pub mod robot_to_coordinator;
 mod layout;
 
 pub use coordinator_to_robot::{
-    Command, Control, DiscoveryAck, MergedHintBatch, REASON_LEN, ROBOT_ID_ALL,
+    Command, Control, DiscoveryAck, DiscoveryRelay, MergedHintBatch, REASON_LEN, ROBOT_ID_ALL,
 };
 pub use names::{Delivery, Direction, RUN_ID_MAX_LEN, Topic};
 pub use robot_to_coordinator::{
@@ -54,4 +54,5 @@ zeroed!(
     Control,
     MergedHintBatch,
     DiscoveryAck,
+    DiscoveryRelay,
 );

@@ -5,7 +5,7 @@
 //! if they used the same service names. Run-id validation (allowed characters, length) is done by
 //! the `bus` crate; the functions here only format.
 
-use crate::coordinator_to_robot::{Control, DiscoveryAck, MergedHintBatch};
+use crate::coordinator_to_robot::{Control, DiscoveryAck, DiscoveryRelay, MergedHintBatch};
 use crate::robot_to_coordinator::{
     FinalReport, PseudoTargetDiscovery, QHintBatch, Register, RobotState,
 };
@@ -42,7 +42,7 @@ pub enum Delivery {
     LatestWins,
 }
 
-/// The eight publish-subscribe topics of a run.
+/// The nine publish-subscribe topics of a run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Topic {
     /// `robot/register`: [`Register`].
@@ -61,11 +61,13 @@ pub enum Topic {
     Merged,
     /// `coord/ack`: [`DiscoveryAck`].
     Ack,
+    /// `coord/discovery`: [`DiscoveryRelay`].
+    Relay,
 }
 
 impl Topic {
     /// Every topic, robot→coordinator first.
-    pub const ALL: [Topic; 8] = [
+    pub const ALL: [Topic; 9] = [
         Topic::Register,
         Topic::RobotState,
         Topic::Discovery,
@@ -74,6 +76,7 @@ impl Topic {
         Topic::Control,
         Topic::Merged,
         Topic::Ack,
+        Topic::Relay,
     ];
 
     /// The part of the service name after `qfleet/<run-id>/`.
@@ -87,6 +90,7 @@ impl Topic {
             Topic::Control => "coord/control",
             Topic::Merged => "coord/merged",
             Topic::Ack => "coord/ack",
+            Topic::Relay => "coord/discovery",
         }
     }
 
@@ -101,6 +105,7 @@ impl Topic {
             Topic::Control => "qfleet::v1::Control",
             Topic::Merged => "qfleet::v1::MergedHintBatch",
             Topic::Ack => "qfleet::v1::DiscoveryAck",
+            Topic::Relay => "qfleet::v1::DiscoveryRelay",
         }
     }
 
@@ -115,6 +120,7 @@ impl Topic {
             Topic::Control => size_of::<Control>(),
             Topic::Merged => size_of::<MergedHintBatch>(),
             Topic::Ack => size_of::<DiscoveryAck>(),
+            Topic::Relay => size_of::<DiscoveryRelay>(),
         }
     }
 
@@ -129,6 +135,7 @@ impl Topic {
             Topic::Control => align_of::<Control>(),
             Topic::Merged => align_of::<MergedHintBatch>(),
             Topic::Ack => align_of::<DiscoveryAck>(),
+            Topic::Relay => align_of::<DiscoveryRelay>(),
         }
     }
 
@@ -140,16 +147,20 @@ impl Topic {
             | Topic::Discovery
             | Topic::Hints
             | Topic::Report => Direction::RobotToCoordinator,
-            Topic::Control | Topic::Merged | Topic::Ack => Direction::CoordinatorToRobot,
+            Topic::Control | Topic::Merged | Topic::Ack | Topic::Relay => {
+                Direction::CoordinatorToRobot
+            }
         }
     }
 
     /// Lossless or latest-wins; see the `bus` crate documentation for the reasons.
     pub const fn delivery(self) -> Delivery {
         match self {
-            Topic::Register | Topic::Discovery | Topic::Report | Topic::Control => {
-                Delivery::Lossless
-            }
+            Topic::Register
+            | Topic::Discovery
+            | Topic::Report
+            | Topic::Control
+            | Topic::Relay => Delivery::Lossless,
             Topic::RobotState | Topic::Hints | Topic::Merged | Topic::Ack => Delivery::LatestWins,
         }
     }
@@ -218,4 +229,9 @@ pub fn coord_merged(run_id: &str) -> String {
 /// `qfleet/<run-id>/coord/ack` ([`DiscoveryAck`], latest-wins, cumulative).
 pub fn coord_ack(run_id: &str) -> String {
     Topic::Ack.service_name(run_id)
+}
+
+/// `qfleet/<run-id>/coord/discovery` ([`DiscoveryRelay`], lossless, broadcast).
+pub fn coord_discovery(run_id: &str) -> String {
+    Topic::Relay.service_name(run_id)
 }

@@ -6,8 +6,8 @@ use std::time::{Duration, Instant};
 
 use bus_schema::names::Topic;
 use bus_schema::{
-    Command, Control, DiscoveryAck, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
-    QHintBatch, ROBOT_ID_ALL, Register, RobotState, SCHEMA_VERSION,
+    Command, Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch,
+    PseudoTargetDiscovery, QHintBatch, ROBOT_ID_ALL, Register, RobotState, SCHEMA_VERSION,
 };
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
@@ -47,6 +47,8 @@ pub struct CoordinatorBus {
     pub merged: Outbox<MergedHintBatch>,
     /// Cumulative discovery acks (latest-wins).
     pub ack: Outbox<DiscoveryAck>,
+    /// Discoveries relayed to every robot (lossless).
+    pub relay: Outbox<DiscoveryRelay>,
     control_seq: Cell<u64>,
     config: BusConfig,
     // Declared last so it is dropped after every port.
@@ -70,6 +72,7 @@ impl CoordinatorBus {
             control: Outbox::create(&node, config, r)?,
             merged: Outbox::create(&node, config, r)?,
             ack: Outbox::create(&node, config, r)?,
+            relay: Outbox::create(&node, config, r)?,
             control_seq: Cell::new(0),
             config: config.clone(),
             node,
@@ -96,7 +99,8 @@ impl CoordinatorBus {
         self.report.connect()?;
         self.control.connect()?;
         self.merged.connect()?;
-        self.ack.connect()
+        self.ack.connect()?;
+        self.relay.connect()
     }
 
     /// Sends a control message (seq, time and schema version filled in) and wakes the robots;
@@ -291,6 +295,8 @@ pub struct RobotBus {
     pub merged: Inbox<MergedHintBatch>,
     /// Discovery acks (latest-wins, broadcast: check `robot_id`).
     pub ack: Inbox<DiscoveryAck>,
+    /// Discoveries of other robots relayed by the coordinator (lossless, broadcast).
+    pub relay: Inbox<DiscoveryRelay>,
     robot_id: u32,
     pending: RefCell<VecDeque<Control>>,
     config: BusConfig,
@@ -339,6 +345,7 @@ impl RobotBus {
         let control = Inbox::create(node, config, r)?;
         let merged = Inbox::create(node, config, r)?;
         let ack = Inbox::create(node, config, r)?;
+        let relay = Inbox::create(node, config, r)?;
         Ok(RobotPorts {
             register: Outbox::create(node, config, r)?,
             state: Outbox::create(node, config, r)?,
@@ -348,6 +355,7 @@ impl RobotBus {
             control,
             merged,
             ack,
+            relay,
             robot_id,
             config: config.clone(),
         })
@@ -501,12 +509,13 @@ impl RobotBus {
         clean_stale(&prefix)
     }
 
-    /// The wake listeners of the three inboxes.
-    pub fn listeners(&self) -> [(Topic, &Listener<ipc::Service>); 3] {
+    /// The wake listeners of the four inboxes.
+    pub fn listeners(&self) -> [(Topic, &Listener<ipc::Service>); 4] {
         [
             (Topic::Control, self.control.listener()),
             (Topic::Merged, self.merged.listener()),
             (Topic::Ack, self.ack.listener()),
+            (Topic::Relay, self.relay.listener()),
         ]
     }
 }
@@ -521,6 +530,7 @@ struct RobotPorts {
     control: Inbox<Control>,
     merged: Inbox<MergedHintBatch>,
     ack: Inbox<DiscoveryAck>,
+    relay: Inbox<DiscoveryRelay>,
     robot_id: u32,
     config: BusConfig,
 }
@@ -536,6 +546,7 @@ impl RobotPorts {
             control: self.control,
             merged: self.merged,
             ack: self.ack,
+            relay: self.relay,
             robot_id: self.robot_id,
             pending: RefCell::new(VecDeque::new()),
             config: self.config,

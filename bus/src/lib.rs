@@ -59,6 +59,7 @@
 //! | `coord/control` | `Control` | lossless | 64 | 0 | Start/Stop/goals must never be missed |
 //! | `coord/merged` | `MergedHintBatch` | latest-wins | `merged_buffer` (4) | 1 | superseded by the next merge; one slow robot must not block the fleet |
 //! | `coord/ack` | `DiscoveryAck` | latest-wins | 2·robots + 8 | 0 | cumulative: a newer ack carries all older ones; room for a full round of acks |
+//! | `coord/discovery` | `DiscoveryRelay` | lossless | `discovery_buffer` (256) | 0 | each distinct discovery is relayed once and must reach every robot on its goal; rare (a few dozen per goal) |
 //!
 //! Lossless = safe overflow off + `RetryUntilDelivered` with a backpressure handler that gives
 //! up after `send_timeout` (5 s) and reports [`BusError::DeliveryTimeout`], and a send that

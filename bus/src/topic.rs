@@ -5,8 +5,8 @@ use std::time::Duration;
 
 use bus_schema::names::{Delivery, Direction, Topic};
 use bus_schema::{
-    Control, DiscoveryAck, FinalReport, MergedHintBatch, PseudoTargetDiscovery, QHintBatch,
-    Register, RobotState, SCHEMA_VERSION,
+    Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
+    QHintBatch, Register, RobotState, SCHEMA_VERSION,
 };
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
@@ -72,6 +72,9 @@ unsafe impl Message for MergedHintBatch {
 unsafe impl Message for DiscoveryAck {
     const TOPIC: Topic = Topic::Ack;
 }
+unsafe impl Message for DiscoveryRelay {
+    const TOPIC: Topic = Topic::Relay;
+}
 
 /// The limits a topic's publish-subscribe service and its wake event service are created with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -115,6 +118,9 @@ pub fn limits(cfg: &BusConfig, topic: Topic) -> TopicLimits {
         // broadcast and cumulative: room for one ack per robot, twice, so a robot's own latest
         // ack is not pushed out by one round of acks to the others
         Topic::Ack => (2 * robots + 8, 0),
+        // one relay per distinct (goal, cell) of the run, a few dozen per goal; as deep as the
+        // discovery inbox so a burst of relays never waits for a robot between two polls
+        Topic::Relay => (cfg.discovery_buffer, 0),
     };
     TopicLimits {
         max_publishers,

@@ -121,6 +121,10 @@ pub struct Counters {
     pub send_errors: u64,
     /// Received messages dropped as invalid (bad robot id, unknown command).
     pub rejected: u64,
+    /// Discoveries of other robots relayed by the coordinator.
+    pub relays_received: u64,
+    /// Of those, made pseudo targets of this robot (`--share discoveries|both`).
+    pub relays_applied: u64,
     /// Merged-hint handling.
     pub merged: ApplyCounters,
 }
@@ -333,7 +337,7 @@ impl Agent<'_> {
         let t0 = Instant::now();
         // grown on demand: preallocating N records costs gigabytes for very long runs
         let mut records: Vec<EpisodeRecord> = Vec::new();
-        let share = self.args.share.share == ShareMode::Hints;
+        let share = self.args.share.share.hints();
         let state_every = u64::from(self.args.share.state_every);
         let poll_every = u64::from(self.args.share.poll_every);
         let flush_steps = u64::from(self.args.share.hint_flush_steps);
@@ -579,6 +583,22 @@ impl Agent<'_> {
                     &mut self.last_merged_seq,
                     &mut self.c.merged,
                 );
+            }
+        }
+        // discoveries of other robots, relayed by the coordinator (lossless: always drained)
+        while let Some(r) = self.bus.relay.receive()? {
+            self.c.relays_received += 1;
+            if self.args.share.share.discoveries()
+                && r.goal_id == self.goal_id
+                && r.origin_robot != self.args.robot_id
+                && (r.cell_x as usize) < self.task.grid.width()
+                && (r.cell_y as usize) < self.task.grid.height()
+                && r.value.is_finite()
+            {
+                let cell = self.task.grid.index(planner::Cell::new(r.cell_x, r.cell_y)) as u32;
+                if self.learner.add_pseudo_target(cell, r.value) {
+                    self.c.relays_applied += 1;
+                }
             }
         }
         while let Some(ack) = self.bus.ack.receive()? {

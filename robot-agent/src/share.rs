@@ -37,8 +37,24 @@ use crate::hist::record;
 pub enum ShareMode {
     /// Learn alone: no hints sent or applied (states, discoveries and the report still flow).
     None,
+    /// Take other robots' relayed pseudo-target discoveries as own pseudo targets; no hints.
+    Discoveries,
     /// Send Q-hint batches and apply the fleet's merged hints.
     Hints,
+    /// Both: hints and relayed discoveries.
+    Both,
+}
+
+impl ShareMode {
+    /// Whether Q hints are sent and merged hints applied.
+    pub fn hints(self) -> bool {
+        matches!(self, ShareMode::Hints | ShareMode::Both)
+    }
+
+    /// Whether relayed discoveries of other robots become pseudo targets of this one.
+    pub fn discoveries(self) -> bool {
+        matches!(self, ShareMode::Discoveries | ShareMode::Both)
+    }
 }
 
 /// How a robot applies a merged hint to its own Q-table (see the module docs).
@@ -55,7 +71,9 @@ impl std::fmt::Display for ShareMode {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(match self {
             ShareMode::None => "none",
+            ShareMode::Discoveries => "discoveries",
             ShareMode::Hints => "hints",
+            ShareMode::Both => "both",
         })
     }
 }
@@ -72,7 +90,8 @@ impl std::fmt::Display for ApplyRule {
 /// Sharing options of a robot; `qfleet run` takes the same ones and forwards them.
 #[derive(Debug, Clone, Args)]
 pub struct ShareArgs {
-    /// Share Q-values with the fleet (`hints`) or learn alone (`none`).
+    /// Share Q-values with the fleet (`hints`), use other robots' pseudo-target discoveries
+    /// (`discoveries`), both (`both`), or learn alone (`none`).
     #[arg(long, value_enum, default_value_t = ShareMode::Hints)]
     pub share: ShareMode,
     /// How merged hints are applied to the local Q-table.
