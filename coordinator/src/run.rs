@@ -265,6 +265,9 @@ struct Coord {
     rejected: u64,
     checks: u64,
     out_of_order: BTreeMap<u32, BTreeSet<u64>>,
+    /// New distinct discoveries waiting to be relayed to every robot.
+    relay_pending: Vec<bus::bus_schema::DiscoveryRelay>,
+    relays_sent: u64,
 }
 
 fn secs(s: f64, what: &str) -> Result<Duration, CoordError> {
@@ -333,6 +336,8 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         rejected: 0,
         checks: 0,
         out_of_order: BTreeMap::new(),
+        relay_pending: Vec::new(),
+        relays_sent: 0,
         task,
         args,
     };
@@ -481,7 +486,10 @@ impl Coord {
         let waitset = match strategy {
             WaitStrategy::Spin => None,
             _ => Some(
+                // iceoryx2's own SIGINT/SIGTERM handler would replace the process's (ctrlc) one
+                // and swallow the stop request: keep it off
                 WaitSetBuilder::new()
+                    .signal_handling_mode(SignalHandlingMode::Disabled)
                     .create::<ipc::Service>()
                     .map_err(|e| BusError::Event {
                         service: "WaitSet".into(),
@@ -607,6 +615,7 @@ impl Coord {
         if acks {
             self.send_acks(bus)?;
         }
+        self.send_relays(bus)?;
         for _ in 0..DRAIN_MAX {
             let Some(sample) = bus.hints.receive_sample()? else {
                 break;
@@ -676,7 +685,18 @@ impl Coord {
         }
         slot.next_disc = next;
         self.disc_received += 1;
-        self.pseudo.insert(cell);
+        if self.pseudo.insert(cell) {
+            self.relay_pending.push(bus::bus_schema::DiscoveryRelay {
+                origin_robot: d.robot_id,
+                goal_id: d.goal_id,
+                cell_x: d.cell_x,
+                cell_y: d.cell_y,
+                value: d.value,
+                origin_seq: d.seq,
+                origin_ns: d.time_ns,
+                ..bus::bus_schema::DiscoveryRelay::ZEROED
+            });
+        }
         if d.send_time_ns <= now {
             record(&mut self.h.discovery, now - d.send_time_ns);
         }
@@ -696,6 +716,24 @@ impl Coord {
             };
             bus.ack.send(&ack)?;
         }
+        Ok(())
+    }
+
+    /// Relays new distinct discoveries to every robot (lossless; a fleet that already left
+    /// is nobody to tell).
+    fn send_relays(&mut self, bus: &CoordinatorBus) -> Result<(), CoordError> {
+        if self.relay_pending.is_empty() {
+            return Ok(());
+        }
+        for mut r in std::mem::take(&mut self.relay_pending) {
+            r.relay_seq = self.relays_sent;
+            r.send_time_ns = monotonic_ns();
+            match bus.relay.send(&r) {
+                Ok(_) | Err(BusError::NoSubscriber { .. }) => self.relays_sent += 1,
+                Err(e) => return Err(e.into()),
+            }
+        }
+        bus.relay.notify()?;
         Ok(())
     }
 
