@@ -5,6 +5,10 @@
 //!
 //! Not here: anything about the bus or the fleet.
 
+pub mod manifest;
+
+pub use manifest::{Manifest, ManifestError, Plan, Sharing, load_manifest, parse_manifest};
+
 use clap::Args;
 use planner::map::{self, MapError};
 use planner::task::{self, Task, TaskError};
