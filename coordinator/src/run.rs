@@ -36,6 +36,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::merge::{FleetTable, MergeRule};
 
+mod watch;
+pub use watch::LivenessEvent;
+
 /// How the coordinator waits for messages.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -94,6 +97,13 @@ pub struct CoordArgs {
     /// Merged batches buffered per robot (latest-wins); 0 = sized from the fleet.
     #[arg(long, default_value_t = 0)]
     pub merged_buffer: usize,
+    /// Heartbeat deadline: a running robot silent this long (ms) is reported hung.
+    #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..))]
+    pub hang_ms: u64,
+    /// Restarts per robot the launcher may make: the end of the run waits (up to `--timeout`)
+    /// for a lost robot to come back while it has restarts left.
+    #[arg(long, default_value_t = 0)]
+    pub restarts: u32,
 }
 
 /// Why the coordinator failed.
@@ -153,6 +163,15 @@ pub struct RobotEntry {
     pub hints_applied: u64,
     /// End-to-end loop latency of the hints it applied.
     pub loop_latency_ns: LatencyStats,
+    /// Times a new process took this robot's place (`qfleet run --restart on-failure`).
+    #[serde(default)]
+    pub restarts: u32,
+    /// Whether its latest process was warm-started from the coordinator's fleet table.
+    #[serde(default)]
+    pub warm_started: bool,
+    /// Fleet-table entries its latest process applied before its first episode.
+    #[serde(default)]
+    pub warm_start_entries: Option<u64>,
 }
 
 /// Throughput of the run, over the active time (Start → every robot finished).
@@ -183,6 +202,19 @@ pub struct LivenessReport {
     pub lost: Vec<u32>,
     /// Robot nodes alive at the last check.
     pub alive_at_end: Vec<u32>,
+    /// Robots hung at the end (silent past the heartbeat deadline, process still there).
+    #[serde(default)]
+    pub hung: Vec<u32>,
+    /// Restarts over the fleet.
+    #[serde(default)]
+    pub restarts: u32,
+    /// Discoveries received from robot processes that died and were restarted (their
+    /// successors start numbering again and report only their own).
+    #[serde(default)]
+    pub discoveries_from_dead: u64,
+    /// Every liveness event, in order.
+    #[serde(default)]
+    pub events: Vec<LivenessEvent>,
 }
 
 /// The result of a run (`result.json`, and what `qfleet run --json` prints).
@@ -268,6 +300,8 @@ struct Coord {
     /// New distinct discoveries waiting to be relayed to every robot.
     relay_pending: Vec<bus::bus_schema::DiscoveryRelay>,
     relays_sent: u64,
+    /// Heartbeat deadlines, losses, restarts (see `watch`).
+    life: watch::Life,
 }
 
 fn secs(s: f64, what: &str) -> Result<Duration, CoordError> {
@@ -306,6 +340,9 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
     } else {
         args.merged_buffer
     };
+    // control is the coordinator's only lossless output; a robot that stopped draining it
+    // (SIGSTOP, or killed and not cleaned up yet) must not stall the whole run for long
+    cfg.send_timeout = Duration::from_secs(1);
     cfg.validate()?;
     std::fs::create_dir_all(&args.out)
         .map_err(|e| CoordError::Output(format!("{}: {e}", args.out.display())))?;
@@ -338,6 +375,13 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         out_of_order: BTreeMap::new(),
         relay_pending: Vec::new(),
         relays_sent: 0,
+        life: watch::Life::new(
+            expected,
+            Duration::from_millis(args.hang_ms),
+            args.restarts,
+            timeout,
+            cfg.merged_buffer,
+        ),
         task,
         args,
     };
@@ -413,10 +457,8 @@ impl Coord {
                 return Err(e.into());
             }
         }
-        match bus.stop(ROBOT_ID_ALL) {
-            Ok(_) | Err(BusError::NoSubscriber { .. }) => {}
-            Err(e) => return Err(e.into()),
-        }
+        // a hung robot that does not drain its control buffer must not fail the run
+        watch::tolerate(bus.stop(ROBOT_ID_ALL).map(drop))?;
         self.collect_reports(bus, timeout)?;
         Ok((active, interrupted))
     }
@@ -471,6 +513,7 @@ impl Coord {
             slot.alive = true;
             slot.episodes_total = reg.episodes;
             slot.seed = reg.seed;
+            self.life.admitted(&reg);
         }
         Ok(())
     }
@@ -588,13 +631,15 @@ impl Coord {
     }
 
     fn all_done(&self) -> bool {
-        self.robots
-            .iter()
-            .all(|r| r.finished || r.report.is_some() || r.lost)
+        self.robots.iter().enumerate().all(|(i, r)| {
+            r.finished || r.report.is_some() || self.life.settled(i, r.lost) || !r.accepted
+        })
     }
 
     fn robot(&mut self, id: u32) -> Option<&mut RobotSlot> {
-        self.robots.get_mut(id as usize).filter(|r| r.accepted)
+        let slot = self.robots.get_mut(id as usize).filter(|r| r.accepted)?;
+        self.life.seen(id);
+        Some(slot)
     }
 
     /// Takes what is waiting in every inbox, at most `DRAIN_MAX` per inbox so the periodic work
@@ -602,10 +647,11 @@ impl Coord {
     fn drain(&mut self, bus: &CoordinatorBus) -> Result<usize, CoordError> {
         const DRAIN_MAX: usize = 256;
         let mut n = 0;
-        // late or repeated registrations (a robot that missed its Ack): answer them again
+        // late or repeated registrations: a robot that missed its Ack, a restarted robot
+        // process, a running robot re-joining a restarted coordinator (see `watch`)
         while let Some(reg) = bus.register.receive()? {
             n += 1;
-            let _ = reg;
+            self.on_register(bus, &reg)?;
         }
         n += bus.state.drain(DRAIN_MAX, |s| self.on_state(s))?;
         let mut acks = false;
@@ -668,6 +714,7 @@ impl Coord {
             self.rejected += 1;
             return false;
         }
+        self.life.seen(d.robot_id);
         let slot = &mut self.robots[id];
         slot.ack_dirty = true;
         if d.seq < slot.next_disc {
@@ -794,6 +841,7 @@ impl Coord {
     }
 
     fn liveness(&mut self, bus: &CoordinatorBus) -> Result<(), CoordError> {
+        let listed_at = Instant::now();
         let report = check_nodes(bus.config(), true)?;
         self.checks += 1;
         let mut alive = vec![false; self.robots.len()];
@@ -810,14 +858,19 @@ impl Coord {
         // a report that arrived before the process went away is not a loss
         self.drain(bus)?;
         for (id, slot) in self.robots.iter_mut().enumerate() {
+            if self.life.joined_since(id, listed_at) {
+                continue; // a new process that registered after the listing
+            }
             slot.alive = alive[id];
             if slot.accepted && !alive[id] && slot.report.is_none() && !slot.lost {
                 slot.lost = true;
+                self.life.lost(id as u32);
                 eprintln!(
                     "qfleet-coordinator: robot {id} is gone (its process died) without a final report"
                 );
             }
         }
+        self.check_deadlines();
         Ok(())
     }
 
@@ -860,7 +913,8 @@ impl Coord {
             if self
                 .robots
                 .iter()
-                .all(|r| !r.accepted || r.report.is_some() || r.lost)
+                .enumerate()
+                .all(|(i, r)| !r.accepted || r.report.is_some() || r.lost || self.life.is_hung(i))
             {
                 return Ok(());
             }
@@ -918,6 +972,9 @@ impl Coord {
                     hints_received: r.hints_received,
                     hints_applied: r.hints_applied,
                     loop_latency_ns: LatencyStats::from_summary(&r.merged_latency),
+                    restarts: 0,
+                    warm_started: false,
+                    warm_start_entries: None,
                 },
                 None => RobotEntry {
                     robot_id: id as u32,
@@ -936,8 +993,19 @@ impl Coord {
                     hints_received: 0,
                     hints_applied: 0,
                     loop_latency_ns: LatencyStats::default(),
+                    restarts: 0,
+                    warm_started: false,
+                    warm_start_entries: None,
                 },
             };
+            let mut entry = entry;
+            (entry.restarts, entry.warm_started) = self.life.restarts(id);
+            entry.warm_start_entries = detail
+                .as_ref()
+                .and_then(|d| d.get("counters")?.get("warm_start_entries")?.as_u64());
+            if entry.status == "missing" && self.life.is_hung(id) {
+                entry.status = "hung".into();
+            }
             robots.push(entry);
         }
         let mut latency_ns = BTreeMap::new();
@@ -1001,6 +1069,12 @@ impl Coord {
                     .filter(|(_, r)| r.alive)
                     .map(|(i, _)| i as u32)
                     .collect(),
+                hung: self.life.hung(),
+                restarts: (0..self.robots.len())
+                    .map(|i| self.life.restarts(i).0)
+                    .sum(),
+                discoveries_from_dead: self.life.disc_from_dead(),
+                events: self.life.events().to_vec(),
             },
             rejected: self.rejected,
             interrupted,
