@@ -39,6 +39,29 @@ pub fn pid_alive(pid: u32) -> bool {
     }
 }
 
+/// Environment variable through which the harness gives a child its CPUs (`"0"`, `"0,1"`).
+pub const CPUS_ENV: &str = "FLEETBENCH_CPUS";
+
+/// The CPUs the harness assigned to this process (empty: not pinned).
+pub fn assigned_cpus() -> Vec<usize> {
+    std::env::var(CPUS_ENV)
+        .map(|v| v.split(',').filter_map(|c| c.trim().parse().ok()).collect())
+        .unwrap_or_default()
+}
+
+/// Pins the calling thread (and threads it starts later) to `cpu`; false if that failed.
+pub fn pin_current_thread(cpu: usize) -> bool {
+    // SAFETY: an all-zero cpu_set_t is the empty set; CPU_SET/sched_setaffinity only touch it.
+    unsafe {
+        let mut set: libc::cpu_set_t = core::mem::zeroed();
+        if cpu >= 8 * size_of::<libc::cpu_set_t>() {
+            return false;
+        }
+        libc::CPU_SET(cpu, &mut set);
+        libc::sched_setaffinity(0, size_of::<libc::cpu_set_t>(), &set) == 0
+    }
+}
+
 /// CPU use as percent of one core: `cpu_ns` spent over `wall_ns`.
 pub fn pct(cpu_ns: u64, wall_ns: u64) -> f64 {
     if wall_ns == 0 {

@@ -66,8 +66,14 @@ pub struct Options {
     pub scale_batch_robots: u32,
     /// How long the robots of one scale point emit, ms.
     pub scale_ms: u64,
-    /// Map of the scale section.
+    /// Map of the scale section; `generated` = an obstacle-free map just large enough that
+    /// every robot's batch covers cells of its own.
     pub scale_map: String,
+    /// Scale robots: hint batches in flight (sent, not yet seen merged) before a robot waits.
+    pub scale_in_flight: u32,
+    /// Pin the two sides of each latency row to different CPUs (0 and 1), so every row
+    /// measures a cross-CPU round trip whatever else the machine runs.
+    pub pin: bool,
     /// Shortest measurement window per row, ms (fast rows record more than `samples`).
     pub min_window_ms: u64,
     /// Print progress lines on stderr.
@@ -91,8 +97,10 @@ impl Options {
             scale_main_batch: 256,
             scale_batch_robots: 4,
             scale_ms: 2_000,
-            scale_map: "builtin:paper-30".into(),
+            scale_map: "generated".into(),
+            scale_in_flight: 8,
             min_window_ms: 2_000,
+            pin: std::thread::available_parallelism().is_ok_and(|n| n.get() >= 2),
             progress: true,
         }
     }
@@ -187,6 +195,16 @@ fn run_in(opts: &Options, launcher: &Launcher, tmp: &Path) -> Result<Report, Ben
                 points.push((opts.scale_batch_robots, b));
             }
         }
+        let mut opts = opts.clone();
+        if opts.scale_map == "generated" {
+            let needed = points
+                .iter()
+                .map(|(n, b)| *n as usize * (*b as usize).div_ceil(4))
+                .max()
+                .unwrap_or(64);
+            opts.scale_map = write_open_map(tmp, needed)?;
+        }
+        let opts = &opts;
         for (n, b) in points {
             if opts.progress {
                 eprintln!("qfleet bench: scale {n} robots, batch {b} …");
@@ -195,8 +213,10 @@ fn run_in(opts: &Options, launcher: &Launcher, tmp: &Path) -> Result<Report, Ben
             if opts.progress {
                 match &row.error {
                     None => eprintln!(
-                        "qfleet bench: scale {n}×{b}: {:.1} M Q-updates merged/s",
-                        row.merged_per_s / 1e6
+                        "qfleet bench: scale {n}×{b}: {:.1} M Q-updates merged/s ({} of {} sent)",
+                        row.merged_per_s / 1e6,
+                        row.updates_merged,
+                        row.updates_sent
                     ),
                     Some(e) => eprintln!("qfleet bench: scale {n}×{b} failed: {e}"),
                 }
@@ -205,6 +225,30 @@ fn run_in(opts: &Options, launcher: &Launcher, tmp: &Path) -> Result<Report, Ben
         }
     }
     Ok(report)
+}
+
+/// Writes an obstacle-free ASCII map of at least `cells` cells (64 wide), start top-left,
+/// goal bottom-right; returns its path.
+fn write_open_map(dir: &Path, cells: usize) -> Result<String, BenchError> {
+    let width = 64;
+    let height = cells.div_ceil(width).max(2);
+    let mut text = String::with_capacity((width + 1) * height);
+    for y in 0..height {
+        for x in 0..width {
+            text.push(match (x, y) {
+                (0, 0) => 'S',
+                (x, y) if x == width - 1 && y == height - 1 => 'G',
+                _ => '.',
+            });
+        }
+        text.push('\n');
+    }
+    let path = dir.join("scale-map.txt");
+    std::fs::write(&path, text).map_err(|source| BenchError::Io {
+        what: format!("write {}", path.display()),
+        source,
+    })?;
+    Ok(path.display().to_string())
 }
 
 /// A started child process, its stdout collected by a thread.
@@ -283,9 +327,18 @@ impl Drop for Child {
 }
 
 fn spawn(launcher: &Launcher, spec: &RoleSpec) -> Result<Child, BenchError> {
+    spawn_on(launcher, spec, None)
+}
+
+fn spawn_on(launcher: &Launcher, spec: &RoleSpec, cpus: Option<&str>) -> Result<Child, BenchError> {
     let json = serde_json::to_string(spec).map_err(|e| BenchError::Spec(e.to_string()))?;
     let role = json.split('"').nth(3).unwrap_or("child").to_string();
-    let mut child = Command::new(&launcher.program)
+    let mut cmd = Command::new(&launcher.program);
+    match cpus {
+        Some(c) => cmd.env(crate::cpu::CPUS_ENV, c),
+        None => cmd.env_remove(crate::cpu::CPUS_ENV),
+    };
+    let mut child = cmd
         .args(&launcher.args)
         .arg("--role")
         .arg(json)
@@ -333,6 +386,12 @@ fn row_timeout(plan: &Plan) -> Duration {
 
 fn run_row(label: &str, opts: &Options, l: &Launcher, tmp: &Path) -> Result<Row, BenchError> {
     let plan = opts.plan();
+    // crossbeam's process pins its two threads itself: main to the first, pong to the second
+    let (meas_cpu, peer_cpu) = match (opts.pin, label) {
+        (false, _) => (None, None),
+        (true, "crossbeam") => (Some("0,1"), None),
+        (true, _) => (Some("0"), Some("1")),
+    };
     let run_id = bus::unique_run_id(&format!("bench-{}", label.replace("-loop", "")));
     let dir = tmp.join(label);
     std::fs::create_dir_all(&dir).map_err(|source| BenchError::Io {
@@ -354,15 +413,16 @@ fn run_row(label: &str, opts: &Options, l: &Launcher, tmp: &Path) -> Result<Row,
     let (peer, measurer) = match label {
         "iox2-raw-spin" | "iox2-raw-event" => {
             let event = label.ends_with("event");
-            let peer = spawn(
+            let peer = spawn_on(
                 l,
                 &RoleSpec::RawPong {
                     run_id: run_id.clone(),
                     event,
                     timeout_ms: quiet_ms,
                 },
+                peer_cpu,
             )?;
-            let m = spawn(
+            let m = spawn_on(
                 l,
                 &RoleSpec::RawPing {
                     run_id: run_id.clone(),
@@ -371,6 +431,7 @@ fn run_row(label: &str, opts: &Options, l: &Launcher, tmp: &Path) -> Result<Row,
                     peer_pid: peer.id(),
                     hist_path: hist_path.clone(),
                 },
+                meas_cpu,
             )?;
             (Some(peer), m)
         }
@@ -380,7 +441,7 @@ fn run_row(label: &str, opts: &Options, l: &Launcher, tmp: &Path) -> Result<Row,
                 "loop-event" => WaitStrategy::Event,
                 _ => WaitStrategy::Hybrid,
             };
-            let peer = spawn(
+            let peer = spawn_on(
                 l,
                 &RoleSpec::Coordinator {
                     run_id: run_id.clone(),
@@ -391,8 +452,9 @@ fn run_row(label: &str, opts: &Options, l: &Launcher, tmp: &Path) -> Result<Row,
                     out: dir.join("coordinator"),
                     timeout_s: quiet_ms as f64 / 1e3,
                 },
+                peer_cpu,
             )?;
-            let m = spawn(
+            let m = spawn_on(
                 l,
                 &RoleSpec::LoopRobots {
                     run_id: run_id.clone(),
@@ -402,13 +464,14 @@ fn run_row(label: &str, opts: &Options, l: &Launcher, tmp: &Path) -> Result<Row,
                     peer_pid: peer.id(),
                     hist_path: hist_path.clone(),
                 },
+                meas_cpu,
             )?;
             (Some(peer), m)
         }
         "uds-loop-blocking" | "uds-loop-spin" => {
             let spin = label.ends_with("spin");
             let path = dir.join("loop.sock");
-            let peer = spawn(
+            let peer = spawn_on(
                 l,
                 &RoleSpec::UdsServer {
                     path: path.clone(),
@@ -416,8 +479,9 @@ fn run_row(label: &str, opts: &Options, l: &Launcher, tmp: &Path) -> Result<Row,
                     cells,
                     timeout_ms: quiet_ms,
                 },
+                peer_cpu,
             )?;
-            let m = spawn(
+            let m = spawn_on(
                 l,
                 &RoleSpec::UdsClient {
                     path,
@@ -427,16 +491,18 @@ fn run_row(label: &str, opts: &Options, l: &Launcher, tmp: &Path) -> Result<Row,
                     peer_pid: peer.id(),
                     hist_path: hist_path.clone(),
                 },
+                meas_cpu,
             )?;
             (Some(peer), m)
         }
         _ => {
-            let m = spawn(
+            let m = spawn_on(
                 l,
                 &RoleSpec::Crossbeam {
                     plan,
                     hist_path: hist_path.clone(),
                 },
+                meas_cpu,
             )?;
             (None, m)
         }
@@ -514,6 +580,7 @@ fn scale_point_inner(
                 robots: n,
                 batch,
                 duration_ms: opts.scale_ms,
+                in_flight: opts.scale_in_flight,
                 timeout_ms,
                 peer_pid: (id == 0).then(|| coord.id()),
                 hist_path: dir.join(format!("robot-{id}.bin")),
@@ -548,6 +615,9 @@ fn scale_point_inner(
     let coord_cpu = reports.first().and_then(|r| r.peer_cpu_ns).unwrap_or(0);
     let sent: u64 = reports.iter().map(|r| r.updates_sent).sum();
     row.merged_per_s = c.merged_per_s;
+    row.updates_sent = sent;
+    row.updates_merged = c.samples;
+    row.batches_lost = reports.iter().map(|r| r.batches_lost).sum();
     row.offered_per_s = if wall_ns > 0 {
         sent as f64 * 1e9 / wall_ns as f64
     } else {

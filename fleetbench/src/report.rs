@@ -109,6 +109,12 @@ pub struct ScaleRow {
     pub merged_per_s: f64,
     /// Q-updates the robots sent per second (latest-wins: the excess is overwritten).
     pub offered_per_s: f64,
+    /// Q-updates the robots sent in total.
+    pub updates_sent: u64,
+    /// Q-updates the coordinator merged in total (the rest were overwritten in its buffers).
+    pub updates_merged: u64,
+    /// Hint batches the robots gave up waiting for (not seen merged within 20 ms).
+    pub batches_lost: u64,
     /// End-to-end loop samples (update at one robot → applied at another).
     pub loop_count: u64,
     /// Loop latency median, ns.
@@ -357,7 +363,10 @@ impl Report {
                     r.cpu_pct,
                     r.cpu_coordinator_pct,
                     r.cpu_robots_pct,
-                    r.error.as_deref().unwrap_or("ok")
+                    r.error.clone().unwrap_or_else(|| format!(
+                        "ok ({} of {} merged, {} batches unacked)",
+                        r.updates_merged, r.updates_sent, r.batches_lost
+                    ))
                 );
             }
         }

@@ -146,6 +146,9 @@ pub enum RoleSpec {
         batch: u32,
         /// How long to emit, ms (from Start).
         duration_ms: u64,
+        /// Hint batches sent but not yet seen merged before the robot waits (yielding its
+        /// CPU); keeps the coordinator's latest-wins buffer from overflowing.
+        in_flight: u32,
         /// Registration and Stop timeout, ms.
         timeout_ms: u64,
         /// Coordinator pid whose CPU time this robot samples over its window (robot 0 only).
@@ -172,6 +175,8 @@ pub struct ChildReport {
     pub batches_sent: u64,
     /// Q-updates sent in those batches (scale robots).
     pub updates_sent: u64,
+    /// Batches never seen merged within 20 ms (scale robots' flow control gave up on them).
+    pub batches_lost: u64,
     /// Merged entries applied or looked at (loop samples from foreign robots).
     pub merged_seen: u64,
     /// Coordinator: Q-updates merged per second over its active time (its own figure).

@@ -73,7 +73,13 @@ pub fn run(plan: &Plan, hist_path: &Path) -> Result<ChildReport, BenchError> {
     let timeout = Duration::from_millis(plan.timeout_ms);
     let (tx_ping, rx_ping) = bounded::<Pair>(1);
     let (tx_pong, rx_pong) = bounded::<Pair>(1);
-    let peer = std::thread::spawn(move || pong(rx_ping, tx_pong, timeout));
+    let pong_cpu = crate::cpu::assigned_cpus().get(1).copied();
+    let peer = std::thread::spawn(move || {
+        if let Some(cpu) = pong_cpu {
+            crate::cpu::pin_current_thread(cpu);
+        }
+        pong(rx_ping, tx_pong, timeout)
+    });
     let mut pair: Pair = (
         Box::new(QHintBatch {
             count: 1,

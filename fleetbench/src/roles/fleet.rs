@@ -15,7 +15,8 @@ use bus::bus_schema::{
     Command, FinalReport, QHintBatch, Register, RobotState, RobotStatus, SCHEMA_VERSION,
 };
 use bus::{BusConfig, RobotBus, monotonic_ns};
-use coordinator::{CoordArgs, MergeRule};
+use clap::Parser;
+use coordinator::CoordArgs;
 use planner::QTable;
 use planner::task::Task;
 use qfleet_args::MapArgs;
@@ -43,6 +44,13 @@ pub(crate) fn task(map: &str) -> Result<Task, BenchError> {
         .map_err(|e| BenchError::Input(format!("map {map}: {e}")))
 }
 
+/// The coordinator's options as a command line (to parse them with their defaults).
+#[derive(Debug, Parser)]
+struct CoordCli {
+    #[command(flatten)]
+    args: CoordArgs,
+}
+
 /// Runs the real coordinator until its robots finished; reports its whole-process CPU.
 pub fn coordinator(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
     let RoleSpec::Coordinator {
@@ -57,19 +65,37 @@ pub fn coordinator(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
     else {
         return Err(BenchError::Spec("not a coordinator spec".into()));
     };
-    let args = CoordArgs {
-        run_id: run_id.clone(),
-        robots: *robots,
-        map: map_args(map),
-        wait: *wait,
-        spin_us: *spin_us,
-        merge: MergeRule::Max,
-        out: out.clone(),
-        timeout: *timeout_s,
-        progress: false,
-        hint_buffer: 64,
-        merged_buffer: 0,
-    };
+    // built through the coordinator's own command line, so options added to it later keep
+    // their defaults here
+    let words: Vec<String> = [
+        "coordinator",
+        "--run-id",
+        run_id,
+        "--robots",
+        &robots.to_string(),
+        "--map",
+        map,
+        "--wait",
+        &wait.to_string(),
+        "--spin-us",
+        &spin_us.to_string(),
+        "--merge",
+        "max",
+        "--timeout",
+        &timeout_s.to_string(),
+        "--hint-buffer",
+        "64",
+        // the bench robots send no heartbeat states while they measure
+        "--hang-ms",
+        "600000",
+    ]
+    .iter()
+    .map(|w| w.to_string())
+    .chain(["--out".to_string(), out.display().to_string()])
+    .collect();
+    let args = CoordCli::try_parse_from(words)
+        .map_err(|e| BenchError::Coordinator(format!("coordinator options: {e}")))?
+        .args;
     let t = Window::start(None);
     let result = coordinator::run(args, Arc::new(AtomicBool::new(false)))
         .map_err(|e| BenchError::Coordinator(e.to_string()))?;
@@ -261,7 +287,10 @@ pub fn loop_robots(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
 
 /// One robot of the scale benchmark: for `duration_ms` after Start, makes Q updates as fast
 /// as it can, sends them in batches of `batch` entries (notifying after each, like the
-/// robot-agent), and applies every merged batch it finds before the next one.
+/// robot-agent), and applies every merged batch it finds. Flow control: with `in_flight`
+/// batches not yet seen merged (an entry of its own in a merged batch acknowledges every batch
+/// up to that entry's origin time) it stops sending, spins 50 µs and then yields its CPU; after 20 ms without
+/// progress it counts the oldest batch as lost and goes on.
 pub fn scale_robot(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
     let RoleSpec::ScaleRobot {
         run_id,
@@ -270,6 +299,7 @@ pub fn scale_robot(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
         robots,
         batch,
         duration_ms,
+        in_flight,
         timeout_ms,
         peer_pid,
         hist_path,
@@ -293,33 +323,37 @@ pub fn scale_robot(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
         goal_id: 0,
         rule: ApplyRule::Max,
     };
-    // each robot walks its own stretch of the table (wide enough for a full batch)
-    let first = robot_id.wrapping_mul(cells / (*robots).max(1));
-    let updates = Updates::new(cells, 256, first);
+    // each robot owns a stretch of batch/4 cells (disjoint when the map is large enough), so
+    // every batch changes the fleet table and comes back as merged entries of its own
+    let span = (*batch).div_ceil(4).max(1);
+    let updates = Updates::new(cells, span, robot_id.wrapping_mul(span));
     let mut h = new_hist();
     let mut c = ApplyCounters::default();
     let mut last_seq = None;
     let mut r = ChildReport::default();
+    let mut pending: std::collections::VecDeque<u64> = std::collections::VecDeque::new();
+    let mut acked_ns = 0u64;
     let window = Window::start(*peer_pid);
     let end = Instant::now() + Duration::from_millis(*duration_ms);
-    let mut i: u64 = 0;
-    let mut seq = 0;
-    while Instant::now() < end {
-        for _ in 0..*batch {
-            let (cell, action, v) = updates.get(i, cells);
-            i += 1;
-            if batcher.note(cell, action, v, i, monotonic_ns) {
-                break;
-            }
+    let mut stalled_since: Option<Instant> = None;
+    let (mut i, mut seq) = (0u64, 0u64);
+    let me = *robot_id;
+    loop {
+        let now = Instant::now();
+        if now >= end {
+            break;
         }
-        if !batcher.is_empty() {
-            r.updates_sent += send_hints(&bus, &mut batcher, seq, true)? as u64;
-            r.batches_sent += 1;
-            seq += 1;
-        }
+        // take in merged hints: apply them, and see which of our batches arrived
         while let Some(sample) = bus.merged.receive_sample()? {
+            let m = sample.payload();
+            let n = (m.count as usize).min(m.origin_robot.len());
+            for k in 0..n {
+                if m.origin_robot[k] == me {
+                    acked_ns = acked_ns.max(m.origin_ns[k]);
+                }
+            }
             apply_merged(
-                sample.payload(),
+                m,
                 &ctx,
                 &mut q,
                 batcher.visits(),
@@ -328,6 +362,48 @@ pub fn scale_robot(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
                 &mut last_seq,
                 &mut c,
             );
+        }
+        while pending.front().is_some_and(|t| *t <= acked_ns) {
+            pending.pop_front();
+            stalled_since = None;
+        }
+        if pending.len() >= *in_flight as usize {
+            let waited = now.duration_since(*stalled_since.get_or_insert(now));
+            if waited >= Duration::from_millis(20) {
+                pending.pop_front();
+                r.batches_lost += 1;
+                stalled_since = None;
+            } else if waited < Duration::from_micros(50) {
+                // the answer usually comes within a few µs: spin, then give the CPU away
+                core::hint::spin_loop();
+            } else {
+                std::thread::yield_now();
+            }
+            continue;
+        }
+        for _ in 0..*batch {
+            let (cell, action, v) = updates.get(i, cells);
+            i += 1;
+            if batcher.note(cell, action, v, i, monotonic_ns) {
+                break;
+            }
+        }
+        if !batcher.is_empty() {
+            let mut oldest = 0;
+            let robot_id = bus.robot_id();
+            let mut n = 0;
+            bus.hints.send_with(|b: &mut QHintBatch| {
+                b.robot_id = robot_id;
+                b.seq = seq;
+                n = batcher.fill(b);
+                oldest = b.oldest_update_ns;
+                b.send_time_ns = monotonic_ns();
+            })?;
+            bus.hints.notify()?;
+            pending.push_back(oldest);
+            r.updates_sent += n as u64;
+            r.batches_sent += 1;
+            seq += 1;
         }
     }
     window.finish(&mut r);

@@ -22,6 +22,9 @@ pub mod uds;
 pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
     let spec: RoleSpec =
         serde_json::from_str(spec_json).map_err(|e| BenchError::Spec(e.to_string()))?;
+    if let Some(&cpu) = crate::cpu::assigned_cpus().first() {
+        crate::cpu::pin_current_thread(cpu);
+    }
     let report = match spec {
         RoleSpec::RawPong {
             run_id,
