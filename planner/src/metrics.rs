@@ -100,3 +100,67 @@ impl Summary {
         }
     }
 }
+
+/// Writes records as CSV, `episode,steps,collisions,outcome,return,greedy_path_len` (an empty
+/// last field when the greedy path loops), for plots and spreadsheets.
+pub fn write_episodes_csv(
+    w: &mut impl std::io::Write,
+    records: &[EpisodeRecord],
+) -> std::io::Result<()> {
+    writeln!(w, "episode,steps,collisions,outcome,return,greedy_path_len")?;
+    for r in records {
+        write!(
+            w,
+            "{},{},{},{},{},",
+            r.episode,
+            r.steps,
+            r.collisions,
+            r.outcome.as_str(),
+            r.ret
+        )?;
+        match r.greedy_path_len {
+            Some(g) => writeln!(w, "{g}")?,
+            None => writeln!(w)?,
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn csv_has_one_row_per_episode() {
+        let r = EpisodeRecord {
+            episode: 0,
+            steps: 7,
+            collisions: 1,
+            outcome: Outcome::Goal,
+            ret: 0.0,
+            greedy_path_len: None,
+        };
+        let mut out = Vec::new();
+        write_episodes_csv(
+            &mut out,
+            &[
+                r,
+                EpisodeRecord {
+                    episode: 1,
+                    greedy_path_len: Some(5),
+                    ..r
+                },
+            ],
+        )
+        .unwrap();
+        let text = String::from_utf8(out).unwrap();
+        assert_eq!(
+            text.lines().collect::<Vec<_>>(),
+            [
+                "episode,steps,collisions,outcome,return,greedy_path_len",
+                "0,7,1,goal,0,",
+                "1,7,1,goal,0,5"
+            ]
+        );
+    }
+}

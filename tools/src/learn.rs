@@ -207,25 +207,12 @@ impl LearnResult {
     }
 }
 
-/// Writes `episode,steps,collisions,outcome,return,greedy_path_len` rows.
+/// Writes the per-episode CSV file.
 pub fn write_episodes_csv(path: &Path, records: &[EpisodeRecord]) -> Result<()> {
     let f = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
     let mut w = std::io::BufWriter::new(f);
-    writeln!(w, "episode,steps,collisions,outcome,return,greedy_path_len")?;
-    for r in records {
-        let g = r.greedy_path_len.map_or(String::new(), |x| x.to_string());
-        writeln!(
-            w,
-            "{},{},{},{},{},{}",
-            r.episode,
-            r.steps,
-            r.collisions,
-            r.outcome.as_str(),
-            r.ret,
-            g
-        )?;
-    }
-    w.flush()
+    planner::metrics::write_episodes_csv(&mut w, records)
+        .and_then(|()| w.flush())
         .with_context(|| format!("writing {}", path.display()))?;
     Ok(())
 }

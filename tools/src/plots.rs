@@ -171,3 +171,72 @@ pub fn paths_on_grid(
         .with_context(|| format!("writing {}", path.display()))?;
     Ok(())
 }
+
+/// One latency distribution: (percentile in [0, 100), value) points.
+pub struct Percentiles<'a> {
+    /// Legend label.
+    pub label: &'a str,
+    /// Points, in increasing percentile.
+    pub points: &'a [(f64, f64)],
+}
+
+/// Draws latency distributions like HdrHistogram plots: x = percentile on a "number of nines"
+/// scale (log of 1/(1 − p)), y = latency on a log scale.
+pub fn percentile_chart(
+    path: &Path,
+    title: &str,
+    y_label: &str,
+    series: &[Percentiles<'_>],
+) -> Result<()> {
+    let nines = |p: f64| 1.0 / (1.0 - (p / 100.0).min(0.999_999));
+    let all = || series.iter().flat_map(|s| s.points.iter());
+    let xmax = all().map(|(p, _)| nines(*p)).fold(10.0f64, f64::max) * 1.2;
+    let ymax = all().map(|(_, v)| *v).fold(1.0f64, f64::max) * 1.5;
+    let ymin = all()
+        .map(|(_, v)| *v)
+        .filter(|v| *v > 0.0)
+        .fold(ymax, f64::min)
+        .max(1e-3)
+        * 0.7;
+    let root = SVGBackend::new(path, (900, 520)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(70)
+        .build_cartesian_2d((1.0f64..xmax).log_scale(), (ymin..ymax).log_scale())?;
+    chart
+        .configure_mesh()
+        .x_desc("percentile")
+        .y_desc(y_label)
+        .x_label_formatter(&|x| {
+            let p = format!("{:.4}", 100.0 * (1.0 - 1.0 / x));
+            format!("{}%", p.trim_end_matches('0').trim_end_matches('.'))
+        })
+        .draw()?;
+    for (i, s) in series.iter().enumerate() {
+        let color = PALETTE[i % PALETTE.len()];
+        chart
+            .draw_series(LineSeries::new(
+                s.points
+                    .iter()
+                    .filter(|(_, v)| *v > 0.0)
+                    .map(|(p, v)| (nines(*p), *v)),
+                color.stroke_width(2),
+            ))?
+            .label(s.label)
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
+            });
+    }
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()?;
+    root.present()
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
