@@ -4,6 +4,7 @@
 //! A thin process over the `bus` crate; the merge rules live in [`merge`], the run and the wait
 //! strategies in [`run`](mod@run).
 
+pub mod experiment;
 pub mod merge;
 pub mod run;
 

@@ -35,7 +35,7 @@ use bus::bus_schema::{
     Command, Control, FinalReport, MergedHintBatch, PseudoTargetDiscovery, Register, RobotStatus,
     SCHEMA_VERSION,
 };
-use bus::{BusConfig, BusError, RobotBus, check_nodes, monotonic_ns};
+use bus::{BusConfig, BusError, RobotBus, monotonic_ns};
 use clap::Args;
 use hdrhistogram::Histogram;
 use planner::task::Task;
@@ -44,6 +44,7 @@ use qfleet_args::{LearnerArgs, MapArgs};
 use serde::Serialize;
 
 use crate::hist::{self, LatencyStats, new_hist, record};
+use crate::reconnect::{Link, LinkCounters, LinkEvent};
 use crate::share::{
     ApplyCounters, ApplyCtx, HintBatcher, ShareArgs, ShareMode, apply_merged, map_fingerprint,
 };
@@ -78,6 +79,13 @@ pub struct AgentArgs {
     /// Test hook: register with this schema version instead of the real one.
     #[arg(long, hide = true)]
     pub schema_version_override: Option<u32>,
+    /// Take part in a coordinator-driven experiment: goals and phases come from the
+    /// coordinator (see the `experiment` module); started by `qfleet experiment`.
+    #[arg(long)]
+    pub experiment: bool,
+    /// Experiment: end a phase after the episode whose greedy path is optimal.
+    #[arg(long, requires = "experiment")]
+    pub stop_at_optimum: bool,
 }
 
 /// Why a robot-agent failed.
@@ -127,6 +135,10 @@ pub struct Counters {
     pub relays_applied: u64,
     /// Merged-hint handling.
     pub merged: ApplyCounters,
+    /// Fleet-table entries applied before the first episode (a restarted robot's warm start).
+    pub warm_start_entries: u64,
+    /// Losing and re-joining the coordinator.
+    pub link: LinkCounters,
 }
 
 /// What a robot writes to `robot-<id>.json` (its learning metrics as in `qfleet learn --json`
@@ -180,6 +192,8 @@ pub struct RobotResult {
 }
 
 struct Discoveries {
+    /// Every discovery made, by seq: replayed to a restarted coordinator.
+    all: Vec<PseudoTargetDiscovery>,
     next_seq: u64,
     /// (seq, discovery, last send time) not yet acknowledged.
     unacked: VecDeque<(u64, PseudoTargetDiscovery, Instant)>,
@@ -189,6 +203,9 @@ struct Discoveries {
 }
 
 const DISCOVERY_RESEND: Duration = Duration::from_millis(100);
+
+/// How often a robot that is not learning (end of run) tells the coordinator it is alive.
+const HEARTBEAT: Duration = Duration::from_millis(100);
 
 struct Agent<'a> {
     args: &'a AgentArgs,
@@ -200,6 +217,7 @@ struct Agent<'a> {
     ctx: ApplyCtx,
     c: Counters,
     disc: Discoveries,
+    link: Link,
     loop_hist: Histogram<u64>,
     merged_hist: Histogram<u64>,
     last_merged_seq: Option<u64>,
@@ -225,6 +243,9 @@ fn secs(s: f64) -> Result<Duration, AgentError> {
 
 /// Runs one robot-agent to the end; `stop` is set by a signal handler (graceful stop).
 pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, AgentError> {
+    if args.experiment {
+        return crate::experiment::run(args, stop);
+    }
     let timeout = secs(args.timeout)?;
     args.share.validate().map_err(AgentError::Input)?;
     let mut task = args
@@ -308,7 +329,9 @@ pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, Agent
         goal_id,
         learner,
         c: Counters::default(),
+        link: Link::new(reg),
         disc: Discoveries {
+            all: Vec::new(),
             next_seq: 0,
             unacked: VecDeque::new(),
             acked_up_to: None,
@@ -341,6 +364,10 @@ impl Agent<'_> {
         let state_every = u64::from(self.args.share.state_every);
         let poll_every = u64::from(self.args.share.poll_every);
         let flush_steps = u64::from(self.args.share.hint_flush_steps);
+        // warm start: a robot (re)admitted during a run finds the coordinator's fleet table
+        // waiting in its merged-hint buffer (sent before its Start)
+        self.poll_inbox(share)?;
+        self.c.warm_start_entries = self.c.merged.entries_applied;
         while !self.learner.finished() && !self.stopped {
             self.learner.begin_episode();
             self.episode_step = 0;
@@ -386,9 +413,11 @@ impl Agent<'_> {
         }
         // make sure every discovery reached the coordinator before saying "finished"
         let deadline = Instant::now() + timeout;
+        let mut beat = Instant::now();
         while !self.disc.unacked.is_empty() && !self.stop.load(Ordering::Relaxed) {
             self.poll_inbox(share)?;
             self.resend_discoveries();
+            self.heartbeat(RobotStatus::Running, &mut beat);
             if Instant::now() >= deadline {
                 eprintln!(
                     "robot-agent {}: {} discoveries still unacknowledged after {timeout:?}",
@@ -402,9 +431,10 @@ impl Agent<'_> {
         let at = self.learner.env().start();
         self.send_state(RobotStatus::Finished, at);
         let _ = self.bus.state.notify();
-        // fleet sync: apply merged hints until the coordinator says Stop
-        let deadline = Instant::now() + timeout;
-        let mut last_liveness = Instant::now();
+        // fleet sync: apply merged hints until the coordinator says Stop; a coordinator that
+        // died meanwhile may be restarted: wait for it (re-joining it) up to the timeout
+        let mut deadline = Instant::now() + timeout;
+        let mut rejoins = self.link.counters.rejoins;
         while !self.stopped {
             self.poll_inbox(share)?;
             if self.stopped {
@@ -421,19 +451,23 @@ impl Agent<'_> {
                 }
                 .into());
             }
-            if now.duration_since(last_liveness) >= Duration::from_millis(250) {
-                last_liveness = now;
-                self.check_coordinator()?;
+            if self.link.counters.rejoins != rejoins {
+                rejoins = self.link.counters.rejoins;
+                deadline = now + timeout;
             }
+            // keep the (maybe new) coordinator's view of us fresh: Finished, and alive
+            self.resend_discoveries();
+            self.heartbeat(RobotStatus::Finished, &mut beat);
             self.wait_for_coordinator(Duration::from_millis(2))?;
         }
+        self.c.link = self.link.counters;
         // everything the coordinator sent before Stop is buffered by now
         self.poll_inbox(share)?;
         let finished = self.learner.finished();
         let final_len = self.learner.greedy_path_len();
         let summary = Summary::from_records(&records, self.learner.optimal_len(), final_len);
         let result = self.result(&summary, own_final, learn_s, finished);
-        self.write_files(&result)?;
+        self.write_files(&result, &records)?;
         self.send_report(&summary, finished, t0)?;
         Ok(result)
     }
@@ -441,17 +475,6 @@ impl Agent<'_> {
     fn wait_for_coordinator(&self, d: Duration) -> Result<(), AgentError> {
         self.bus.control.wait(d)?;
         Ok(())
-    }
-
-    fn check_coordinator(&self) -> Result<(), AgentError> {
-        let report = check_nodes(self.bus.config(), false)?;
-        if report.alive().any(|n| n.name == "qfleet-coordinator") {
-            Ok(())
-        } else {
-            Err(AgentError::CoordinatorGone(
-                self.bus.config().run_id.clone(),
-            ))
-        }
     }
 
     fn send_state(&mut self, status: RobotStatus, cell_idx: u32) {
@@ -526,19 +549,26 @@ impl Agent<'_> {
             ..PseudoTargetDiscovery::ZEROED
         };
         self.c.discoveries_sent += 1;
-        // first send happens now; a failure leaves it for the re-send timer
-        let sent = self.bus.discovery.send_with(|m| {
-            *m = d;
-            m.send_time_ns = monotonic_ns();
-        });
-        if sent.is_err() {
-            self.c.discovery_send_errors += 1;
+        self.disc.all.push(d);
+        // first send happens now (unless no coordinator is there to take it); a failure
+        // leaves it for the re-send timer
+        if !self.link.alone() {
+            let sent = self.bus.discovery.send_with(|m| {
+                *m = d;
+                m.send_time_ns = monotonic_ns();
+            });
+            if sent.is_err() {
+                self.c.discovery_send_errors += 1;
+            }
         }
         self.disc.unacked.push_back((seq, d, Instant::now()));
         self.disc.dirty = true;
     }
 
     fn resend_discoveries(&mut self) {
+        if self.link.alone() {
+            return; // kept until a coordinator is back and acknowledges them
+        }
         let mut any = false;
         let now = Instant::now();
         for (_, d, last) in self.disc.unacked.iter_mut() {
@@ -561,7 +591,42 @@ impl Agent<'_> {
         }
     }
 
+    /// A restarted coordinator accepted this robot: it knows none of our discoveries, so all
+    /// of them go out again (it drops duplicates by seq), and the Finished state if we are done.
+    fn on_link(&mut self, ev: LinkEvent) -> Result<(), AgentError> {
+        match ev {
+            LinkEvent::Rejoined => {
+                let long_ago = Instant::now() - DISCOVERY_RESEND;
+                self.disc.unacked = self
+                    .disc
+                    .all
+                    .iter()
+                    .map(|d| (d.seq, *d, long_ago))
+                    .collect();
+                self.disc.acked_up_to = None;
+                self.resend_discoveries();
+                Ok(())
+            }
+            LinkEvent::Refused(why) => Err(AgentError::Refused(BusError::Refused {
+                robot_id: self.args.robot_id,
+                reason: why,
+            })),
+        }
+    }
+
+    /// A state now and then while not learning (waiting for acks or for `Stop`), so the
+    /// coordinator's heartbeat deadline does not take a waiting robot for a hung one.
+    fn heartbeat(&mut self, status: RobotStatus, last: &mut Instant) {
+        if last.elapsed() >= HEARTBEAT {
+            *last = Instant::now();
+            let at = self.learner.env().start();
+            self.send_state(status, at);
+            let _ = self.bus.state.notify();
+        }
+    }
+
     fn poll_inbox(&mut self, share: bool) -> Result<(), AgentError> {
+        self.link.tick(&self.bus)?;
         // merged hints: applied in place, straight from shared memory
         loop {
             let Some(sample) = self.bus.merged.receive_sample()? else {
@@ -623,6 +688,10 @@ impl Agent<'_> {
             }
         }
         while let Some(ctl) = self.bus.recv_control()? {
+            if let Some(ev) = self.link.on_control(&ctl) {
+                self.on_link(ev)?;
+                continue;
+            }
             match Command::try_from(ctl.command) {
                 Ok(Command::Stop) => self.stopped = true,
                 Ok(Command::AssignGoal) if ctl.goal_id != self.goal_id => {
@@ -674,7 +743,7 @@ impl Agent<'_> {
         }
     }
 
-    fn write_files(&self, r: &RobotResult) -> Result<(), AgentError> {
+    fn write_files(&self, r: &RobotResult, records: &[EpisodeRecord]) -> Result<(), AgentError> {
         let Some(dir) = &self.args.out else {
             return Ok(());
         };
@@ -684,6 +753,11 @@ impl Agent<'_> {
         let json = serde_json::to_string_pretty(r).map_err(|e| out(e.to_string()))?;
         let path = dir.join(format!("robot-{id}.json"));
         std::fs::write(&path, json).map_err(|e| out(format!("{}: {e}", path.display())))?;
+        let path = dir.join(format!("robot-{id}-episodes.csv"));
+        let mut csv = Vec::with_capacity(records.len() * 24);
+        planner::metrics::write_episodes_csv(&mut csv, records)
+            .and_then(|()| std::fs::write(&path, csv))
+            .map_err(|e| out(format!("{}: {e}", path.display())))?;
         hist::write_binary(&self.loop_hist, &dir.join(format!("robot-{id}-loop.hdr")))
             .map_err(|e| out(e.to_string()))?;
         hist::write_binary(

@@ -6,7 +6,9 @@
 //! [`hist`] holds the latency-histogram helpers the coordinator uses too.
 
 pub mod agent;
+pub mod experiment;
 pub mod hist;
+pub mod reconnect;
 pub mod share;
 
 pub use agent::{AgentArgs, AgentError, Counters, RobotResult, run};

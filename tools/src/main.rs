@@ -1,10 +1,13 @@
 //! `qfleet`: learn grid paths with the paper's Q-learners, replicate its results, and run fleets.
 
 mod bench;
+mod experiment;
 mod learn;
 mod plots;
 mod replicate;
 mod run;
+mod sweep;
+mod runplots;
 
 use clap::{Parser, Subcommand};
 
@@ -24,6 +27,10 @@ enum Command {
     Replicate(replicate::ReplicateCmd),
     /// Run a fleet: a coordinator and N robot-agents sharing Q-values over shared memory.
     Run(run::RunCmd),
+    /// Run an experiment manifest: the coordinator assigns goals and phases to the robots.
+    Experiment(experiment::ExperimentCmd),
+    /// Measure the value of sharing: N = 1, 2, 4, 8, 16 robots, with and without sharing.
+    Sweep(sweep::SweepCmd),
     /// Benchmark the update loop against raw iceoryx2, Unix sockets and crossbeam; fleet scale.
     Bench(bench::BenchCmd),
 }
@@ -35,6 +42,8 @@ fn main() {
         Command::Replicate(c) => c.run(),
         Command::Run(c) => c.run(),
         Command::Bench(c) => c.run(),
+        Command::Experiment(c) => c.run(),
+        Command::Sweep(c) => c.run(),
     };
     if let Err(e) = result {
         eprintln!("qfleet: error: {e:#}");
