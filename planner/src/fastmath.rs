@@ -9,7 +9,10 @@
 /// Written without `floor` (a libm call on baseline x86-64) so that four lanes vectorise.
 #[inline(always)]
 pub fn exp_neg(x: f32) -> f32 {
-    let t = (x * std::f32::consts::LOG2_E).clamp(-126.0, 0.0);
+    // Written as compares, not `clamp`: single instructions, and NaN lands on -126.
+    let t = x * std::f32::consts::LOG2_E;
+    let t = if t > -126.0 { t } else { -126.0 };
+    let t = if t < 0.0 { t } else { 0.0 };
     let i = t as i32; // truncates towards zero: i in [-126, 0]
     let f = t - i as f32; // in (-1, 0]
     // Taylor series of 2^f = e^(f ln 2), degree 6.

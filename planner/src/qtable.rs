@@ -69,10 +69,29 @@ impl QTable {
     }
 }
 
+/// Larger of two values, NaN-unaware: one `maxss`, where `f32::max` spends three more
+/// instructions on NaN rules. Q-values are always finite (every write path checks).
+#[inline(always)]
+pub fn fmax(a: f32, b: f32) -> f32 {
+    if a > b { a } else { b }
+}
+
+/// Smaller of two values, NaN-unaware (see [`fmax`]).
+#[inline(always)]
+pub fn fmin(a: f32, b: f32) -> f32 {
+    if a < b { a } else { b }
+}
+
 /// Largest of four values.
 #[inline(always)]
 pub fn max4(q: &[f32; 4]) -> f32 {
-    q[0].max(q[1]).max(q[2].max(q[3]))
+    fmax(fmax(q[0], q[1]), fmax(q[2], q[3]))
+}
+
+/// Smallest of four values.
+#[inline(always)]
+pub fn min4(q: &[f32; 4]) -> f32 {
+    fmin(fmin(q[0], q[1]), fmin(q[2], q[3]))
 }
 
 /// Index of the first largest of four values.
