@@ -552,7 +552,9 @@ impl Agent<'_> {
         self.disc.all.push(d);
         // first send happens now (unless no coordinator is there to take it); a failure
         // leaves it for the re-send timer
-        if !self.link.alone() {
+        if self.link.alone() {
+            self.link.counters.discoveries_while_alone += 1;
+        } else {
             let sent = self.bus.discovery.send_with(|m| {
                 *m = d;
                 m.send_time_ns = monotonic_ns();

@@ -6,6 +6,7 @@ mod learn;
 mod plots;
 mod replicate;
 mod run;
+mod supervise;
 mod sweep;
 mod runplots;
 

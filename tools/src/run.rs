@@ -5,15 +5,15 @@
 //! a Ctrl-C in the terminal reaches only this launcher, which then stops the run in order: the
 //! first Ctrl-C asks the coordinator to stop (it tells the robots, collects their reports and
 //! writes a partial result) and kills whatever is still running after `--grace` seconds; a
-//! second Ctrl-C kills at once. Afterwards every shared-memory file of the run is removed.
+//! second Ctrl-C kills at once (SIGTERM to the launcher counts as a Ctrl-C). Afterwards every
+//! shared-memory file of the run is removed. Restarts of failed processes: see
+//! [`crate::supervise`].
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU32, Ordering};
-use std::sync::mpsc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
@@ -21,7 +21,9 @@ use coordinator::{MergeRule, RunResult, WaitStrategy};
 use indicatif::{ProgressBar, ProgressStyle};
 use qfleet_args::{LearnerArgs, MapArgs};
 use robot_agent::ShareArgs;
-use std::os::unix::process::{CommandExt, ExitStatusExt};
+use std::os::unix::process::CommandExt;
+
+use crate::supervise::{Launch, RestartPolicy, supervise};
 
 /// Options of `qfleet run`.
 #[derive(Debug, Args)]
@@ -60,50 +62,15 @@ pub struct RunCmd {
     /// Give up (stop the run, exit non-zero) after this many seconds; 0 = no limit.
     #[arg(long, default_value_t = 0.0)]
     time_limit: f64,
-}
-
-struct Proc {
-    name: String,
-    child: Child,
-    log: PathBuf,
-    status: Option<ExitStatus>,
-}
-
-impl Proc {
-    fn poll(&mut self) -> Result<Option<ExitStatus>> {
-        if self.status.is_none() {
-            self.status = self
-                .child
-                .try_wait()
-                .with_context(|| format!("waiting for {}", self.name))?;
-        }
-        Ok(self.status)
-    }
-
-    fn signal(&self, sig: libc::c_int) {
-        if self.status.is_none() {
-            // SAFETY: kill(2) on our own child's pid; at worst it fails with ESRCH.
-            unsafe {
-                libc::kill(self.child.id() as libc::pid_t, sig);
-            }
-        }
-    }
-
-    fn failed(&self) -> bool {
-        self.status.is_some_and(|s| !s.success())
-    }
-
-    fn describe(&self) -> String {
-        match self.status {
-            Some(s) if s.success() => format!("{} exited cleanly", self.name),
-            Some(s) => match (s.code(), s.signal()) {
-                (Some(c), _) => format!("{} failed (exit code {c})", self.name),
-                (_, Some(sig)) => format!("{} was killed by signal {sig}", self.name),
-                _ => format!("{} failed", self.name),
-            },
-            None => format!("{} is still running", self.name),
-        }
-    }
+    /// Restart a robot-agent or the coordinator that died, crashed or hung (with backoff).
+    #[arg(long, value_enum, default_value_t = RestartPolicy::Never)]
+    restart: RestartPolicy,
+    /// Restarts allowed per process with `--restart on-failure`.
+    #[arg(long, default_value_t = 3)]
+    max_restarts: u32,
+    /// A running robot silent this many ms is reported hung (and restarted with the policy).
+    #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..))]
+    hang_ms: u64,
 }
 
 fn sibling(name: &str) -> Result<PathBuf> {
@@ -120,12 +87,6 @@ fn sibling(name: &str) -> Result<PathBuf> {
         );
     }
     Ok(path)
-}
-
-fn tail(path: &Path, lines: usize) -> String {
-    let text = std::fs::read_to_string(path).unwrap_or_default();
-    let all: Vec<&str> = text.lines().collect();
-    all[all.len().saturating_sub(lines)..].join("\n")
 }
 
 fn default_run_id() -> String {
@@ -195,6 +156,10 @@ impl RunCmd {
             .and_then(|t| serde_json::from_str::<RunResult>(&t).ok());
         if temp_out {
             let _ = std::fs::remove_dir_all(&out);
+        } else if result.is_some()
+            && let Err(e) = crate::runplots::write(&out)
+        {
+            eprintln!("qfleet: warning: plotting the run: {e:#}");
         }
         let failures = outcome?;
         if let Err(e) = cleaned {
@@ -230,55 +195,31 @@ impl RunCmd {
         task: &planner::task::Task,
         episodes: u32,
     ) -> Result<Vec<String>> {
-        let mut procs: Vec<Proc> = Vec::new();
-        let log_file = |name: &str| -> Result<(PathBuf, std::fs::File)> {
-            let p = out.join(format!("{name}.log"));
-            let f =
-                std::fs::File::create(&p).with_context(|| format!("creating {}", p.display()))?;
-            Ok((p, f))
+        let restarts = match self.restart {
+            RestartPolicy::Never => 0,
+            RestartPolicy::OnFailure => self.max_restarts,
         };
-        let (log, f) = log_file("coordinator")?;
-        let mut cmd = Command::new(coord_bin);
-        cmd.args(["--run-id", run_id, "--robots", &self.robots.to_string()])
-            .args(self.map.to_cli())
-            .args([
-                "--wait",
-                &self.wait.to_string(),
-                "--spin-us",
-                &self.spin_us.to_string(),
-            ])
-            .args(["--merge", &self.merge.to_string(), "--progress"])
-            .arg("--out")
-            .arg(out)
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(f)
-            .process_group(0);
-        let mut child = cmd
-            .spawn()
-            .with_context(|| format!("starting {}", coord_bin.display()))?;
-        let (tx, rx) = mpsc::channel::<(u64, u64, u64, u64)>();
-        if let Some(stdout) = child.stdout.take() {
-            std::thread::spawn(move || {
-                for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                    let v: Vec<u64> = line
-                        .strip_prefix("progress ")
-                        .map(|r| r.split(' ').filter_map(|x| x.parse().ok()).collect())
-                        .unwrap_or_default();
-                    if v.len() == 4 && tx.send((v[0], v[1], v[2], v[3])).is_err() {
-                        break;
-                    }
-                }
-            });
-        }
-        procs.push(Proc {
-            name: "coordinator".into(),
-            child,
-            log,
-            status: None,
-        });
-        for id in 0..self.robots {
-            let (log, f) = log_file(&format!("robot-{id}"))?;
+        let coordinator = || -> Result<Command> {
+            let mut cmd = Command::new(coord_bin);
+            cmd.args(["--run-id", run_id, "--robots", &self.robots.to_string()])
+                .args(self.map.to_cli())
+                .args([
+                    "--wait",
+                    &self.wait.to_string(),
+                    "--spin-us",
+                    &self.spin_us.to_string(),
+                ])
+                .args(["--merge", &self.merge.to_string(), "--progress"])
+                .args(["--hang-ms", &self.hang_ms.to_string()])
+                .args(["--restarts", &restarts.to_string()])
+                .arg("--out")
+                .arg(out)
+                .stdin(Stdio::null())
+                .stdout(Stdio::piped())
+                .process_group(0);
+            Ok(cmd)
+        };
+        let robot = |id: u32| -> Result<Command> {
             let mut cmd = Command::new(robot_bin);
             cmd.args(["--run-id", run_id, "--robot-id", &id.to_string()])
                 .args(["--robots", &self.robots.to_string()])
@@ -293,27 +234,18 @@ impl RunCmd {
                 .arg(out)
                 .stdin(Stdio::null())
                 .stdout(Stdio::null())
-                .stderr(f)
                 .process_group(0);
-            match cmd.spawn() {
-                Ok(child) => procs.push(Proc {
-                    name: format!("robot-agent {id}"),
-                    child,
-                    log,
-                    status: None,
-                }),
-                Err(e) => {
-                    for p in &procs {
-                        p.signal(libc::SIGKILL);
-                    }
-                    for p in &mut procs {
-                        let _ = p.child.wait();
-                    }
-                    return Err(e).with_context(|| format!("starting {}", robot_bin.display()));
-                }
-            }
-        }
-
+            Ok(cmd)
+        };
+        let launch = Launch {
+            coordinator: &coordinator,
+            robot: &robot,
+            robots: self.robots,
+            policy: self.restart,
+            max_restarts: self.max_restarts,
+            grace,
+            time_limit,
+        };
         let total = u64::from(self.robots) * u64::from(episodes);
         let bar = ProgressBar::new(total);
         bar.set_style(
@@ -324,88 +256,23 @@ impl RunCmd {
             .progress_chars("=> "),
         );
         bar.set_message(format!("{} robots on {}", self.robots, task.map_name));
-        let t0 = Instant::now();
-        let mut stopping: Option<Instant> = None;
-        let mut killed = false;
-        let mut seen_interrupts = 0;
-        let mut why_stopped: Option<String> = None;
-        loop {
-            while let Ok((done, tot, p50, p99)) = rx.try_recv() {
-                if tot > 0 {
-                    bar.set_length(tot);
-                }
-                bar.set_position(done);
-                bar.set_message(format!(
-                    "hint→coordinator p50 {:.1} µs p99 {:.1} µs",
-                    p50 as f64 / 1e3,
-                    p99 as f64 / 1e3
-                ));
+        let done = supervise(&launch, out, interrupts, |done, tot, p50, p99| {
+            if tot > 0 {
+                bar.set_length(tot);
             }
-            let mut all_done = true;
-            for p in &mut procs {
-                if p.poll()?.is_none() {
-                    all_done = false;
-                }
-            }
-            if all_done {
-                break;
-            }
-            let coord_gone = procs[0].status.is_some();
-            let n = interrupts.load(Ordering::SeqCst);
-            if n > seen_interrupts {
-                seen_interrupts = n;
-                if n == 1 && stopping.is_none() {
-                    why_stopped = Some("interrupted by Ctrl-C".into());
-                    eprintln!("qfleet: stopping the run (Ctrl-C again to kill it now)");
-                    stopping = Some(Instant::now());
-                    procs[0].signal(libc::SIGTERM);
-                } else if !killed {
-                    killed = true;
-                    for p in &procs {
-                        p.signal(libc::SIGKILL);
-                    }
-                }
-            }
-            if stopping.is_none() && !time_limit.is_zero() && t0.elapsed() >= time_limit {
-                why_stopped = Some(format!("time limit of {time_limit:?} reached"));
-                stopping = Some(Instant::now());
-                procs[0].signal(libc::SIGTERM);
-            }
-            if stopping.is_none() && coord_gone {
-                // robots cannot finish without their coordinator: stop them
-                stopping = Some(Instant::now());
-                for p in &procs[1..] {
-                    p.signal(libc::SIGTERM);
-                }
-            }
-            if let Some(t) = stopping
-                && !killed
-                && t.elapsed() >= grace
-            {
-                killed = true;
-                for p in &procs {
-                    p.signal(libc::SIGKILL);
-                }
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
+            bar.set_position(done);
+            bar.set_message(format!(
+                "hint→coordinator p50 {:.1} µs p99 {:.1} µs",
+                p50 as f64 / 1e3,
+                p99 as f64 / 1e3
+            ));
+        });
         bar.finish_and_clear();
-        let mut failures: Vec<String> = Vec::new();
-        if let Some(w) = why_stopped {
-            failures.push(w);
+        let done = done?;
+        if done.restarts > 0 {
+            eprintln!("qfleet: {} process restarts during the run", done.restarts);
         }
-        for p in &procs {
-            if p.failed() {
-                let t = tail(&p.log, 5);
-                eprintln!(
-                    "qfleet: {} — last lines of {}:\n{t}",
-                    p.describe(),
-                    p.log.display()
-                );
-                failures.push(p.describe());
-            }
-        }
-        Ok(failures)
+        Ok(done.failures)
     }
 }
 

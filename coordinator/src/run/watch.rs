@@ -10,7 +10,7 @@ use std::io::Write;
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::{Command, Control, MergedHintBatch, Register};
-use bus::{BusError, CoordinatorBus, Expected, check_nodes, check_register, monotonic_ns};
+use bus::{BusConfig, BusError, CoordinatorBus, Expected, check_nodes, check_register, monotonic_ns};
 use serde::{Deserialize, Serialize};
 
 use super::{Coord, CoordError};
@@ -53,6 +53,8 @@ pub(super) struct Life {
     restarts: u32,
     wait_restart: Duration,
     merged_buffer: usize,
+    /// The background cleanup of dead nodes, while one runs.
+    cleaner: Option<std::thread::JoinHandle<()>>,
 }
 
 impl Life {
@@ -71,7 +73,27 @@ impl Life {
             restarts,
             wait_restart,
             merged_buffer,
+            cleaner: None,
         }
+    }
+
+    /// Removes dead nodes' resources (their ports in every service, their shared memory) on a
+    /// background thread, one cleanup at a time: it takes a few hundred ms and must not stall
+    /// the coordinator's loop. Until it is done, lossless sends may wait on a dead robot's
+    /// buffer, bounded by the coordinator's 1 s send timeout.
+    pub(super) fn clean_dead(&mut self, cfg: &BusConfig) {
+        if self.cleaner.as_ref().is_some_and(|h| !h.is_finished()) {
+            return;
+        }
+        if let Some(h) = self.cleaner.take() {
+            let _ = h.join();
+        }
+        let cfg = cfg.clone();
+        self.cleaner = Some(std::thread::spawn(move || {
+            if let Err(e) = check_nodes(&cfg, true) {
+                eprintln!("qfleet-coordinator: warning: cleaning up dead nodes: {e}");
+            }
+        }));
     }
 
     /// A robot was admitted by the start handshake.

@@ -1,0 +1,176 @@
+//! Surviving the coordinator: notice that it is gone, learn alone meanwhile, and re-register
+//! with a restarted one.
+//!
+//! Every 250 ms (checked between learning steps, never blocking them) the robot lists the run's
+//! iceoryx2 nodes. When no coordinator is alive the robot is *alone*: it cleans up the dead
+//! coordinator's resources (so lossless sends stop waiting on its full buffers), keeps learning,
+//! and holds back discovery sends — they stay queued until acknowledged. When a coordinator with
+//! another process id is alive, the robot re-sends its `Register` every 250 ms until that
+//! coordinator acknowledges it; then every discovery it ever made is replayed (the new
+//! coordinator has none of them; duplicates are dropped by sequence number there), so nothing
+//! found while the coordinator was down is lost.
+
+use std::time::{Duration, Instant};
+
+use bus::bus_schema::{Command, Control, Register};
+use bus::{BusError, RobotBus, check_nodes, monotonic_ns, reason};
+use serde::Serialize;
+
+/// How often the robot looks for its coordinator.
+const CHECK_EVERY: Duration = Duration::from_millis(250);
+
+/// How often a `Register` is re-sent to a new coordinator until it answers.
+const REGISTER_EVERY: Duration = Duration::from_millis(250);
+
+/// The coordinator's node name (see `bus::CoordinatorBus::create`).
+const COORDINATOR_NODE: &str = "qfleet-coordinator";
+
+/// Counters of the robot's link to its coordinator, reported in its result.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct LinkCounters {
+    /// Times the coordinator was found gone.
+    pub coordinator_losses: u64,
+    /// Times the robot re-registered with a restarted coordinator.
+    pub rejoins: u64,
+    /// Milliseconds spent without a coordinator.
+    pub alone_ms: u64,
+    /// Discoveries made while no coordinator had accepted this robot (delivered later).
+    pub discoveries_while_alone: u64,
+}
+
+/// What a control message meant for the link.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum LinkEvent {
+    /// A restarted coordinator accepted this robot: replay unacknowledged state.
+    Rejoined,
+    /// A restarted coordinator refused this robot.
+    Refused(String),
+}
+
+/// The robot's view of its coordinator.
+#[derive(Debug)]
+pub struct Link {
+    reg: Register,
+    coordinator_pid: Option<i32>,
+    alone_since: Option<Instant>,
+    /// A coordinator with this pid is up and has not acknowledged us yet.
+    rejoining: Option<i32>,
+    asked_ns: u64,
+    last_check: Instant,
+    last_register: Option<Instant>,
+    /// Link counters.
+    pub counters: LinkCounters,
+}
+
+impl Link {
+    /// A link for a robot that just registered with `reg`.
+    pub fn new(reg: Register) -> Self {
+        Link {
+            reg,
+            coordinator_pid: None,
+            alone_since: None,
+            rejoining: None,
+            asked_ns: 0,
+            // look at once, so the coordinator we registered with is known early
+            last_check: Instant::now() - CHECK_EVERY,
+            last_register: None,
+            counters: LinkCounters::default(),
+        }
+    }
+
+    /// Whether there is no coordinator that accepted this robot (gone, or restarted and not
+    /// acknowledged yet): hold back lossless sends.
+    pub fn alone(&self) -> bool {
+        self.alone_since.is_some() || self.rejoining.is_some()
+    }
+
+    /// The periodic check; cheap when called more often than every 250 ms.
+    pub fn tick(&mut self, bus: &RobotBus) -> Result<(), BusError> {
+        let now = Instant::now();
+        if now.duration_since(self.last_check) >= CHECK_EVERY {
+            self.last_check = now;
+            self.look(bus)?;
+        }
+        if self.rejoining.is_some()
+            && self
+                .last_register
+                .is_none_or(|t| t.elapsed() >= REGISTER_EVERY)
+        {
+            self.last_register = Some(now);
+            let reg = self.reg;
+            match bus.register.send_with(|m| {
+                *m = reg;
+                m.send_time_ns = monotonic_ns();
+            }) {
+                Ok(_) => {
+                    bus.register.notify()?;
+                }
+                // its subscriber is not there yet, or it died again: the next round retries
+                Err(BusError::NoSubscriber { .. } | BusError::DeliveryTimeout { .. }) => {}
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(())
+    }
+
+    fn look(&mut self, bus: &RobotBus) -> Result<(), BusError> {
+        let nodes = check_nodes(bus.config(), false)?;
+        let alive = nodes
+            .alive()
+            .find(|n| n.name == COORDINATOR_NODE)
+            .and_then(|n| n.pid);
+        let id = bus.robot_id();
+        match alive {
+            None if self.alone_since.is_none() => {
+                self.alone_since = Some(Instant::now());
+                self.rejoining = None;
+                self.counters.coordinator_losses += 1;
+                eprintln!(
+                    "robot-agent {id}: the coordinator is gone; learning alone, discoveries kept \
+                     until a coordinator acknowledges them"
+                );
+                // free its ports, so nothing waits on a buffer that nobody drains any more
+                if let Err(e) = check_nodes(bus.config(), true) {
+                    eprintln!("robot-agent {id}: warning: cleaning up the dead coordinator: {e}");
+                }
+            }
+            None => {}
+            Some(pid) if self.coordinator_pid.is_none() && !self.alone() => {
+                self.coordinator_pid = Some(pid);
+            }
+            Some(pid) if Some(pid) != self.coordinator_pid && self.rejoining != Some(pid) => {
+                eprintln!("robot-agent {id}: a new coordinator (pid {pid}) is up; re-registering");
+                self.rejoining = Some(pid);
+                self.asked_ns = monotonic_ns();
+                self.last_register = None;
+            }
+            Some(_) => {}
+        }
+        Ok(())
+    }
+
+    /// Looks at a control addressed to this robot; `Some` when it answered a re-registration.
+    pub fn on_control(&mut self, ctl: &Control) -> Option<LinkEvent> {
+        let pid = self.rejoining?;
+        if ctl.robot_id != self.reg.robot_id || ctl.time_ns < self.asked_ns {
+            return None;
+        }
+        match Command::try_from(ctl.command) {
+            Ok(Command::Ack) => {
+                if let Some(t) = self.alone_since.take() {
+                    self.counters.alone_ms += t.elapsed().as_millis() as u64;
+                }
+                self.coordinator_pid = Some(pid);
+                self.rejoining = None;
+                self.counters.rejoins += 1;
+                eprintln!(
+                    "robot-agent {}: re-joined the restarted coordinator (pid {pid})",
+                    self.reg.robot_id
+                );
+                Some(LinkEvent::Rejoined)
+            }
+            Ok(Command::Refuse) => Some(LinkEvent::Refused(reason(ctl))),
+            _ => None,
+        }
+    }
+}
