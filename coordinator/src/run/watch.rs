@@ -10,7 +10,9 @@ use std::io::Write;
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::{Command, Control, MergedHintBatch, Register};
-use bus::{BusConfig, BusError, CoordinatorBus, Expected, check_nodes, check_register, monotonic_ns};
+use bus::{
+    BusConfig, BusError, CoordinatorBus, Expected, check_nodes, check_register, monotonic_ns,
+};
 use serde::{Deserialize, Serialize};
 
 use super::{Coord, CoordError};
