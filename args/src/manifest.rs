@@ -11,7 +11,7 @@
 //! name = "paper-30, 3 goals, 6 robots"
 //! sharing = "both"            # none | discoveries | hints | both
 //! episodes = 300              # per phase, unless a phase says otherwise
-//! seeds = [1, 2]              # one experiment per seed; robot i gets seed + i
+//! seeds = [1, 2]              # one experiment per seed; robot i gets 1000 × seed + i
 //!
 //! [map]
 //! source = "builtin:paper-30" # or an ASCII map file, or a MovingAI .map (paths relative to

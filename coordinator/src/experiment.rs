@@ -88,9 +88,11 @@ pub struct GoalPhase {
     pub merged_time_to_optimal_s: Option<f64>,
     /// Mean env steps per robot when it first did.
     pub merged_steps_per_robot: Option<f64>,
-    /// Mean over robots of env steps until their own greedy path was optimal (null if one never).
+    /// Mean env steps until their own greedy path was optimal, over the robots that got there.
     pub robot_steps_to_optimal: Option<f64>,
-    /// Mean over robots of seconds until their own greedy path was optimal.
+    /// Robots whose own greedy path became optimal in the phase.
+    pub robots_reached_optimal: usize,
+    /// Mean seconds until their own greedy path was optimal, over the robots that got there.
     pub robot_time_to_optimal_s: Option<f64>,
     /// Mean steps per episode over the robots.
     pub avg_steps: f64,
@@ -623,8 +625,9 @@ fn phase_result(
                 .merged_optimal_ns
                 .map(|t| t.saturating_sub(phase_ns) as f64 / 1e9),
             merged_steps_per_robot: mean(&merged),
-            robot_steps_to_optimal: (own.len() == mine.len()).then(|| mean(&own)).flatten(),
-            robot_time_to_optimal_s: (own_t.len() == mine.len()).then(|| mean(&own_t)).flatten(),
+            robot_steps_to_optimal: mean(&own),
+            robots_reached_optimal: own.len(),
+            robot_time_to_optimal_s: mean(&own_t),
             avg_steps: mean(&mine.iter().map(|r| r.avg_steps).collect::<Vec<_>>()).unwrap_or(0.0),
             all_robots_optimal: mine
                 .iter()

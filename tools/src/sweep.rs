@@ -52,8 +52,10 @@ pub struct Row {
     pub sharing: String,
     /// Runs (seeds).
     pub runs: usize,
-    /// Runs in which every robot reached the optimum.
-    pub runs_optimal: usize,
+    /// Robots (over all runs) whose own greedy path became optimal.
+    pub robots_optimal: usize,
+    /// Robots over all runs.
+    pub robots_total: usize,
     /// Mean env steps per robot until its own greedy path was optimal.
     pub robot_steps: Option<f64>,
     /// Mean env steps per robot until the merged table's greedy path was optimal.
@@ -126,8 +128,8 @@ impl SweepCmd {
                         let Some(gp) = r.phases.first().and_then(|p| p.goals.first()) else {
                             continue;
                         };
+                        ok += gp.robots_reached_optimal;
                         if let Some(s) = gp.robot_steps_to_optimal {
-                            ok += 1;
                             own.push(s);
                         }
                         if let Some(t) = gp.robot_time_to_optimal_s {
@@ -162,7 +164,8 @@ impl SweepCmd {
                         robots: n,
                         sharing: mode.as_cli().into(),
                         runs: self.seeds.len(),
-                        runs_optimal: ok,
+                        robots_optimal: ok,
+                        robots_total: self.seeds.len() * n as usize,
                         robot_steps,
                         merged_steps: mean(&merged),
                         robot_time_s: mean(&own_t),
@@ -202,7 +205,7 @@ fn markdown(rows: &[Row], skipped: &[String]) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "| map | N | sharing | env steps/robot to own optimum | ÷ lone robot | speedup | env steps/robot to merged optimum | s to own optimum | s to merged optimum | avg steps/episode | runs optimal |"
+        "| map | N | sharing | env steps/robot to own optimum | ÷ lone robot | speedup | env steps/robot to merged optimum | s to own optimum | s to merged optimum | avg steps/episode | robots optimal |"
     );
     let _ = writeln!(s, "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|");
     for r in rows {
@@ -220,8 +223,8 @@ fn markdown(rows: &[Row], skipped: &[String]) -> String {
             f(r.robot_time_s, 3),
             f(r.merged_time_s, 3),
             r.avg_steps,
-            r.runs_optimal,
-            r.runs
+            r.robots_optimal,
+            r.robots_total
         );
     }
     for k in skipped {

@@ -1,0 +1,178 @@
+//! End-to-end: `qfleet experiment` with real `robot-agent --experiment` processes and the
+//! in-process experiment coordinator, over iceoryx2 shared memory. Unique run ids, bounded in
+//! time, no shared-memory files left behind.
+
+use std::path::Path;
+use std::process::Command;
+
+use qfleet_suite::{bin, describe, leftovers, run_bounded, run_id, scratch};
+use serde_json::Value;
+
+/// Runs `qfleet experiment` on `manifest` (written to a scratch dir) and returns the result of
+/// its single seed.
+fn experiment(tag: &str, manifest: &str, extra: &[&str]) -> Value {
+    let dir = scratch(&format!("exp-{tag}"));
+    let file = dir.join("m.toml");
+    std::fs::write(&file, manifest).expect("write manifest");
+    let id = run_id(tag);
+    let out = run_bounded(
+        Command::new(bin("qfleet"))
+            .args(["experiment", "--json", "--run-id", &id, "--out"])
+            .arg(dir.join("out"))
+            .arg(&file)
+            .args(extra),
+    );
+    assert!(
+        out.status.success(),
+        "qfleet experiment failed: {}",
+        describe(&out)
+    );
+    let v: Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("stdout is not JSON ({e}): {}", describe(&out)));
+    let left = leftovers(&id);
+    assert!(left.is_empty(), "files of run {id} left behind: {left:?}");
+    assert!(Path::new(&dir).exists());
+    let runs = v.as_array().expect("a list of seeds");
+    assert_eq!(runs.len(), 1, "{v}");
+    runs[0].clone()
+}
+
+fn goal<'a>(phase: &'a Value, g: u64) -> &'a Value {
+    phase["goals"]
+        .as_array()
+        .expect("goals")
+        .iter()
+        .find(|x| x["goal"] == g)
+        .unwrap_or_else(|| panic!("goal {g} missing in {phase}"))
+}
+
+#[test]
+fn a_small_two_goal_two_phase_manifest_runs_end_to_end() {
+    let r = experiment(
+        "small",
+        r#"
+name = "small"
+sharing = "both"
+episodes = 60
+seeds = [5]
+[map]
+source = "builtin:paper-10"
+[[goals]]
+cell = [9, 9]
+[[goals]]
+cell = [9, 0]
+[robots]
+count = 4
+start = [0, 0]
+[[phases]]
+[[phases]]
+rotate = 1
+episodes = 40
+"#,
+        &[],
+    );
+    let phases = r["phases"].as_array().expect("phases");
+    assert_eq!(phases.len(), 2, "{r}");
+    for (p, phase) in phases.iter().enumerate() {
+        let robots = phase["robots"].as_array().expect("robots");
+        assert_eq!(robots.len(), 4);
+        for x in robots {
+            assert_eq!(x["status"], "finished", "{x}");
+            assert!(x["env_steps"].as_u64().unwrap() > 0, "{x}");
+            // round-robin, shifted by one in phase 1
+            let id = x["robot_id"].as_u64().unwrap();
+            assert_eq!(x["goal"].as_u64().unwrap(), (id + p as u64) % 2, "{x}");
+        }
+        for g in [0, 1] {
+            let gp = goal(phase, g);
+            assert_eq!(gp["robots"].as_array().unwrap().len(), 2, "{gp}");
+            assert!(gp["avg_steps"].as_f64().unwrap() > 0.0);
+        }
+    }
+    assert_eq!(phases[1]["episodes"], 40);
+    assert!(r["discoveries_received"].as_u64().unwrap() > 0, "{r}");
+    assert!(r["relays_sent"].as_u64().unwrap() > 0, "{r}");
+    assert!(r["q_updates_merged"].as_u64().unwrap() > 0, "{r}");
+    assert_eq!(r["rejected"], 0, "{r}");
+}
+
+#[test]
+fn the_merged_table_of_a_shared_run_reaches_the_optimum() {
+    let r = experiment(
+        "merged",
+        r#"
+sharing = "hints"
+episodes = 300
+seeds = [1]
+[map]
+source = "builtin:paper-20"
+[robots]
+count = 4
+"#,
+        &[],
+    );
+    let g = goal(&r["phases"][0], 0);
+    assert_eq!(g["merged_optimal"], true, "{g}");
+    assert!(g["merged_time_to_optimal_s"].as_f64().is_some(), "{g}");
+    assert!(g["merged_steps_per_robot"].as_f64().unwrap() > 0.0, "{g}");
+    assert_eq!(g["merged_path_len"][0], g["optimal_path_len"][0], "{g}");
+}
+
+#[test]
+fn discoveries_reach_a_robot_that_never_reached_that_goal() {
+    // phase 0: robot 0 learns goal 0, robot 1 goal 1; phase 1: robot 1 moves to goal 0 and
+    // starts with robot 0's relayed pseudo targets before it has reached goal 0 itself
+    let r = experiment(
+        "relay",
+        r#"
+sharing = "discoveries"
+episodes = 60
+seeds = [3]
+[map]
+source = "builtin:paper-10"
+[[goals]]
+cell = [9, 9]
+[[goals]]
+cell = [9, 0]
+[robots]
+count = 2
+start = [0, 0]
+[assignment]
+policy = "fixed"
+goals = [0, 1]
+[[phases]]
+[[phases]]
+assign = [0, 0]
+episodes = 5
+"#,
+        &[],
+    );
+    let p0 = &r["phases"][0]["robots"];
+    assert_eq!(p0[1]["goal"], 1, "{p0}");
+    assert!(p0[0]["discoveries_sent"].as_u64().unwrap() > 0, "{p0}");
+    let p1 = &r["phases"][1]["robots"];
+    assert_eq!(p1[1]["goal"], 0, "{p1}");
+    assert!(
+        p1[1]["relays_applied"].as_u64().unwrap() > 0,
+        "robot 1 got no pseudo targets of goal 0: {r}"
+    );
+}
+
+#[test]
+fn an_invalid_manifest_is_refused_with_the_field_and_reason() {
+    let dir = scratch("exp-invalid");
+    let file = dir.join("bad.toml");
+    std::fs::write(
+        &file,
+        "[map]\nsource = \"builtin:paper-10\"\n[robots]\ncount = 2\n[[phases]]\nepisodes = 0\n",
+    )
+    .unwrap();
+    let out = run_bounded(Command::new(bin("qfleet")).arg("experiment").arg(&file));
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("phases[0].episodes") && err.contains("must be 1..="),
+        "{}",
+        describe(&out)
+    );
+}
