@@ -1,6 +1,7 @@
 //! `qfleet`: learn grid paths with the paper's Q-learners, replicate its results, and run fleets.
 
 mod bench;
+mod clean;
 mod experiment;
 mod learn;
 mod plots;
@@ -28,6 +29,8 @@ enum Command {
     Replicate(replicate::ReplicateCmd),
     /// Run a fleet: a coordinator and N robot-agents sharing Q-values over shared memory.
     Run(run::RunCmd),
+    /// Remove shared-memory files that crashed runs left behind (never a live run's).
+    Clean(clean::CleanCmd),
     /// Run an experiment manifest: the coordinator assigns goals and phases to the robots.
     Experiment(experiment::ExperimentCmd),
     /// Measure the value of sharing: N = 1, 2, 4, 8, 16 robots, with and without sharing.
@@ -42,6 +45,7 @@ fn main() {
         Command::Learn(c) => c.run(),
         Command::Replicate(c) => c.run(),
         Command::Run(c) => c.run(),
+        Command::Clean(c) => c.run(),
         Command::Bench(c) => c.run(),
         Command::Experiment(c) => c.run(),
         Command::Sweep(c) => c.run(),

@@ -252,7 +252,14 @@ pub fn supervise(
                             eprintln!("qfleet: robot-agent {id} is hung: killing it to restart it");
                             p.signal(libc::SIGKILL);
                         } else {
-                            eprintln!("qfleet: robot-agent {id} is hung (no restart left)");
+                            eprintln!(
+                                "qfleet: robot-agent {id} is hung (not restarted: {})",
+                                if restarting {
+                                    "no restart left"
+                                } else {
+                                    "--restart never"
+                                }
+                            );
                         }
                     }
                 }

@@ -1,0 +1,110 @@
+//! `qfleet clean`: remove what crashed runs left in shared memory, never touching a live run.
+//!
+//! A run killed with SIGKILL (or a machine that lost power) leaves files in `/dev/shm` and under
+//! iceoryx2's root (`/tmp/iceoryx2/`), all named with the run's prefix `qfleet.<run-id>.`. For
+//! every such prefix (or the one of `--run-id`), the run's iceoryx2 nodes are listed first: if
+//! any process of the run is alive the run is left alone and reported; otherwise dead nodes are
+//! cleaned through iceoryx2 and the remaining files removed (`bus::clean_stale`). Leftovers never
+//! block a new run (iceoryx2 cleans dead nodes when a node is created), but they take shared
+//! memory until removed.
+
+use anyhow::{Result, bail};
+use clap::Args;
+
+/// Options of `qfleet clean`.
+#[derive(Debug, Args)]
+pub struct CleanCmd {
+    /// Only this run (default: every qfleet run with files left).
+    #[arg(long)]
+    run_id: Option<String>,
+    /// Print what would be removed, remove nothing.
+    #[arg(long)]
+    dry_run: bool,
+}
+
+impl CleanCmd {
+    /// Runs the command.
+    pub fn run(self) -> Result<()> {
+        let prefixes = match &self.run_id {
+            Some(id) => {
+                bus::validate_run_id(id)?;
+                vec![bus_schema::names::iceoryx_prefix(id)]
+            }
+            None => bus::find_run_prefixes(),
+        };
+        let mut removed = 0usize;
+        let mut live = 0usize;
+        let mut errors = Vec::new();
+        for prefix in &prefixes {
+            let files = bus::leftover_files(prefix);
+            let run_id = prefix
+                .strip_prefix("qfleet.")
+                .and_then(|r| r.strip_suffix('.'))
+                .unwrap_or(prefix);
+            let nodes = match bus::BusConfig::new(run_id, 1)
+                .and_then(|cfg| bus::check_nodes(&cfg, false))
+            {
+                Ok(n) => n,
+                Err(e) => {
+                    errors.push(format!("run {run_id}: {e}"));
+                    continue;
+                }
+            };
+            let alive: Vec<String> = nodes
+                .alive()
+                .map(|n| format!("{} (pid {})", n.name, n.pid.unwrap_or(-1)))
+                .collect();
+            if !alive.is_empty() {
+                live += 1;
+                println!(
+                    "run {run_id}: live ({} process(es) alive: {}), left alone",
+                    alive.len(),
+                    alive.join(", ")
+                );
+                continue;
+            }
+            if files.is_empty() {
+                continue;
+            }
+            let dead = nodes.dead().count();
+            if self.dry_run {
+                println!(
+                    "run {run_id}: would remove {} file(s) ({dead} dead process(es)):",
+                    files.len()
+                );
+                for f in &files {
+                    println!("  {}", f.display());
+                }
+                continue;
+            }
+            match bus::clean_stale(prefix) {
+                Ok(r) if !r.alive.is_empty() => {
+                    live += 1;
+                    println!("run {run_id}: came alive meanwhile, left alone");
+                }
+                Ok(r) => {
+                    // iceoryx2's dead-node cleanup removes most files itself: report every
+                    // file of the run that is gone now, whoever removed it
+                    let gone: Vec<_> = files.iter().filter(|f| !f.exists()).collect();
+                    println!(
+                        "run {run_id}: removed {} file(s), cleaned {} dead process(es):",
+                        gone.len(),
+                        r.dead_cleaned
+                    );
+                    for f in &gone {
+                        println!("  {}", f.display());
+                    }
+                    removed += gone.len();
+                }
+                Err(e) => errors.push(format!("run {run_id}: {e}")),
+            }
+        }
+        if prefixes.is_empty() || (removed == 0 && live == 0 && !self.dry_run) {
+            println!("nothing to clean");
+        }
+        if !errors.is_empty() {
+            bail!("{}", errors.join("; "));
+        }
+        Ok(())
+    }
+}
