@@ -187,9 +187,9 @@ impl Exp<'_> {
             // wait for an assignment and its Start/Phase
             let deadline = Instant::now() + timeout;
             let mut last_liveness = Instant::now();
-            while !(self.go && self.assigned.is_some()) && !self.stopped {
+            while !(self.stopped || (self.go && self.assigned.is_some())) {
                 self.poll(None)?;
-                if self.go && self.assigned.is_some() || self.stopped {
+                if self.stopped || (self.go && self.assigned.is_some()) {
                     break;
                 }
                 let now = Instant::now();

@@ -113,7 +113,10 @@ pub fn run_once(plan: &Plan, seed: u64, run_id: &str, out: &Path) -> Result<Expe
             // seeds of different repetitions never overlap: robot r of seed s gets 1000·s + r
             .args([
                 "--seed",
-                &seed.wrapping_mul(1000).wrapping_add(u64::from(r)).to_string(),
+                &seed
+                    .wrapping_mul(1000)
+                    .wrapping_add(u64::from(r))
+                    .to_string(),
             ])
             .args(["--share", m.sharing.as_cli()])
             .args(["--timeout", &m.timeout_s.to_string()])
