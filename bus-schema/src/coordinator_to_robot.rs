@@ -168,5 +168,4 @@ pub struct DiscoveryRelay {
 const _: () = assert!(size_of::<Control>() == 112 && align_of::<Control>() == 8);
 const _: () = assert!(size_of::<MergedHintBatch>() == 6176 && align_of::<MergedHintBatch>() == 8);
 const _: () = assert!(size_of::<DiscoveryAck>() == 24 && align_of::<DiscoveryAck>() == 8);
-const _: () =
-    assert!(size_of::<DiscoveryRelay>() == 48 && align_of::<DiscoveryRelay>() == 8);
+const _: () = assert!(size_of::<DiscoveryRelay>() == 48 && align_of::<DiscoveryRelay>() == 8);

@@ -156,11 +156,9 @@ impl Topic {
     /// Lossless or latest-wins; see the `bus` crate documentation for the reasons.
     pub const fn delivery(self) -> Delivery {
         match self {
-            Topic::Register
-            | Topic::Discovery
-            | Topic::Report
-            | Topic::Control
-            | Topic::Relay => Delivery::Lossless,
+            Topic::Register | Topic::Discovery | Topic::Report | Topic::Control | Topic::Relay => {
+                Delivery::Lossless
+            }
             Topic::RobotState | Topic::Hints | Topic::Merged | Topic::Ack => Delivery::LatestWins,
         }
     }

@@ -7,9 +7,9 @@ mod learn;
 mod plots;
 mod replicate;
 mod run;
+mod runplots;
 mod supervise;
 mod sweep;
-mod runplots;
 
 use clap::{Parser, Subcommand};
 
