@@ -875,7 +875,10 @@ impl Coord {
                 );
             }
         }
-        self.check_deadlines();
+        // messages still waiting: a silence may be our own backlog, not a hung robot
+        if !bus.has_samples()? {
+            self.check_deadlines();
+        }
         Ok(())
     }
 

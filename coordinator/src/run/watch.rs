@@ -204,7 +204,8 @@ impl Life {
 
 impl Coord {
     /// Heartbeat deadlines: a robot that is neither done nor lost and sent nothing for
-    /// `--hang-ms` is reported hung (once; `resumed` if it speaks again).
+    /// `--hang-ms` is reported hung (once; `resumed` if it speaks again). Called only when
+    /// every inbox is drained, so a coordinator that is behind never blames a robot.
     pub(super) fn check_deadlines(&mut self) {
         let now = Instant::now();
         let hang_after = self.life.hang_after;
