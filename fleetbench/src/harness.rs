@@ -71,6 +71,8 @@ pub struct Options {
     pub scale_map: String,
     /// Scale robots: hint batches in flight (sent, not yet seen merged) before a robot waits.
     pub scale_in_flight: u32,
+    /// Scale robots notify the coordinator at most once per this many µs (0 = every batch).
+    pub scale_notify_gap_us: u64,
     /// Pin the two sides of each latency row to different CPUs (0 and 1), so every row
     /// measures a cross-CPU round trip whatever else the machine runs.
     pub pin: bool,
@@ -99,6 +101,7 @@ impl Options {
             scale_ms: 2_000,
             scale_map: "generated".into(),
             scale_in_flight: 8,
+            scale_notify_gap_us: 0,
             min_window_ms: 2_000,
             pin: std::thread::available_parallelism().is_ok_and(|n| n.get() >= 2),
             progress: true,
@@ -581,6 +584,7 @@ fn scale_point_inner(
                 batch,
                 duration_ms: opts.scale_ms,
                 in_flight: opts.scale_in_flight,
+                notify_gap_us: opts.scale_notify_gap_us,
                 timeout_ms,
                 peer_pid: (id == 0).then(|| coord.id()),
                 hist_path: dir.join(format!("robot-{id}.bin")),

@@ -52,7 +52,8 @@ fn curve(r: &Row) -> Vec<(f64, f64)> {
     }
     if r.count > 0 {
         // the max, placed at the resolution the sample count allows
-        pts.push((r.count as f64, (r.max_ns as f64 / 1e3).max(0.01)));
+        let x = pts.last().map_or(1.0, |p| p.0).max(r.count as f64);
+        pts.push((x, (r.max_ns as f64 / 1e3).max(0.01)));
     }
     pts
 }

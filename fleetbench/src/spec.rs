@@ -149,6 +149,9 @@ pub enum RoleSpec {
         /// Hint batches sent but not yet seen merged before the robot waits (yielding its
         /// CPU); keeps the coordinator's latest-wins buffer from overflowing.
         in_flight: u32,
+        /// Notify the coordinator after a batch only if the last notify is at least this many
+        /// µs old (0 = after every batch, as the robot-agent does).
+        notify_gap_us: u64,
         /// Registration and Stop timeout, ms.
         timeout_ms: u64,
         /// Coordinator pid whose CPU time this robot samples over its window (robot 0 only).

@@ -43,6 +43,12 @@ pub struct BenchCmd {
     /// How long the robots of each scale point emit, ms.
     #[arg(long)]
     scale_ms: Option<u64>,
+    /// Scale robots: hint batches in flight before a robot waits for the coordinator.
+    #[arg(long, default_value_t = 8)]
+    in_flight: u32,
+    /// Scale robots: notify the coordinator at most once per this many µs (0 = every batch).
+    #[arg(long, default_value_t = 0)]
+    notify_gap_us: u64,
     /// Internal: run one child process of the harness (JSON role spec).
     #[arg(long, hide = true)]
     role: Option<String>,
@@ -82,6 +88,8 @@ impl BenchCmd {
             opts.scale_ms = ms;
         }
         opts.spin_us = self.spin_us;
+        opts.scale_in_flight = self.in_flight.max(1);
+        opts.scale_notify_gap_us = self.notify_gap_us;
         let launcher = fleetbench::Launcher {
             program: std::env::current_exe().context("cannot find the qfleet executable")?,
             args: vec!["bench".into()],

@@ -300,6 +300,7 @@ pub fn scale_robot(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
         batch,
         duration_ms,
         in_flight,
+        notify_gap_us,
         timeout_ms,
         peer_pid,
         hist_path,
@@ -338,6 +339,8 @@ pub fn scale_robot(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
     let mut stalled_since: Option<Instant> = None;
     let (mut i, mut seq) = (0u64, 0u64);
     let me = *robot_id;
+    let notify_gap = Duration::from_micros(*notify_gap_us);
+    let mut last_notify = Instant::now() - notify_gap;
     loop {
         let now = Instant::now();
         if now >= end {
@@ -399,7 +402,10 @@ pub fn scale_robot(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
                 oldest = b.oldest_update_ns;
                 b.send_time_ns = monotonic_ns();
             })?;
-            bus.hints.notify()?;
+            if *notify_gap_us == 0 || now.duration_since(last_notify) >= notify_gap {
+                bus.hints.notify()?;
+                last_notify = now;
+            }
             pending.push_back(oldest);
             r.updates_sent += n as u64;
             r.batches_sent += 1;

@@ -22,6 +22,9 @@ pub mod uds;
 pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
     let spec: RoleSpec =
         serde_json::from_str(spec_json).map_err(|e| BenchError::Spec(e.to_string()))?;
+    // iceoryx2 warns once per process that it read no config file (qfleet builds its config
+    // in code); keep children quiet unless IOX2_LOG_LEVEL asks for more
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
     if let Some(&cpu) = crate::cpu::assigned_cpus().first() {
         crate::cpu::pin_current_thread(cpu);
     }
