@@ -78,7 +78,7 @@ fn bench(c: &mut Criterion) {
     g.bench_function("loop-round-trip-in-one-thread", |b| {
         b.iter(|| {
             k = k.wrapping_add(1);
-            let q = if k % 2 == 0 { 0.5 } else { 0.75 };
+            let q = if k.is_multiple_of(2) { 0.5 } else { 0.75 };
             let _ = robot.hints.send_with(|m| {
                 m.count = 1;
                 m.entries[0] = QHint {

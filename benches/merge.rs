@@ -82,7 +82,7 @@ fn bench(c: &mut Criterion) {
     g.bench_function("batcher-note-256+fill", |bch| {
         bch.iter(|| {
             round = round.wrapping_add(1);
-            let q = if round % 2 == 0 { 0.5 } else { 0.75 };
+            let q = if round.is_multiple_of(2) { 0.5 } else { 0.75 };
             for i in 0..HINT_BATCH_CAP as u32 {
                 batcher.note(i * 3 % CELLS as u32, (i % 4) as u8, q, u64::from(i), || 7);
             }

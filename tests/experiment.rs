@@ -37,7 +37,7 @@ fn experiment(tag: &str, manifest: &str, extra: &[&str]) -> Value {
     runs[0].clone()
 }
 
-fn goal<'a>(phase: &'a Value, g: u64) -> &'a Value {
+fn goal(phase: &Value, g: u64) -> &Value {
     phase["goals"]
         .as_array()
         .expect("goals")
