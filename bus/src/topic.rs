@@ -8,7 +8,7 @@ use bus_schema::{
     Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
     QHintBatch, Register, RobotState, SCHEMA_VERSION,
 };
-use iceoryx2::port::listener::Listener;
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
@@ -559,12 +559,16 @@ impl<T: Message> Inbox<T> {
     }
 
     /// Blocks until a wakeup arrives or `timeout` passes, consuming the wakeups.
+    ///
+    /// A signal delivered meanwhile (e.g. SIGTERM, which the qfleet processes turn into a stop
+    /// flag) ends the wait early with no wakeups, so the caller re-checks its flags; it is not
+    /// an error.
     pub fn wait(&self, timeout: Duration) -> Result<Wakeups, BusError> {
         let mut w = Wakeups::default();
-        self.listener
-            .timed_wait(|a| w.add(a), timeout)
-            .map_err(|e| self.event_err(e))?;
-        Ok(w)
+        match self.listener.timed_wait(|a| w.add(a), timeout) {
+            Ok(_) | Err(ListenerWaitError::InterruptSignal) => Ok(w),
+            Err(e) => Err(self.event_err(e)),
+        }
     }
 
     fn event_err(&self, e: impl Debug) -> BusError {

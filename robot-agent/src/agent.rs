@@ -281,33 +281,39 @@ pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, Agent
         seed: cfg.seed,
         ..Register::ZEROED
     };
-    match bus.register(&reg, timeout) {
+    match crate::reconnect::register_until(&bus, &reg, timeout, &stop) {
         Ok(_) => {}
         Err(e @ BusError::Refused { .. }) => return Err(AgentError::Refused(e)),
         Err(e) => return Err(e.into()),
     }
-    let mut goal: Option<Control> = None;
-    let mut bad_goal: Option<String> = None;
-    let start = bus.wait_start(timeout, |c| {
-        if Command::try_from(c.command) == Ok(Command::AssignGoal) {
-            goal = Some(*c);
+    // a goal assignment is checked when it arrives: an unusable one (outside the map, on a
+    // wall: a broken or foreign sender) is logged and dropped, never fatal
+    let mut goal: Option<(Control, Option<Task>)> = None;
+    let start = crate::reconnect::wait_start_until(&bus, timeout, &stop, |c| {
+        if Command::try_from(c.command) != Ok(Command::AssignGoal) {
+            return;
+        }
+        let cell = planner::Cell::new(c.goal_x, c.goal_y);
+        if cell == task.goal {
+            goal = Some((*c, None));
+            return;
+        }
+        let mut m = args.map.clone();
+        m.goal = Some(cell);
+        match m.task() {
+            Ok(t) => goal = Some((*c, Some(t))),
+            Err(e) => eprintln!(
+                "robot-agent {}: dropped an unusable goal assignment ({cell}): {e}",
+                args.robot_id
+            ),
         }
     })?;
     let mut goal_id = 0;
-    if let Some(g) = goal {
+    if let Some((g, t)) = goal {
         goal_id = g.goal_id;
-        let cell = planner::Cell::new(g.goal_x, g.goal_y);
-        if cell != task.goal {
-            let mut m = args.map.clone();
-            m.goal = Some(cell);
-            match m.task() {
-                Ok(t) => task = t,
-                Err(e) => bad_goal = Some(format!("assigned goal {cell} is unusable: {e}")),
-            }
+        if let Some(t) = t {
+            task = t;
         }
-    }
-    if let Some(why) = bad_goal {
-        return Err(AgentError::Input(why));
     }
     let learner = Learner::new(&task, cfg).map_err(|e| AgentError::Input(e.to_string()))?;
     let cells = task.grid.len();

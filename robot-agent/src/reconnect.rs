@@ -11,6 +11,7 @@
 //! found while the coordinator was down is lost.
 
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::{Command, Control, Register};
@@ -180,6 +181,59 @@ impl Link {
             }
             Ok(Command::Refuse) => Some(LinkEvent::Refused(reason(ctl))),
             _ => None,
+        }
+    }
+}
+
+/// Longest single wait of the start handshake between looks at the stop flag.
+const HANDSHAKE_SLICE: Duration = Duration::from_millis(250);
+
+/// [`RobotBus::register`] that gives up early when `stop` is set (SIGINT/SIGTERM during the
+/// start handshake), with [`BusError::Interrupted`].
+pub fn register_until(
+    bus: &RobotBus,
+    reg: &Register,
+    timeout: Duration,
+    stop: &AtomicBool,
+) -> Result<Control, BusError> {
+    let deadline = Instant::now() + timeout;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        match bus.register(reg, left.min(HANDSHAKE_SLICE)) {
+            Err(BusError::Timeout { what, .. }) => {
+                if stop.load(Ordering::Relaxed) {
+                    return Err(BusError::Interrupted);
+                }
+                if Instant::now() >= deadline {
+                    return Err(BusError::Timeout { what, timeout });
+                }
+            }
+            other => return other,
+        }
+    }
+}
+
+/// [`RobotBus::wait_start`] that gives up early when `stop` is set, with
+/// [`BusError::Interrupted`].
+pub fn wait_start_until(
+    bus: &RobotBus,
+    timeout: Duration,
+    stop: &AtomicBool,
+    mut on_other: impl FnMut(&Control),
+) -> Result<Control, BusError> {
+    let deadline = Instant::now() + timeout;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        match bus.wait_start(left.min(HANDSHAKE_SLICE), &mut on_other) {
+            Err(BusError::Timeout { what, .. }) => {
+                if stop.load(Ordering::Relaxed) {
+                    return Err(BusError::Interrupted);
+                }
+                if Instant::now() >= deadline {
+                    return Err(BusError::Timeout { what, timeout });
+                }
+            }
+            other => return other,
         }
     }
 }

@@ -237,9 +237,20 @@ impl Coord {
         reg: &Register,
     ) -> Result<(), CoordError> {
         let id = reg.robot_id;
+        // a Refuse is addressed by robot id only: never send one that a live robot of that
+        // id would read as its own (a stray or forged registration), just log and drop it
+        let holder_alive = |c: &Coord| {
+            c.robots
+                .get(id as usize)
+                .is_some_and(|s| s.accepted && !s.lost)
+                && c.life.lines[id as usize].pid != reg.pid
+        };
         if let Err(why) = check_register(reg, &self.life.expected) {
             self.rejected += 1;
             eprintln!("qfleet-coordinator: refused a late registration of robot {id}: {why}");
+            if holder_alive(self) {
+                return Ok(());
+            }
             return tolerate(bus.refuse(id, &why).map(drop));
         }
         let slot = self.robots[id as usize];
@@ -262,7 +273,7 @@ impl Coord {
                     reg.pid
                 );
                 self.rejected += 1;
-                return tolerate(bus.refuse(id, &why).map(drop));
+                return Ok(()); // no Refuse: robot `id` itself would read it
             }
         }
         // a new incarnation: forget the dead one's progress, keep what the fleet learned
