@@ -9,7 +9,7 @@ set -euo pipefail
 cd "$(dirname "$0")"
 
 seconds="${FUZZ_SECONDS:-60}"
-targets=(map_ascii map_movingai scen)
+targets=(map_ascii map_movingai scen manifest)
 
 run_stable() {
     local triple
