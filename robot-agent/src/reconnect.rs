@@ -150,6 +150,11 @@ impl Link {
             }
             Some(pid) if Some(pid) != self.coordinator_pid && self.rejoining != Some(pid) => {
                 eprintln!("robot-agent {id}: a new coordinator (pid {pid}) is up; re-registering");
+                if self.alone_since.is_none() {
+                    // replaced before we even saw the old one gone: still a loss
+                    self.alone_since = Some(Instant::now());
+                    self.counters.coordinator_losses += 1;
+                }
                 self.rejoining = Some(pid);
                 self.asked_ns = monotonic_ns();
                 self.last_register = None;
