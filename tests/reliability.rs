@@ -634,3 +634,67 @@ fn sixty_four_robots_a_thousand_episodes_each_complete() {
     );
     assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
 }
+
+#[test]
+fn coordinator_crash_during_the_start_handshake_robots_register_again() {
+    let id = run_id("kill-coord-start");
+    let dir = scratch(&id);
+    let coordinator = || {
+        spawn(
+            Command::new(bin("qfleet-coordinator"))
+                .args([
+                    "--run-id",
+                    &id,
+                    "--robots",
+                    "2",
+                    "--map",
+                    "builtin:paper-10",
+                ])
+                .args(["--timeout", "60", "--out"])
+                .arg(&dir),
+        )
+    };
+    let start_robot = |i: &str| {
+        spawn(Command::new(bin("robot-agent")).args([
+            "--run-id",
+            &id,
+            "--robot-id",
+            i,
+            "--robots",
+            "2",
+            "--map",
+            "builtin:paper-10",
+            "--episodes",
+            "2000",
+            "--timeout",
+            "60",
+        ]))
+    };
+    // robot 0 registers and waits for Start, which never comes: robot 1 is not there yet
+    let mut first = coordinator();
+    let r0 = start_robot("0");
+    wait_nodes(&id, 2, &["qfleet-coordinator", "qfleet-robot-0"]);
+    std::thread::sleep(Duration::from_millis(500));
+    first.kill().expect("SIGKILL the coordinator");
+    let _ = first.wait();
+    // a new coordinator, then the missing robot: the run completes with robot 0 on board
+    let second = coordinator();
+    let r1 = start_robot("1");
+    let (o0, o1, oc) = (
+        qfleet_suite::wait_bounded(r0, PROCESS_TIMEOUT),
+        qfleet_suite::wait_bounded(r1, PROCESS_TIMEOUT),
+        qfleet_suite::wait_bounded(second, PROCESS_TIMEOUT),
+    );
+    eprintln!("robot 0:\n{}", String::from_utf8_lossy(&o0.stderr));
+    assert!(o0.status.success(), "{}", describe(&o0));
+    assert!(o1.status.success(), "{}", describe(&o1));
+    assert!(oc.status.success(), "{}", describe(&oc));
+    let r: Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("result.json")).unwrap()).unwrap();
+    for i in 0..2 {
+        assert_eq!(robot(&r, i)["status"], "finished", "{r}");
+    }
+    assert_eq!(r["discoveries_received"], r["discoveries_sent"], "{r}");
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -281,15 +281,10 @@ pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, Agent
         seed: cfg.seed,
         ..Register::ZEROED
     };
-    match crate::reconnect::register_until(&bus, &reg, timeout, &stop) {
-        Ok(_) => {}
-        Err(e @ BusError::Refused { .. }) => return Err(AgentError::Refused(e)),
-        Err(e) => return Err(e.into()),
-    }
     // a goal assignment is checked when it arrives: an unusable one (outside the map, on a
     // wall: a broken or foreign sender) is logged and dropped, never fatal
     let mut goal: Option<(Control, Option<Task>)> = None;
-    let start = crate::reconnect::wait_start_until(&bus, timeout, &stop, |c| {
+    let start = crate::reconnect::handshake(&bus, &reg, timeout, &stop, |c| {
         if Command::try_from(c.command) != Ok(Command::AssignGoal) {
             return;
         }
@@ -307,6 +302,10 @@ pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, Agent
                 args.robot_id
             ),
         }
+    })
+    .map_err(|e| match e {
+        BusError::Refused { .. } => AgentError::Refused(e),
+        e => e.into(),
     })?;
     let mut goal_id = 0;
     if let Some((g, t)) = goal {

@@ -205,6 +205,8 @@ pub fn register_until(
     loop {
         let left = deadline.saturating_duration_since(Instant::now());
         match bus.register(reg, left.min(HANDSHAKE_SLICE)) {
+            // a dead coordinator's full register buffer: retry (it is cleaned meanwhile)
+            Err(BusError::DeliveryTimeout { .. }) if Instant::now() < deadline => {}
             Err(BusError::Timeout { what, .. }) => {
                 if stop.load(Ordering::Relaxed) {
                     return Err(BusError::Interrupted);
@@ -218,27 +220,46 @@ pub fn register_until(
     }
 }
 
-/// [`RobotBus::wait_start`] that gives up early when `stop` is set, with
-/// [`BusError::Interrupted`].
-pub fn wait_start_until(
+/// The start handshake: [`register_until`], then [`RobotBus::wait_start`] in slices that look
+/// at the stop flag (giving up with [`BusError::Interrupted`]) and at the coordinator: if it
+/// dies before sending `Start`, its resources are cleaned and the robot registers again, with
+/// whatever coordinator comes up next (`qfleet run --restart on-failure` starts one).
+pub fn handshake(
     bus: &RobotBus,
+    reg: &Register,
     timeout: Duration,
     stop: &AtomicBool,
     mut on_other: impl FnMut(&Control),
 ) -> Result<Control, BusError> {
     let deadline = Instant::now() + timeout;
+    let id = bus.robot_id();
     loop {
         let left = deadline.saturating_duration_since(Instant::now());
-        match bus.wait_start(left.min(HANDSHAKE_SLICE), &mut on_other) {
-            Err(BusError::Timeout { what, .. }) => {
-                if stop.load(Ordering::Relaxed) {
-                    return Err(BusError::Interrupted);
+        register_until(bus, reg, left, stop)?;
+        let coordinator = check_nodes(bus.config(), false)?
+            .alive()
+            .find(|n| n.name == COORDINATOR_NODE)
+            .and_then(|n| n.pid);
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match bus.wait_start(left.min(HANDSHAKE_SLICE), &mut on_other) {
+                Err(BusError::Timeout { what, .. }) => {
+                    if stop.load(Ordering::Relaxed) {
+                        return Err(BusError::Interrupted);
+                    }
+                    if Instant::now() >= deadline {
+                        return Err(BusError::Timeout { what, timeout });
+                    }
+                    if coordinator.is_some_and(|p| !Path::new(&format!("/proc/{p}")).exists()) {
+                        eprintln!(
+                            "robot-agent {id}: the coordinator died before Start; registering again"
+                        );
+                        check_nodes(bus.config(), true)?;
+                        break;
+                    }
                 }
-                if Instant::now() >= deadline {
-                    return Err(BusError::Timeout { what, timeout });
-                }
+                other => return other,
             }
-            other => return other,
         }
     }
 }
