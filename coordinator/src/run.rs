@@ -694,7 +694,7 @@ impl Coord {
         if s.status == RobotStatus::Finished.as_u8() {
             slot.finished = true;
         }
-        if s.send_time_ns <= now {
+        if s.send_time_ns != 0 && s.send_time_ns <= now {
             record(&mut self.h.state, now - s.send_time_ns);
         }
     }
@@ -744,7 +744,7 @@ impl Coord {
                 ..bus::bus_schema::DiscoveryRelay::ZEROED
             });
         }
-        if d.send_time_ns <= now {
+        if d.send_time_ns != 0 && d.send_time_ns <= now {
             record(&mut self.h.discovery, now - d.send_time_ns);
         }
         true
@@ -791,7 +791,7 @@ impl Coord {
             self.rejected += 1;
             return Ok(());
         }
-        if b.send_time_ns <= now {
+        if b.send_time_ns != 0 && b.send_time_ns <= now {
             record(&mut self.h.hints, now - b.send_time_ns);
         }
         if b.oldest_update_ns != 0 && b.oldest_update_ns <= now {
@@ -835,7 +835,7 @@ impl Coord {
             return;
         };
         slot.report = Some(*r);
-        if r.send_time_ns <= now {
+        if r.send_time_ns != 0 && r.send_time_ns <= now {
             record(&mut self.h.report, now - r.send_time_ns);
         }
     }
