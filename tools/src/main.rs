@@ -51,7 +51,41 @@ fn main() {
         Command::Sweep(c) => c.run(),
     };
     if let Err(e) = result {
-        eprintln!("qfleet: error: {e:#}");
+        eprintln!("qfleet: error: {}", report(&e));
         std::process::exit(1);
+    }
+}
+
+/// The error and its causes on one line, each cause once: library errors often name their
+/// cause in their own message too, and `{:#}` would then print it twice.
+fn report(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let msg = cause.to_string();
+        if out.contains(&msg) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&msg);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::report;
+    use anyhow::Context;
+
+    #[test]
+    fn each_cause_is_printed_once() {
+        let io = std::io::Error::other("disk on fire");
+        let inner = anyhow::Error::new(io).context("reading map.txt: disk on fire");
+        let e = Err::<(), _>(inner).context("loading the task").unwrap_err();
+        assert_eq!(
+            report(&e),
+            "loading the task: reading map.txt: disk on fire"
+        );
     }
 }
