@@ -101,7 +101,9 @@
 //!
 //! [`Outbox::send`] copies a message into a loaned shared-memory slot; [`Outbox::send_with`]
 //! zeroes the slot and lets a closure write the message in place — the way to send the 3–6 KiB
-//! hint batches without building them on the stack. Neither allocates. Publish-subscribe has no
+//! hint batches without building them on the stack; [`Outbox::send_batch`] does the same for
+//! the batch types but zeroes only what the slot's previous batch used (its header and
+//! `count` entries), not the whole slot. None of them allocates per message. Publish-subscribe has no
 //! wakeup of its own, so each topic has a companion event service `…/wake`: call
 //! [`Outbox::notify`] after a burst (not after every message: a cross-CPU wakeup costs tens of
 //! µs). For the coordinator's wait strategies:
@@ -161,5 +163,5 @@ pub use liveness::{
     find_run_prefixes, iceoryx_root, leftover_files,
 };
 pub use topic::{
-    EVENT_DATA, EVENT_PEER_DEAD, Inbox, Message, Outbox, TopicLimits, Wakeups, limits,
+    Batch, EVENT_DATA, EVENT_PEER_DEAD, Inbox, Message, Outbox, TopicLimits, Wakeups, limits,
 };

@@ -1,12 +1,15 @@
 //! Per-topic limits, opening services, and the typed sending/receiving halves of a topic.
 
 use core::fmt::Debug;
+use core::mem::offset_of;
+use std::cell::RefCell;
+use std::collections::HashMap;
 use std::time::Duration;
 
 use bus_schema::names::{Delivery, Direction, Topic};
 use bus_schema::{
-    Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
-    QHintBatch, Register, RobotState, SCHEMA_VERSION,
+    Control, DiscoveryAck, DiscoveryRelay, FinalReport, HINT_BATCH_CAP, MergedHintBatch,
+    PseudoTargetDiscovery, QHint, QHintBatch, Register, RobotState, SCHEMA_VERSION,
 };
 use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
@@ -75,6 +78,68 @@ unsafe impl Message for DiscoveryAck {
 unsafe impl Message for DiscoveryRelay {
     const TOPIC: Topic = Topic::Relay;
 }
+
+/// A message with `count` valid entries at the front of its per-entry arrays and zeros after
+/// them (the wire contract of `QHintBatch` and `MergedHintBatch`): what
+/// [`Outbox::send_batch`] needs to clear a reused slot without zeroing all of it.
+pub trait Batch: Message {
+    /// Entries the message uses: its `count`, at most [`HINT_BATCH_CAP`].
+    fn used(&self) -> usize;
+    /// Zeroes the header (every byte before the arrays) and the first `n` entries of every
+    /// per-entry array; `n` above the capacity means all of them.
+    fn clear_front(&mut self, n: usize);
+}
+
+/// Zeroes the first `len` bytes of `msg` (a header made of integers and explicit padding).
+fn zero_prefix<T: Message>(msg: &mut T, len: usize) {
+    assert!(len <= size_of::<T>());
+    // SAFETY: in bounds (checked), and `T: Message` makes zero bytes valid for any field.
+    unsafe { core::ptr::write_bytes(core::ptr::from_mut(msg).cast::<u8>(), 0, len) }
+}
+
+// the arrays end the messages: nothing after them to clear
+const _: () = assert!(
+    offset_of!(QHintBatch, entries) + size_of::<[QHint; HINT_BATCH_CAP]>()
+        == size_of::<QHintBatch>()
+);
+const _: () = assert!(
+    offset_of!(MergedHintBatch, origin_robot) + size_of::<[u32; HINT_BATCH_CAP]>()
+        == size_of::<MergedHintBatch>()
+);
+
+impl Batch for QHintBatch {
+    #[inline]
+    fn used(&self) -> usize {
+        (self.count as usize).min(HINT_BATCH_CAP)
+    }
+
+    #[inline]
+    fn clear_front(&mut self, n: usize) {
+        let n = n.min(HINT_BATCH_CAP);
+        zero_prefix(self, offset_of!(QHintBatch, entries));
+        self.entries[..n].fill(QHint::ZEROED);
+    }
+}
+
+impl Batch for MergedHintBatch {
+    #[inline]
+    fn used(&self) -> usize {
+        (self.count as usize).min(HINT_BATCH_CAP)
+    }
+
+    #[inline]
+    fn clear_front(&mut self, n: usize) {
+        let n = n.min(HINT_BATCH_CAP);
+        zero_prefix(self, offset_of!(MergedHintBatch, entries));
+        self.entries[..n].fill(QHint::ZEROED);
+        self.origin_ns[..n].fill(0);
+        self.origin_robot[..n].fill(0);
+    }
+}
+
+/// Slots an [`Outbox`] remembers for [`Outbox::send_batch`]; more than any topic's data
+/// segment has (a bound against an unexpected allocator, not a tuning knob).
+const DIRTY_SLOTS_MAX: usize = 1 << 16;
 
 /// The limits a topic's publish-subscribe service and its wake event service are created with.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -291,13 +356,18 @@ pub(crate) fn open_wake(
 
 /// Sending half of a topic: a publisher plus the notifier of the topic's wake service.
 ///
-/// Sending never allocates: the message is written straight into a loaned shared-memory slot.
+/// Sending never allocates (except [`send_batch`](Self::send_batch)'s slot table while it
+/// meets the publisher's slots for the first time): the message is written straight into a
+/// loaned shared-memory slot.
 pub struct Outbox<T: Message> {
     service: String,
     delivery: Delivery,
     send_timeout: Duration,
     publisher: Publisher<ipc::Service, T, ()>,
     notifier: Notifier<ipc::Service>,
+    /// [`send_batch`](Self::send_batch): entries used by the message last written into each
+    /// slot (by address), i.e. the only bytes of that slot that are not zero.
+    dirty: RefCell<HashMap<usize, u32>>,
 }
 
 impl<T: Message> Outbox<T> {
@@ -356,6 +426,7 @@ impl<T: Message> Outbox<T> {
             send_timeout: cfg.send_timeout,
             publisher,
             notifier,
+            dirty: RefCell::new(HashMap::new()),
         })
     }
 
@@ -440,6 +511,47 @@ impl<T: Message> Outbox<T> {
                 detail: format!("{e:?}"),
             }),
         }
+    }
+}
+
+impl<T: Batch> Outbox<T> {
+    /// [`send_with`](Self::send_with) for a batch, without zeroing the whole 3–6 KiB slot:
+    /// `fill` gets the same all-zero slot and writes the header and `entries[..count]`.
+    ///
+    /// A publisher's slots are reused, and only this outbox writes into them, so each slot
+    /// still holds the batch last sent from it. The outbox remembers that batch's `count` per
+    /// slot and zeroes only its header and those entries (a slot seen for the first time, or
+    /// whose `fill` panicked, is zeroed whole). Entries beyond `count` thus stay zero on the
+    /// wire, as bus-schema promises, for ~100 bytes of stores instead of 3–6 KiB when a batch
+    /// is small; `fill` must not write beyond `count` (it would leave non-zero entries behind).
+    pub fn send_batch(&self, fill: impl FnOnce(&mut T)) -> Result<usize, BusError> {
+        let mut uninit = self.publisher.loan_uninit().map_err(|e| self.loan_err(e))?;
+        let slot = uninit.payload_mut().as_mut_ptr();
+        let key = slot as usize;
+        // taken out while `fill` runs: a panic in it leaves the slot unknown (zeroed next time)
+        let last = self.dirty.borrow_mut().remove(&key);
+        // SAFETY: a slot in `dirty` holds the complete `T` last written into it by this outbox
+        // (nobody else writes a publisher's slots; subscribers map them read-only), so it is
+        // initialised; any other slot is zeroed whole, a valid `T` by `T: Message`. The slot
+        // is exclusively ours until sent.
+        let mut sample = unsafe {
+            match last {
+                Some(n) => (*slot).clear_front(n as usize),
+                None => slot.write_bytes(0, 1),
+            }
+            uninit.assume_init()
+        };
+        let msg = sample.payload_mut();
+        fill(msg);
+        let used = msg.used() as u32;
+        {
+            let mut dirty = self.dirty.borrow_mut();
+            if dirty.len() >= DIRTY_SLOTS_MAX {
+                dirty.clear();
+            }
+            dirty.insert(key, used);
+        }
+        self.finish(sample.send())
     }
 }
 
