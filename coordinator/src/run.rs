@@ -10,8 +10,9 @@
 //! - `hybrid` (default): after any message, keep spinning for `--spin-us`, then block like
 //!   `event`. Bursts are served at spin latency, idle time costs nothing.
 //!
-//! All three also wake every 50 ms for the periodic work: liveness (iceoryx2 node states,
-//! every 100 ms), progress lines, the end-of-run check.
+//! All three also wake every 50 ms for the periodic work: progress lines, the end-of-run check.
+//! Liveness (iceoryx2 node states) is listed every 100 ms on a thread of its own
+//! (`watch::Lister`); the loop only takes the newest listing from a channel.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::io::Write;
@@ -25,7 +26,7 @@ use bus::bus_schema::{
     Register, RobotState, RobotStatus,
 };
 use bus::iceoryx2::prelude::*;
-use bus::{Admission, BusConfig, BusError, CoordinatorBus, Expected, check_nodes, monotonic_ns};
+use bus::{Admission, BusConfig, BusError, CoordinatorBus, Expected, monotonic_ns};
 use clap::{Args, ValueEnum};
 use hdrhistogram::Histogram;
 use planner::task::Task;
@@ -410,6 +411,7 @@ impl Coord {
         merged_buffer: usize,
     ) -> Result<(f64, bool), CoordError> {
         self.admit_fleet(bus, expected, stop, timeout)?;
+        let lister = watch::Lister::start(bus.config(), Duration::from_millis(100))?;
         let goal = self.task.goal;
         bus.send_control(Control {
             goal_id: 0,
@@ -419,7 +421,7 @@ impl Coord {
         })?;
         bus.start(ROBOT_ID_ALL, 0)?;
         let t_start = Instant::now();
-        let interrupted = self.main_loop(bus, expected, stop)?;
+        let interrupted = self.main_loop(bus, &lister, stop)?;
         let active = t_start.elapsed().as_secs_f64();
         // every robot is done learning (or lost): hand out the whole fleet table, then Stop
         self.flush_merged(bus)?;
@@ -459,7 +461,7 @@ impl Coord {
         }
         // a hung robot that does not drain its control buffer must not fail the run
         watch::tolerate(bus.stop(ROBOT_ID_ALL).map(drop))?;
-        self.collect_reports(bus, timeout)?;
+        self.collect_reports(bus, &lister, timeout)?;
         Ok((active, interrupted))
     }
 
@@ -522,7 +524,7 @@ impl Coord {
     fn main_loop(
         &mut self,
         bus: &CoordinatorBus,
-        _expected: &Expected,
+        lister: &watch::Lister,
         stop: &AtomicBool,
     ) -> Result<bool, CoordError> {
         let strategy = self.args.wait;
@@ -556,7 +558,6 @@ impl Coord {
         let spin_for = Duration::from_micros(self.args.spin_us);
         let mut last_activity = Instant::now();
         let mut last_periodic = Instant::now();
-        let mut last_liveness = Instant::now();
         let mut peer_dead = false;
         let mut iter: u32 = 0;
         loop {
@@ -567,16 +568,17 @@ impl Coord {
                 std::hint::spin_loop();
                 continue;
             }
+            if let Some(listing) = lister.poll() {
+                self.liveness(bus, listing)?;
+            }
             let now = Instant::now();
             if n > 0 {
                 last_activity = now;
             }
             if now.duration_since(last_periodic) >= Duration::from_millis(50) || peer_dead {
                 last_periodic = now;
-                if peer_dead || now.duration_since(last_liveness) >= Duration::from_millis(100) {
-                    last_liveness = now;
-                    peer_dead = false;
-                    self.liveness(bus)?;
+                if std::mem::take(&mut peer_dead) {
+                    lister.now();
                 }
                 self.progress();
                 if stop.load(Ordering::Relaxed) {
@@ -840,11 +842,17 @@ impl Coord {
         }
     }
 
-    fn liveness(&mut self, bus: &CoordinatorBus) -> Result<(), CoordError> {
-        let listed_at = Instant::now();
-        // list only: cleaning a dead node takes ~0.3 s, so it runs in the background after
-        // the loss is recorded (see `watch`)
-        let report = check_nodes(bus.config(), false)?;
+    /// Takes a node listing of the `watch::Lister` thread: losses, cleanup of dead nodes (in
+    /// the background), heartbeat deadlines.
+    fn liveness(
+        &mut self,
+        bus: &CoordinatorBus,
+        listing: watch::Listing,
+    ) -> Result<(), CoordError> {
+        let listed_at = listing.at;
+        // listed without cleaning: cleaning a dead node takes ~0.3 s, so it runs in the
+        // background after the loss is recorded (see `watch`)
+        let report = listing.report?;
         if report.dead().next().is_some() {
             self.life.clean_dead(bus.config());
         }
@@ -912,10 +920,10 @@ impl Coord {
     fn collect_reports(
         &mut self,
         bus: &CoordinatorBus,
+        lister: &watch::Lister,
         timeout: Duration,
     ) -> Result<(), CoordError> {
         let deadline = Instant::now() + timeout;
-        let mut last_liveness = Instant::now();
         loop {
             self.drain(bus)?;
             if self
@@ -933,9 +941,8 @@ impl Coord {
                 );
                 return Ok(());
             }
-            if now.duration_since(last_liveness) >= Duration::from_millis(100) {
-                last_liveness = now;
-                self.liveness(bus)?;
+            if let Some(listing) = lister.poll() {
+                self.liveness(bus, listing)?;
             }
             bus.report.wait(Duration::from_millis(10))?;
         }
