@@ -515,7 +515,7 @@ impl Agent<'_> {
         let (robot_id, goal_id, seq) = (self.args.robot_id, self.goal_id, self.hint_seq);
         let batcher = &mut self.batcher;
         let mut n = 0;
-        let sent = self.bus.hints.send_with(|b| {
+        let sent = self.bus.hints.send_batch(|b| {
             b.robot_id = robot_id;
             b.goal_id = goal_id;
             b.seq = seq;

@@ -557,7 +557,7 @@ impl Exp<'_> {
         let (robot_id, seq) = (self.args.robot_id, self.hint_seq);
         self.hint_seq += 1;
         let mut n = 0;
-        let sent = self.bus.hints.send_with(|b| {
+        let sent = self.bus.hints.send_batch(|b| {
             b.robot_id = robot_id;
             b.goal_id = goal_id;
             b.seq = seq;

@@ -3,7 +3,7 @@
 //!
 //! Robots here are lightweight: no learner. They make Q updates with [`super::Updates`], batch
 //! them with the robot-agent's own `HintBatcher`, send them with the `bus` crate exactly as
-//! `robot-agent` does (`send_with` + `fill`, then `notify`), and apply merged hints with the
+//! `robot-agent` does (`send_batch` + `fill`, then `notify`), and apply merged hints with the
 //! robot-agent's own `apply_merged` into a `planner::QTable`, which records the end-to-end
 //! latency (origin time of the update → applied) in the histogram this harness reports.
 
@@ -148,7 +148,7 @@ fn send_hints(
 ) -> Result<usize, BenchError> {
     let robot_id = bus.robot_id();
     let mut n = 0;
-    bus.hints.send_with(|b: &mut QHintBatch| {
+    bus.hints.send_batch(|b: &mut QHintBatch| {
         b.robot_id = robot_id;
         b.goal_id = 0;
         b.seq = seq;
@@ -395,7 +395,7 @@ pub fn scale_robot(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
             let mut oldest = 0;
             let robot_id = bus.robot_id();
             let mut n = 0;
-            bus.hints.send_with(|b: &mut QHintBatch| {
+            bus.hints.send_batch(|b: &mut QHintBatch| {
                 b.robot_id = robot_id;
                 b.seq = seq;
                 n = batcher.fill(b);
