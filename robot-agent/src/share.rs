@@ -17,6 +17,13 @@
 //! - `blend`: `q_local += w·(q_hint − q_local)` with the visit weight
 //!   `w = v_hint / (v_hint + v_local)`, `v` the number of updates each value rests on: a value
 //!   learned from many visits pulls harder. Also applies negative values.
+//! - `latest`: `q_local = q_hint`, positive or negative: the fleet's newest value of an entry
+//!   replaces the robot's own, as if all robots updated one shared table (with the latency of
+//!   a batch). Unlike `max` it can *lower* a value. That matters because the `max` argument
+//!   above does not hold for pseudo targets: their value is set by Manhattan distance, so one
+//!   behind a wall is worth far more than its true Q*, and after the targets are removed those
+//!   overestimates must decay — under `max` every robot's decayed value is raised again by the
+//!   fleet's stale maximum. Pair it with the coordinator's `--merge latest`.
 //!
 //! Every applied foreign entry also gives one sample of the end-to-end loop latency: the
 //! monotonic time of the oldest robot update merged into it (`origin_ns`) to the moment this
@@ -65,6 +72,8 @@ pub enum ApplyRule {
     Max,
     /// Visit-weighted blend towards the hint.
     Blend,
+    /// Take the hint as is (can lower values): one shared table, delayed by a batch.
+    Latest,
 }
 
 impl std::fmt::Display for ShareMode {
@@ -83,6 +92,7 @@ impl std::fmt::Display for ApplyRule {
         f.write_str(match self {
             ApplyRule::Max => "max",
             ApplyRule::Blend => "blend",
+            ApplyRule::Latest => "latest",
         })
     }
 }
@@ -380,6 +390,7 @@ pub fn apply_merged(
                 let vl = f32::from(visits.get(cell * 4 + action).copied().unwrap_or(0));
                 local + vh / (vh + vl) * (h.q - local)
             }
+            ApplyRule::Latest => h.q,
         };
         if new != local && q.set_checked(cell, action, new) {
             c.entries_applied += 1;
@@ -537,6 +548,40 @@ mod tests {
         apply_merged(&m, &ctx, &mut q, &visits, 1100, &mut h, &mut seq, &mut c);
         assert_eq!(q.row(2)[1], 0.5);
         assert_eq!(q.row(3)[0], -1.0);
+    }
+
+    #[test]
+    fn latest_rule_takes_foreign_values_as_they_are() {
+        let mut q = QTable::new(&grid());
+        q.set_checked(1, 0, 0.5); // an overestimate the fleet has since corrected
+        q.set_checked(2, 1, 0.1);
+        q.set_checked(4, 0, 0.7);
+        let ctx = ApplyCtx {
+            robot_id: 0,
+            robots: 2,
+            goal_id: 0,
+            rule: ApplyRule::Latest,
+        };
+        let (mut h, mut seq, mut c) = (new_hist(), None, ApplyCounters::default());
+        let m = merged(&[
+            (1, 0, 0.2, 1),            // lowered
+            (2, 1, 0.3, 1),            // raised
+            (3, 2, -0.5, 1),           // negative: taken too
+            (4, 0, 0.0, 0),            // own value coming back: skipped
+            (5, 0, f32::NAN, 1),       // still validated
+            (6, 3, 0.4, ROBOT_ID_ALL), // fleet resend
+        ]);
+        apply_merged(&m, &ctx, &mut q, &[0; 32], 1100, &mut h, &mut seq, &mut c);
+        assert_eq!(q.row(1)[0], 0.2);
+        assert_eq!(q.row(2)[1], 0.3);
+        assert_eq!(q.row(3)[2], -0.5);
+        assert_eq!(q.row(4)[0], 0.7);
+        assert_eq!(q.row(5)[0], 0.0);
+        assert_eq!(q.row(6)[3], 0.4);
+        assert_eq!(
+            (c.entries_applied, c.entries_own, c.entries_rejected),
+            (4, 1, 1)
+        );
     }
 
     #[test]
