@@ -9,10 +9,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
-use clap::Args;
+use clap::{Args, ValueEnum};
 use coordinator::MergeRule;
 use coordinator::experiment::{ExperimentOptions, ExperimentResult, run_experiment};
 use qfleet_args::{Plan, Sharing, load_manifest};
+use robot_agent::ApplyRule;
 use std::os::unix::process::CommandExt;
 
 /// Options of `qfleet experiment`.
@@ -35,6 +36,50 @@ pub struct ExperimentCmd {
     /// Run id prefix (default: derived from the process id and the time).
     #[arg(long)]
     run_id: Option<String>,
+    /// How robots apply merged hints and how the coordinator merges them.
+    #[command(flatten)]
+    rules: Rules,
+}
+
+/// The two rules of Q-hint sharing: how the coordinator merges robots' values into the fleet
+/// table, and how a robot applies the fleet's values to its own table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Args)]
+pub struct Rules {
+    /// How a robot applies merged hints (robot-agent `--apply`).
+    #[arg(long, value_enum, default_value_t = ApplyRule::Max)]
+    pub apply: ApplyRule,
+    /// How the coordinator merges hints into the fleet table.
+    #[arg(long, value_enum, default_value_t = MergeRule::Max)]
+    pub merge: MergeRule,
+}
+
+impl Default for Rules {
+    fn default() -> Self {
+        Rules {
+            apply: ApplyRule::Max,
+            merge: MergeRule::Max,
+        }
+    }
+}
+
+impl std::fmt::Display for Rules {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.apply, self.merge)
+    }
+}
+
+impl std::str::FromStr for Rules {
+    type Err = String;
+    /// `APPLY/MERGE`, e.g. `max/max` or `latest/latest`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (a, m) = s
+            .split_once('/')
+            .ok_or_else(|| format!("{s:?}: expected APPLY/MERGE, e.g. latest/latest"))?;
+        Ok(Rules {
+            apply: ApplyRule::from_str(a, true).map_err(|e| format!("apply rule {a:?}: {e}"))?,
+            merge: MergeRule::from_str(m, true).map_err(|e| format!("merge rule {m:?}: {e}"))?,
+        })
+    }
 }
 
 /// The process-wide stop flag (Ctrl-C), installed once.
@@ -85,8 +130,15 @@ pub fn load_plan(file: &Path) -> Result<Plan> {
     Ok(m.resolve(base)?)
 }
 
-/// Runs one repetition of `plan` with `seed`: starts the robots, coordinates, cleans up.
-pub fn run_once(plan: &Plan, seed: u64, run_id: &str, out: &Path) -> Result<ExperimentResult> {
+/// Runs one repetition of `plan` with `seed` and the sharing `rules`: starts the robots,
+/// coordinates, cleans up.
+pub fn run_once(
+    plan: &Plan,
+    seed: u64,
+    rules: Rules,
+    run_id: &str,
+    out: &Path,
+) -> Result<ExperimentResult> {
     bus::validate_run_id(run_id)?;
     let robot_bin = sibling("robot-agent")?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
@@ -119,6 +171,7 @@ pub fn run_once(plan: &Plan, seed: u64, run_id: &str, out: &Path) -> Result<Expe
                     .to_string(),
             ])
             .args(["--share", m.sharing.as_cli()])
+            .args(["--apply", &rules.apply.to_string()])
             .args(["--timeout", &m.timeout_s.to_string()])
             .arg("--out")
             .arg(out)
@@ -145,7 +198,7 @@ pub fn run_once(plan: &Plan, seed: u64, run_id: &str, out: &Path) -> Result<Expe
                 run_id: run_id.to_string(),
                 seed,
                 out: out.to_path_buf(),
-                merge: MergeRule::Max,
+                merge: rules.merge,
             },
             &stop,
         )
@@ -212,7 +265,7 @@ impl ExperimentCmd {
         for &seed in &plan.manifest.seeds.clone() {
             let id = make_run_id(self.run_id.as_deref(), &format!("s{seed}"));
             let dir = out.join(format!("seed-{seed}"));
-            let r = run_once(&plan, seed, &id, &dir)?;
+            let r = run_once(&plan, seed, self.rules, &id, &dir)?;
             let json = serde_json::to_string_pretty(&r)?;
             std::fs::write(dir.join("result.json"), json)?;
             if !self.json {

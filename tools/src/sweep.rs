@@ -13,9 +13,9 @@ use anyhow::{Context, Result};
 use clap::Args;
 use plotters::prelude::*;
 use qfleet_args::Sharing;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
-use crate::experiment::{load_plan, make_run_id, run_once};
+use crate::experiment::{Rules, load_plan, make_run_id, run_once};
 use crate::plots::PALETTE;
 
 /// Options of `qfleet sweep`.
@@ -33,16 +33,27 @@ pub struct SweepCmd {
     /// Seeds (one repetition each).
     #[arg(long, value_delimiter = ',', default_value = "1,2,3")]
     seeds: Vec<u64>,
+    /// Seeds of the lone-robot baseline (N = 1, no sharing) when it needs more repetitions
+    /// than the other cells (its spread sets the error of every ratio); default: `--seeds`.
+    #[arg(long, value_delimiter = ',')]
+    baseline_seeds: Vec<u64>,
+    /// Sharing rules `APPLY/MERGE` to compare for the modes that share hints (apply: max,
+    /// blend, latest; merge: max, mean, latest); modes without hints run once.
+    #[arg(long, value_delimiter = ',', default_value = "max/max")]
+    rules: Vec<Rules>,
     /// Directory for the runs' files, sweep.json and sweep.md.
     #[arg(long, default_value = "results/sweep")]
     out: PathBuf,
     /// Where to write the SVG plot of speedup against N.
     #[arg(long, default_value = "docs/sharing-speedup.svg")]
     svg: PathBuf,
+    /// Run nothing: redraw the table and the plot from a previous sweep's `sweep.json`.
+    #[arg(long)]
+    replot: Option<PathBuf>,
 }
 
 /// One (map, N, sharing) cell of the sweep, averaged over seeds.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Row {
     /// Map name.
     pub map: String,
@@ -50,14 +61,24 @@ pub struct Row {
     pub robots: u32,
     /// Sharing mode.
     pub sharing: String,
+    /// Apply/merge rules (`-` when no hints are shared).
+    pub rules: String,
     /// Runs (seeds).
     pub runs: usize,
+    /// Runs that failed on the bus and were run again.
+    pub retries: usize,
     /// Robots (over all runs) whose own greedy path became optimal.
     pub robots_optimal: usize,
     /// Robots over all runs.
     pub robots_total: usize,
-    /// Mean env steps per robot until its own greedy path was optimal.
+    /// Mean env steps per robot until its own greedy path was optimal, over the robots that
+    /// got there (a survivor mean: read it with `robots_optimal`).
     pub robot_steps: Option<f64>,
+    /// Median over all robots of the env steps until the own greedy path was optimal, a robot
+    /// that never got there counting as infinitely many (`None` when half or more never did).
+    pub median_steps: Option<f64>,
+    /// `median_steps` / the lone robot's `median_steps`.
+    pub median_ratio: Option<f64>,
     /// Mean env steps per robot until the merged table's greedy path was optimal.
     pub merged_steps: Option<f64>,
     /// Mean seconds until a robot's own greedy path was optimal.
@@ -72,13 +93,52 @@ pub struct Row {
     pub step_ratio: Option<f64>,
 }
 
+/// The table label of a manifest: its file stem without a `sweep-`/`sharing-` prefix (e.g.
+/// `room-32-32-4-d35`), or the map name.
+fn task_label(file: &Path, map: &str) -> String {
+    file.file_stem()
+        .and_then(|s| s.to_str())
+        .map(|s| {
+            s.trim_start_matches("sweep-")
+                .trim_start_matches("sharing-")
+        })
+        .filter(|s| !s.is_empty())
+        .map_or_else(|| map.to_string(), str::to_string)
+}
+
 fn mean(v: &[f64]) -> Option<f64> {
     (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+/// The median of `v` (sorted in place), `None` if empty or if it is infinite (half or more of
+/// the values are `f64::INFINITY`, robots that never reached the optimum).
+fn median(v: &mut [f64]) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    let m = if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        (v[n / 2 - 1] + v[n / 2]) / 2.0
+    };
+    m.is_finite().then_some(m)
 }
 
 impl SweepCmd {
     /// Runs the sweep.
     pub fn run(self) -> Result<()> {
+        if let Some(json) = &self.replot {
+            let text = std::fs::read_to_string(json)
+                .with_context(|| format!("reading {}", json.display()))?;
+            let rows: Vec<Row> = serde_json::from_str(&text)
+                .with_context(|| format!("parsing {}", json.display()))?;
+            plot(&self.svg, &rows)?;
+            print!("{}", markdown(&rows, &[]));
+            println!("wrote {}", self.svg.display());
+            return Ok(());
+        }
         let mut modes = Vec::new();
         for s in &self.sharing {
             modes
@@ -96,10 +156,32 @@ impl SweepCmd {
                     continue;
                 }
             };
-            let map = base.map.name.clone();
+            // one label per manifest: two tasks on one map must not share a results directory
+            let map = task_label(file, &base.map.name);
             let mut baseline: Option<f64> = None;
+            let mut baseline_median: Option<f64> = None;
             for &n in &self.robots {
-                for &mode in &modes {
+                let cells: Vec<(Sharing, Option<Rules>)> = modes
+                    .iter()
+                    .flat_map(|&mode| -> Vec<(Sharing, Option<Rules>)> {
+                        if matches!(mode, Sharing::Hints | Sharing::Both) {
+                            self.rules.iter().map(|&r| (mode, Some(r))).collect()
+                        } else {
+                            vec![(mode, None)]
+                        }
+                    })
+                    .collect();
+                for (mode, rules) in cells {
+                    let lone = n == 1 && mode == Sharing::None;
+                    let seeds = if lone && !self.baseline_seeds.is_empty() {
+                        &self.baseline_seeds
+                    } else {
+                        &self.seeds
+                    };
+                    let label = match rules {
+                        Some(r) => format!("{}-{}-{}", mode.as_cli(), r.apply, r.merge),
+                        None => mode.as_cli().to_string(),
+                    };
                     let mut plan = base.clone();
                     let m = &mut plan.manifest;
                     m.robots = n;
@@ -114,13 +196,32 @@ impl SweepCmd {
                     let (mut own, mut merged, mut own_t, mut merged_t, mut avg) =
                         (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
                     let mut ok = 0;
-                    for &seed in &self.seeds {
-                        let tag = format!("n{n}-{}-s{seed}", mode.as_cli());
-                        let id = make_run_id(Some("sw"), &tag);
+                    let mut retries = 0;
+                    let mut all: Vec<f64> = Vec::new();
+                    for &seed in seeds {
+                        let tag = format!("n{n}-{label}-s{seed}");
+                        // short: a run id is truncated to RUN_ID_MAX_LEN, its unique tail first
+                        let mut id = make_run_id(Some("sw"), &format!("n{n}s{seed}"));
                         let dir = self.out.join(&map).join(&tag);
                         let _ = std::fs::remove_dir_all(&dir);
-                        let r = run_once(&plan, seed, &id, &dir)
-                            .with_context(|| format!("{map} {tag}"))?;
+                        let rules = rules.unwrap_or_default();
+                        let mut attempt = 0;
+                        let r = loop {
+                            match run_once(&plan, seed, rules, &id, &dir) {
+                                Ok(r) => break r,
+                                // a run that failed on the bus (not in the learning) is run
+                                // again, up to twice, with a fresh run id; retries are reported
+                                Err(e) if attempt < 2 => {
+                                    attempt += 1;
+                                    retries += 1;
+                                    eprintln!("qfleet sweep: {map} {tag} failed ({e:#}); retrying");
+                                    std::thread::sleep(std::time::Duration::from_secs(1));
+                                    id = make_run_id(Some("sw"), &format!("n{n}s{seed}r{attempt}"));
+                                    let _ = std::fs::remove_dir_all(&dir);
+                                }
+                                Err(e) => return Err(e.context(format!("{map} {tag}"))),
+                            }
+                        };
                         let _ = std::fs::write(
                             dir.join("result.json"),
                             serde_json::to_string_pretty(&r)?,
@@ -129,6 +230,13 @@ impl SweepCmd {
                             continue;
                         };
                         ok += gp.robots_reached_optimal;
+                        if let Some(p) = r.phases.first() {
+                            all.extend(
+                                p.robots.iter().map(|x| {
+                                    x.steps_to_optimal.map_or(f64::INFINITY, |s| s as f64)
+                                }),
+                            );
+                        }
                         if let Some(s) = gp.robot_steps_to_optimal {
                             own.push(s);
                         }
@@ -143,8 +251,7 @@ impl SweepCmd {
                         }
                         avg.push(gp.avg_steps);
                         eprintln!(
-                            "qfleet sweep: {map} N={n} {} seed {seed}: own optimum after {} steps/robot, merged after {}",
-                            mode.as_cli(),
+                            "qfleet sweep: {map} N={n} {label} seed {seed}: own optimum after {} steps/robot, merged after {}",
                             gp.robot_steps_to_optimal
                                 .map_or("-".into(), |s| format!("{s:.0}")),
                             gp.merged_steps_per_robot
@@ -152,9 +259,15 @@ impl SweepCmd {
                         );
                     }
                     let robot_steps = mean(&own);
-                    if n == 1 && mode == Sharing::None {
+                    let median_steps = median(&mut all);
+                    if lone {
                         baseline = robot_steps;
+                        baseline_median = median_steps;
                     }
+                    let median_ratio = match (baseline_median, median_steps) {
+                        (Some(b), Some(s)) if b > 0.0 => Some(s / b),
+                        _ => None,
+                    };
                     let speedup = match (baseline, robot_steps) {
                         (Some(b), Some(s)) if s > 0.0 => Some(b / s),
                         _ => None,
@@ -163,10 +276,14 @@ impl SweepCmd {
                         map: map.clone(),
                         robots: n,
                         sharing: mode.as_cli().into(),
-                        runs: self.seeds.len(),
+                        rules: rules.map_or("-".into(), |r| r.to_string()),
+                        runs: seeds.len(),
+                        retries,
                         robots_optimal: ok,
-                        robots_total: self.seeds.len() * n as usize,
+                        robots_total: seeds.len() * n as usize,
                         robot_steps,
+                        median_steps,
+                        median_ratio,
                         merged_steps: mean(&merged),
                         robot_time_s: mean(&own_t),
                         merged_time_s: mean(&merged_t),
@@ -205,16 +322,28 @@ fn markdown(rows: &[Row], skipped: &[String]) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "| map | N | sharing | env steps/robot to own optimum | ÷ lone robot | speedup | env steps/robot to merged optimum | s to own optimum | s to merged optimum | avg steps/episode | robots optimal |"
+        "| map | N | sharing | apply/merge | runs | median env steps/robot to own optimum (never = ∞) | ÷ lone robot | mean over robots that got there | ÷ lone robot | speedup (means) | env steps/robot to merged optimum | s to own optimum | s to merged optimum | avg steps/episode | robots optimal |"
     );
-    let _ = writeln!(s, "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let _ = writeln!(
+        s,
+        "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+    );
     for r in rows {
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.0} | {}/{} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.0} | {}/{} |",
             r.map,
             r.robots,
             r.sharing,
+            r.rules,
+            if r.retries > 0 {
+                format!("{} ({} retried)", r.runs, r.retries)
+            } else {
+                r.runs.to_string()
+            },
+            f(r.median_steps, 0),
+            r.median_ratio
+                .map_or("—".into(), |v| format!("{:.0}%", v * 100.0)),
             f(r.robot_steps, 0),
             r.step_ratio
                 .map_or("—".into(), |v| format!("{:.0}%", v * 100.0)),
@@ -236,8 +365,15 @@ fn markdown(rows: &[Row], skipped: &[String]) -> String {
 fn plot(path: &Path, rows: &[Row]) -> Result<()> {
     let mut series: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
     for r in rows {
-        let Some(sp) = r.speedup else { continue };
-        let key = format!("{} {}", r.map, r.sharing);
+        // the median counts robots that never got there; the survivor mean would hide them
+        let Some(sp) = r.median_ratio.filter(|v| *v > 0.0).map(|v| 1.0 / v) else {
+            continue;
+        };
+        let key = if r.rules == "-" {
+            format!("{} {}", r.map, r.sharing)
+        } else {
+            format!("{} {} {}", r.map, r.sharing, r.rules)
+        };
         let x = f64::from(r.robots).log2();
         match series.iter_mut().find(|(k, _)| *k == key) {
             Some((_, v)) => v.push((x, sp)),
@@ -257,7 +393,7 @@ fn plot(path: &Path, rows: &[Row]) -> Result<()> {
     root.fill(&WHITE)?;
     let mut chart = ChartBuilder::on(&root)
         .caption(
-            "Value of sharing: lone robot's env steps to optimum / each robot's",
+            "Value of sharing: lone robot's median env steps to optimum / the fleet's",
             ("sans-serif", 20),
         )
         .margin(12)
@@ -267,7 +403,7 @@ fn plot(path: &Path, rows: &[Row]) -> Result<()> {
     chart
         .configure_mesh()
         .x_desc("robots N")
-        .y_desc("speedup (env steps per robot)")
+        .y_desc("speedup (median env steps per robot)")
         .x_labels(((xmax as usize) + 1).max(2))
         .x_label_formatter(&|x| format!("{}", 2f64.powf(x.round()) as u32))
         .draw()?;
@@ -278,10 +414,26 @@ fn plot(path: &Path, rows: &[Row]) -> Result<()> {
         ))?
         .label("2.5× (= 40% of the steps)")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.mix(0.3)));
+    let mut sizes: Vec<f64> = rows.iter().map(|r| f64::from(r.robots).log2()).collect();
+    sizes.sort_by(f64::total_cmp);
+    sizes.dedup();
     for (i, (label, pts)) in series.iter().enumerate() {
         let c = PALETTE[i % PALETTE.len()];
+        // a line only between neighbouring fleet sizes: a missing median (half or more of the
+        // robots never optimal) leaves a gap rather than a line across it
+        let segs: Vec<PathElement<(f64, f64)>> = pts
+            .windows(2)
+            .filter(|w| {
+                let (a, b) = (
+                    sizes.iter().position(|s| *s == w[0].0),
+                    sizes.iter().position(|s| *s == w[1].0),
+                );
+                matches!((a, b), (Some(a), Some(b)) if b == a + 1)
+            })
+            .map(|w| PathElement::new(vec![w[0], w[1]], c.stroke_width(2)))
+            .collect();
         chart
-            .draw_series(LineSeries::new(pts.iter().copied(), c.stroke_width(2)))?
+            .draw_series(segs)?
             .label(label.clone())
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2)));
         chart.draw_series(pts.iter().map(|p| Circle::new(*p, 4, c.filled())))?;
@@ -294,4 +446,18 @@ fn plot(path: &Path, rows: &[Row]) -> Result<()> {
         .draw()?;
     root.present()?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::median;
+
+    #[test]
+    fn median_counts_robots_that_never_got_there() {
+        assert_eq!(median(&mut []), None);
+        assert_eq!(median(&mut [3.0, 1.0, 2.0]), Some(2.0));
+        assert_eq!(median(&mut [4.0, 1.0, f64::INFINITY]), Some(4.0));
+        assert_eq!(median(&mut [1.0, f64::INFINITY]), None);
+        assert_eq!(median(&mut [1.0, 2.0, 3.0, f64::INFINITY]), Some(2.5));
+    }
 }
