@@ -32,7 +32,11 @@ fn hints(k: usize) -> QHintBatch {
         count: n as u32,
         seq: k as u64,
         // a header field some batches leave unset: must not survive from the slot's last use
-        oldest_update_ns: if k.is_multiple_of(2) { 10 + k as u64 } else { 0 },
+        oldest_update_ns: if k.is_multiple_of(2) {
+            10 + k as u64
+        } else {
+            0
+        },
         ..QHintBatch::ZEROED
     };
     for i in 0..n {
