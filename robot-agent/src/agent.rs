@@ -108,6 +108,54 @@ pub enum AgentError {
     Output(String),
 }
 
+/// Who a final report is from and what it is about: the fields that differ between a plain run
+/// and an experiment phase.
+pub(crate) struct ReportHead {
+    pub(crate) robot_id: u32,
+    pub(crate) goal_id: u32,
+    pub(crate) final_path_len: Option<u32>,
+    pub(crate) optimal_path_len: u32,
+}
+
+/// The fixed-size `FinalReport` of a run or phase: learning summary, counters, loop latency.
+pub(crate) fn final_report(
+    head: ReportHead,
+    s: &Summary,
+    finished: bool,
+    t0: Instant,
+    c: &Counters,
+    loop_hist: &Histogram<u64>,
+) -> FinalReport {
+    let to_i32 = |v: Option<u32>| v.map_or(-1, |x| x.min(i32::MAX as u32) as i32);
+    let status = if finished {
+        RobotStatus::Finished
+    } else {
+        RobotStatus::Failed
+    };
+    FinalReport {
+        robot_id: head.robot_id,
+        schema_version: SCHEMA_VERSION,
+        goal_id: head.goal_id,
+        episodes: s.episodes,
+        final_path_len: to_i32(head.final_path_len),
+        optimal_path_len: to_i32(Some(head.optimal_path_len)),
+        first_optimal_episode: to_i32(s.first_optimal_episode),
+        max_steps: s.max_steps,
+        status: status.as_u8(),
+        avg_steps: s.avg_steps,
+        env_steps: s.env_steps,
+        elapsed_ns: t0.elapsed().as_nanos().min(u128::from(u64::MAX)) as u64,
+        discoveries_sent: c.discoveries_sent,
+        discoveries_acked: c.discoveries_acked,
+        hints_sent: c.hint_batches_sent,
+        hints_received: c.merged.batches,
+        hints_applied: c.merged.entries_applied,
+        merged_latency: hist::summary(loop_hist),
+        send_time_ns: monotonic_ns(),
+        ..FinalReport::ZEROED
+    }
+}
+
 /// Bus traffic counters of one robot, reported in its result.
 #[derive(Debug, Clone, Copy, Default, Serialize)]
 pub struct Counters {
@@ -776,34 +824,13 @@ impl Agent<'_> {
     }
 
     fn send_report(&mut self, s: &Summary, finished: bool, t0: Instant) -> Result<(), AgentError> {
-        let to_i32 = |v: Option<u32>| v.map_or(-1, |x| x.min(i32::MAX as u32) as i32);
-        let rep = FinalReport {
+        let head = ReportHead {
             robot_id: self.args.robot_id,
-            schema_version: SCHEMA_VERSION,
             goal_id: self.goal_id,
-            episodes: s.episodes,
-            final_path_len: to_i32(s.final_path_len),
-            optimal_path_len: to_i32(Some(s.optimal_path_len)),
-            first_optimal_episode: to_i32(s.first_optimal_episode),
-            max_steps: s.max_steps,
-            status: if finished {
-                RobotStatus::Finished
-            } else {
-                RobotStatus::Failed
-            }
-            .as_u8(),
-            avg_steps: s.avg_steps,
-            env_steps: s.env_steps,
-            elapsed_ns: t0.elapsed().as_nanos().min(u128::from(u64::MAX)) as u64,
-            discoveries_sent: self.c.discoveries_sent,
-            discoveries_acked: self.c.discoveries_acked,
-            hints_sent: self.c.hint_batches_sent,
-            hints_received: self.c.merged.batches,
-            hints_applied: self.c.merged.entries_applied,
-            merged_latency: hist::summary(&self.loop_hist),
-            send_time_ns: monotonic_ns(),
-            ..FinalReport::ZEROED
+            final_path_len: s.final_path_len,
+            optimal_path_len: s.optimal_path_len,
         };
+        let rep = final_report(head, s, finished, t0, &self.c, &self.loop_hist);
         self.bus.report.send_and_notify(&rep)?;
         Ok(())
     }

@@ -24,17 +24,15 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use bus::bus_schema::{
-    Command, FinalReport, PseudoTargetDiscovery, Register, RobotStatus, SCHEMA_VERSION,
-};
+use bus::bus_schema::{Command, PseudoTargetDiscovery, Register, RobotStatus, SCHEMA_VERSION};
 use bus::{BusConfig, BusError, RobotBus, check_nodes, monotonic_ns};
 use hdrhistogram::Histogram;
 use planner::task::Task;
 use planner::{Cell, EpisodeRecord, Learner, QTable, Summary};
 use serde::{Deserialize, Serialize};
 
-use crate::agent::{AgentArgs, AgentError, Counters, RobotResult};
-use crate::hist::{self, LatencyStats, new_hist};
+use crate::agent::{AgentArgs, AgentError, Counters, ReportHead, RobotResult, final_report};
+use crate::hist::{LatencyStats, new_hist};
 use crate::share::{ApplyCtx, HintBatcher, apply_merged, map_fingerprint};
 
 const DISCOVERY_RESEND: Duration = Duration::from_millis(100);
@@ -500,34 +498,13 @@ impl Exp<'_> {
                 .map_err(|e| AgentError::Output(format!("{}: {e}", path.display())))?;
         }
         self.send_state(goal_id, s.episodes, RobotStatus::Finished);
-        let to_i32 = |v: Option<u32>| v.map_or(-1, |x| x.min(i32::MAX as u32) as i32);
-        let rep = FinalReport {
+        let head = ReportHead {
             robot_id: self.args.robot_id,
-            schema_version: SCHEMA_VERSION,
             goal_id,
-            episodes: s.episodes,
-            final_path_len: to_i32(final_len),
-            optimal_path_len: to_i32(Some(optimal)),
-            first_optimal_episode: to_i32(s.first_optimal_episode),
-            max_steps: s.max_steps,
-            status: if finished {
-                RobotStatus::Finished
-            } else {
-                RobotStatus::Failed
-            }
-            .as_u8(),
-            avg_steps: s.avg_steps,
-            env_steps: s.env_steps,
-            elapsed_ns: t0.elapsed().as_nanos().min(u128::from(u64::MAX)) as u64,
-            discoveries_sent: self.c.discoveries_sent,
-            discoveries_acked: self.c.discoveries_acked,
-            hints_sent: self.c.hint_batches_sent,
-            hints_received: self.c.merged.batches,
-            hints_applied: self.c.merged.entries_applied,
-            merged_latency: hist::summary(&self.loop_hist),
-            send_time_ns: monotonic_ns(),
-            ..FinalReport::ZEROED
+            final_path_len: final_len,
+            optimal_path_len: optimal,
         };
+        let rep = final_report(head, &s, finished, t0, &self.c, &self.loop_hist);
         match self.bus.report.send_and_notify(&rep) {
             Ok(_) | Err(BusError::NoSubscriber { .. }) if self.stopped => {}
             Ok(_) => {}
