@@ -386,7 +386,7 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         task,
         args,
     };
-    let outcome = c.drive(&bus, &expected, &stop, timeout, cfg.merged_buffer);
+    let outcome = c.drive(&bus, &expected, &stop, timeout);
     let result = match outcome {
         Ok((active, interrupted)) => {
             let r = c.result(active, interrupted, t_begin.elapsed().as_secs_f64());
@@ -408,7 +408,6 @@ impl Coord {
         expected: &Expected,
         stop: &AtomicBool,
         timeout: Duration,
-        merged_buffer: usize,
     ) -> Result<(f64, bool), CoordError> {
         self.admit_fleet(bus, expected, stop, timeout)?;
         let lister = watch::Lister::start(bus.config(), Duration::from_millis(100))?;
@@ -424,40 +423,10 @@ impl Coord {
         let interrupted = self.main_loop(bus, &lister, stop)?;
         let active = t_start.elapsed().as_secs_f64();
         // every robot is done learning (or lost): hand out the whole fleet table, then Stop
-        self.flush_merged(bus)?;
         if !interrupted && self.args.robots > 1 {
-            let round = (merged_buffer / 2).max(1);
-            let mut in_round = 0;
-            let mut err = None;
-            let mut seq = self.merged_seq;
-            let mut sent = 0;
-            self.table.resend_all(|t| {
-                if err.is_some() {
-                    let mut sink = bus::bus_schema::MergedHintBatch::ZEROED;
-                    t.take_into(&mut sink);
-                    return;
-                }
-                if let Err(e) = bus.merged.send_with(|m| {
-                    t.take_into(m);
-                    m.coordinator_seq = seq;
-                    m.send_time_ns = monotonic_ns();
-                }) {
-                    err = Some(e);
-                }
-                seq += 1;
-                sent += 1;
-                in_round += 1;
-                if in_round >= round {
-                    // let the robots drain their latest-wins buffers before the next round
-                    in_round = 0;
-                    std::thread::sleep(Duration::from_millis(5));
-                }
-            });
-            self.merged_seq = seq;
-            self.merged_sent += sent;
-            if let Some(e) = err {
-                return Err(e.into());
-            }
+            self.resend_table(bus)?;
+        } else {
+            self.flush_merged(bus)?;
         }
         // a hung robot that does not drain its control buffer must not fail the run
         watch::tolerate(bus.stop(ROBOT_ID_ALL).map(drop))?;
