@@ -392,17 +392,7 @@ fn drain(c: &mut Ctx, bus: &CoordinatorBus) -> Result<usize, CoordError> {
             })?;
         }
     }
-    if !c.relay_pending.is_empty() {
-        for mut r in std::mem::take(&mut c.relay_pending) {
-            r.relay_seq = c.relays_sent;
-            r.send_time_ns = monotonic_ns();
-            match bus.relay.send(&r) {
-                Ok(_) | Err(BusError::NoSubscriber { .. }) => c.relays_sent += 1,
-                Err(e) => return Err(e.into()),
-            }
-        }
-        bus.relay.notify()?;
-    }
+    crate::run::send_relays(bus, &mut c.relay_pending, &mut c.relays_sent)?;
     let mut touched = BTreeSet::new();
     for _ in 0..MAX {
         let Some(sample) = bus.hints.receive_sample()? else {

@@ -740,19 +740,7 @@ impl Coord {
     /// Relays new distinct discoveries to every robot (lossless; a fleet that already left
     /// is nobody to tell).
     fn send_relays(&mut self, bus: &CoordinatorBus) -> Result<(), CoordError> {
-        if self.relay_pending.is_empty() {
-            return Ok(());
-        }
-        for mut r in std::mem::take(&mut self.relay_pending) {
-            r.relay_seq = self.relays_sent;
-            r.send_time_ns = monotonic_ns();
-            match bus.relay.send(&r) {
-                Ok(_) | Err(BusError::NoSubscriber { .. }) => self.relays_sent += 1,
-                Err(e) => return Err(e.into()),
-            }
-        }
-        bus.relay.notify()?;
-        Ok(())
+        send_relays(bus, &mut self.relay_pending, &mut self.relays_sent)
     }
 
     fn on_hints(&mut self, bus: &CoordinatorBus, b: &QHintBatch) -> Result<(), CoordError> {
@@ -1101,4 +1089,26 @@ impl Coord {
 fn read_robot_json(dir: &Path, id: usize) -> Option<serde_json::Value> {
     let text = std::fs::read_to_string(dir.join(format!("robot-{id}.json"))).ok()?;
     serde_json::from_str(&text).ok()
+}
+
+/// Sends the pending relays, numbered from `relays_sent`, and wakes the robots once. Lossless;
+/// a fleet that already left (no subscriber) is nobody to tell, which is not an error.
+pub(crate) fn send_relays(
+    bus: &CoordinatorBus,
+    pending: &mut Vec<bus::bus_schema::DiscoveryRelay>,
+    relays_sent: &mut u64,
+) -> Result<(), CoordError> {
+    if pending.is_empty() {
+        return Ok(());
+    }
+    for mut r in std::mem::take(pending) {
+        r.relay_seq = *relays_sent;
+        r.send_time_ns = monotonic_ns();
+        match bus.relay.send(&r) {
+            Ok(_) | Err(BusError::NoSubscriber { .. }) => *relays_sent += 1,
+            Err(e) => return Err(e.into()),
+        }
+    }
+    bus.relay.notify()?;
+    Ok(())
 }
