@@ -156,6 +156,33 @@ pub(crate) fn final_report(
     }
 }
 
+/// Re-sends every unacknowledged discovery whose last send is older than `DISCOVERY_RESEND`;
+/// true if any went out (the caller notifies once).
+pub(crate) fn resend_due(
+    bus: &RobotBus,
+    unacked: &mut VecDeque<(u64, PseudoTargetDiscovery, Instant)>,
+    c: &mut Counters,
+) -> bool {
+    let now = Instant::now();
+    let mut any = false;
+    for (_, d, last) in unacked.iter_mut() {
+        if now.duration_since(*last) < DISCOVERY_RESEND {
+            continue;
+        }
+        *last = now;
+        let d = *d;
+        match bus.discovery.send_with(|m| {
+            *m = d;
+            m.send_time_ns = monotonic_ns();
+        }) {
+            Ok(_) => c.discoveries_resent += 1,
+            Err(_) => c.discovery_send_errors += 1,
+        }
+        any = true;
+    }
+    any
+}
+
 /// Bus traffic counters of one robot, reported in its result.
 #[derive(Debug, Clone, Copy, Default, Serialize)]
 pub struct Counters {
@@ -624,23 +651,7 @@ impl Agent<'_> {
         if self.link.alone() {
             return; // kept until a coordinator is back and acknowledges them
         }
-        let mut any = false;
-        let now = Instant::now();
-        for (_, d, last) in self.disc.unacked.iter_mut() {
-            if now.duration_since(*last) < DISCOVERY_RESEND {
-                continue;
-            }
-            *last = now;
-            let d = *d;
-            match self.bus.discovery.send_with(|m| {
-                *m = d;
-                m.send_time_ns = monotonic_ns();
-            }) {
-                Ok(_) => self.c.discoveries_resent += 1,
-                Err(_) => self.c.discovery_send_errors += 1,
-            }
-            any = true;
-        }
+        let any = resend_due(&self.bus, &mut self.disc.unacked, &mut self.c);
         if any || std::mem::take(&mut self.disc.dirty) {
             let _ = self.bus.discovery.notify();
         }

@@ -35,8 +35,6 @@ use crate::agent::{AgentArgs, AgentError, Counters, ReportHead, RobotResult, fin
 use crate::hist::{LatencyStats, new_hist};
 use crate::share::{ApplyCtx, HintBatcher, apply_merged, map_fingerprint};
 
-const DISCOVERY_RESEND: Duration = Duration::from_millis(100);
-
 /// What a robot writes after each phase (`robot-<id>-phase-<p>.json`).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct PhaseDetail {
@@ -586,24 +584,7 @@ impl Exp<'_> {
     }
 
     fn resend_discoveries(&mut self) {
-        let now = Instant::now();
-        let mut any = false;
-        for (_, d, last) in self.unacked.iter_mut() {
-            if now.duration_since(*last) < DISCOVERY_RESEND {
-                continue;
-            }
-            *last = now;
-            let d = *d;
-            match self.bus.discovery.send_with(|m| {
-                *m = d;
-                m.send_time_ns = monotonic_ns();
-            }) {
-                Ok(_) => self.c.discoveries_resent += 1,
-                Err(_) => self.c.discovery_send_errors += 1,
-            }
-            any = true;
-        }
-        if any {
+        if crate::agent::resend_due(&self.bus, &mut self.unacked, &mut self.c) {
             let _ = self.bus.discovery.notify();
         }
     }
