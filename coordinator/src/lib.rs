@@ -1,12 +1,31 @@
-//! The qfleet coordinator: receives every robot's traffic, merges Q hints into a fleet table,
-//! sends merged hints back, measures the update loop, and writes the run's result.
+//! The qfleet coordinator: admits the fleet, receives every robot's traffic, merges Q hints
+//! into a fleet table per goal, relays discoveries, drives runs and experiments, measures the
+//! update loop, and writes the result. It is not a learner and holds no robot logic.
 //!
-//! A thin process over the `bus` crate; the merge rules live in [`merge`], the run and the wait
-//! strategies in [`run`](mod@run).
+//! Decisions live in IO-free types tested as specifications: [`admission`] (who belongs to
+//! the fleet, bound to the iceoryx2 node that registered), [`discovery`] (ordering, dedup,
+//! acks, relays), [`validate`] (every message field), [`liveness`] (lost, hung, restarted),
+//! [`merge`] (the fleet table). One engine (`engine`) carries them out on the bus; [`run`]
+//! and [`experiment`] are two small drivers over it.
 
+pub mod admission;
+mod assemble;
+pub mod discovery;
+mod engine;
 pub mod experiment;
+pub mod liveness;
 pub mod merge;
+pub mod options;
+pub mod output;
+pub mod results;
 pub mod run;
+pub mod validate;
+mod wait;
 
+pub use engine::exited_file;
 pub use merge::{FleetTable, MergeRule};
-pub use run::{CoordArgs, CoordError, RobotEntry, RunResult, Throughput, WaitStrategy, run};
+pub use options::{CoordArgs, CoordError, WaitStrategy};
+pub use results::{
+    LivenessEvent, LivenessKind, LivenessReport, RobotEntry, RobotOutcome, RunResult, Throughput,
+};
+pub use run::run;

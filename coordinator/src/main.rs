@@ -1,11 +1,20 @@
 //! `qfleet-coordinator`: the coordinator process of a qfleet run (started by `qfleet run`).
+//!
+//! Exit codes:
+//! - 0: the run completed and every robot reported;
+//! - 1: a runtime failure (the bus, a thread, writing the result);
+//! - 2: bad input (an option value, the map, the scenario, the learner options);
+//! - 3: a robot was refused at registration (schema or map mismatch);
+//! - 4: the run completed, but some robot was lost or sent no report (a hung robot is
+//!   reported as `hung` and does not change the exit code);
+//! - 130: interrupted by a signal (a partial result is written when the run had started).
 
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::Parser;
-use coordinator::{CoordArgs, CoordError};
+use coordinator::{CoordArgs, RobotOutcome};
 
 /// The coordinator of a qfleet run: admits robots, merges their Q hints, measures the loop.
 #[derive(Debug, Parser)]
@@ -24,8 +33,10 @@ fn main() -> ExitCode {
     }
     match coordinator::run(cli.args, stop) {
         Ok(r) => {
-            let lost = !r.liveness.lost.is_empty();
-            let missing = r.robots.iter().any(|x| x.status == "missing");
+            let incomplete = r
+                .robots
+                .iter()
+                .any(|x| matches!(x.status, RobotOutcome::Lost | RobotOutcome::Missing));
             eprintln!(
                 "qfleet-coordinator: run {} done: {} robots, all optimal: {}, {} Q-updates merged",
                 r.run_id,
@@ -35,19 +46,27 @@ fn main() -> ExitCode {
             );
             if r.interrupted {
                 ExitCode::from(130)
-            } else if lost || missing {
+            } else if incomplete {
                 ExitCode::from(4)
             } else {
                 ExitCode::SUCCESS
             }
         }
         Err(e) => {
-            eprintln!("qfleet-coordinator: error: {e}");
-            match e {
-                CoordError::Input(_) => ExitCode::from(2),
-                CoordError::Refused { .. } => ExitCode::from(3),
-                _ => ExitCode::FAILURE,
-            }
+            eprintln!("qfleet-coordinator: error: {}", chain(&e));
+            ExitCode::from(e.exit_code())
         }
     }
+}
+
+/// An error with its sources, `outer: inner: …`.
+fn chain(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut cur = e.source();
+    while let Some(c) = cur {
+        s.push_str(": ");
+        s.push_str(&c.to_string());
+        cur = c.source();
+    }
+    s
 }

@@ -1,0 +1,426 @@
+//! Robot liveness beyond iceoryx2's node states: losses from node listings, heartbeat
+//! deadlines (a hung robot), restarts and re-joins, as a state without IO ([`Life`], driven
+//! with explicit `Instant`s and tested as a specification), plus the [`Lister`] thread that
+//! makes the node listings off the receive loop.
+//!
+//! Every liveness event is also printed on stdout as `event <kind> <robot id> <monotonic ns>`
+//! (by the engine, see [`Life::take_new`]) so the launcher can act on it (kill and restart a
+//! hung robot).
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use bus::{BusConfig, BusError, NodeReport, check_nodes, monotonic_ns};
+use crossbeam::channel::{Receiver, TrySendError, bounded};
+
+pub use crate::results::{LivenessEvent, LivenessKind};
+
+/// One listing of the run's nodes, made by the [`Lister`] thread.
+pub(crate) struct Listing {
+    /// When the listing started: a robot that registered after it cannot be in it.
+    pub(crate) at: Instant,
+    /// The nodes, or why they could not be listed.
+    pub(crate) report: Result<NodeReport, BusError>,
+}
+
+/// The node name of robot `id` (the one `bus::RobotBus::open` creates).
+pub(crate) fn robot_of_node(name: &str) -> Option<usize> {
+    name.strip_prefix("qfleet-robot-")?.parse().ok()
+}
+
+/// Lists the run's nodes on a thread of its own, every `every` (and at once after
+/// [`Lister::now`]), and hands the newest listing to the coordinator's loop.
+///
+/// Listing (iceoryx2 `Node::list`) costs ~3.6 M instructions, about 1 ms: on the loop's own
+/// thread that was a 1 ms stall every 100 ms for the spinning coordinator. The loop only polls a
+/// channel ([`Lister::poll`], one atomic load when nothing is there). The channel holds one
+/// listing: a newer one replaces an unread older one.
+pub(crate) struct Lister {
+    rx: Receiver<Listing>,
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl Lister {
+    /// Starts the thread; its first listing is made right away.
+    pub(crate) fn start(cfg: &BusConfig, every: Duration) -> std::io::Result<Self> {
+        let (tx, rx) = bounded::<Listing>(1);
+        let stale = rx.clone();
+        let stop = Arc::new(AtomicBool::new(false));
+        let stopped = Arc::clone(&stop);
+        let cfg = cfg.clone();
+        let thread = std::thread::Builder::new()
+            .name("qfleet-liveness".into())
+            .spawn(move || {
+                while !stopped.load(Ordering::Relaxed) {
+                    let at = Instant::now();
+                    let mut listing = Listing {
+                        at,
+                        report: check_nodes(&cfg, false),
+                    };
+                    // latest wins: drop an unread older listing
+                    loop {
+                        match tx.try_send(listing) {
+                            Ok(()) => break,
+                            Err(TrySendError::Full(l)) => {
+                                listing = l;
+                                let _ = stale.try_recv();
+                            }
+                            Err(TrySendError::Disconnected(_)) => return,
+                        }
+                    }
+                    // `now` unparks: a peer-death notice is answered without waiting
+                    std::thread::park_timeout(every);
+                }
+            })?;
+        Ok(Lister {
+            rx,
+            stop,
+            thread: Some(thread),
+        })
+    }
+
+    /// The newest listing not yet taken, if any (never blocks).
+    #[inline]
+    pub(crate) fn poll(&self) -> Option<Listing> {
+        self.rx.try_recv().ok()
+    }
+
+    /// Asks for a listing now (a wake service reported a dead peer).
+    pub(crate) fn now(&self) {
+        if let Some(t) = &self.thread {
+            t.thread().unpark();
+        }
+    }
+}
+
+impl Drop for Lister {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(t) = self.thread.take() {
+            t.thread().unpark();
+            let _ = t.join();
+        }
+    }
+}
+
+/// Per-robot liveness state.
+#[derive(Debug, Clone, Copy, Default)]
+struct Lifeline {
+    joined_at: Option<Instant>,
+    last_seen: Option<Instant>,
+    hung: bool,
+    lost_at: Option<Instant>,
+    restarts: u32,
+    warm_started: bool,
+}
+
+/// Liveness state of the whole fleet, without IO: every method takes the time it acts at.
+#[derive(Debug, Clone)]
+pub struct Life {
+    lines: Vec<Lifeline>,
+    events: Vec<LivenessEvent>,
+    announced: usize,
+    hang_after: Duration,
+    restarts_allowed: u32,
+    wait_restart: Duration,
+}
+
+impl Life {
+    /// Liveness for robot ids `0..robots`: a busy robot silent for `hang_after` is hung; a
+    /// lost robot holds up the end of the run for `wait_restart` while it has restarts left
+    /// (`restarts_allowed` per robot).
+    pub fn new(
+        robots: u32,
+        hang_after: Duration,
+        restarts_allowed: u32,
+        wait_restart: Duration,
+    ) -> Self {
+        Life {
+            lines: vec![Lifeline::default(); robots as usize],
+            events: Vec::new(),
+            announced: 0,
+            hang_after,
+            restarts_allowed,
+            wait_restart,
+        }
+    }
+
+    fn push(&mut self, robot_id: u32, kind: LivenessKind, silent_ms: u64) {
+        self.events.push(LivenessEvent {
+            robot_id,
+            kind,
+            at_ns: monotonic_ns(),
+            silent_ms,
+        });
+    }
+
+    fn silent_ms(&self, robot_id: u32, now: Instant) -> u64 {
+        self.lines
+            .get(robot_id as usize)
+            .and_then(|l| l.last_seen)
+            .map_or(0, |t| now.saturating_duration_since(t).as_millis() as u64)
+    }
+
+    /// A robot was admitted by the start handshake (no event: that is the normal start).
+    pub fn admitted(&mut self, robot_id: u32, now: Instant) {
+        if let Some(l) = self.lines.get_mut(robot_id as usize) {
+            l.joined_at = Some(now);
+            l.last_seen = Some(now);
+        }
+    }
+
+    /// A robot registered during the run: `restarted` when a new process replaced a dead one
+    /// (event `restarted`), otherwise a process this coordinator had not admitted yet (a
+    /// robot re-joining a restarted coordinator, or a late one: event `joined`).
+    pub fn joined(&mut self, robot_id: u32, restarted: bool, now: Instant) {
+        let silent = self.silent_ms(robot_id, now);
+        let Some(l) = self.lines.get_mut(robot_id as usize) else {
+            return;
+        };
+        if restarted {
+            l.restarts += 1;
+        }
+        *l = Lifeline {
+            joined_at: Some(now),
+            last_seen: Some(now),
+            restarts: l.restarts,
+            ..Lifeline::default()
+        };
+        let kind = if restarted {
+            LivenessKind::Restarted
+        } else {
+            LivenessKind::Joined
+        };
+        self.push(robot_id, kind, silent);
+    }
+
+    /// Whether the robot's latest process got the fleet table before its first episode.
+    pub fn warm_started(&mut self, robot_id: u32, yes: bool) {
+        if let Some(l) = self.lines.get_mut(robot_id as usize) {
+            l.warm_started = yes;
+        }
+    }
+
+    /// Whether `robot_id`'s current process registered after `t` (a node listing made before
+    /// that cannot have seen it).
+    pub fn joined_since(&self, robot_id: usize, t: Instant) -> bool {
+        self.lines
+            .get(robot_id)
+            .and_then(|l| l.joined_at)
+            .is_some_and(|j| j >= t)
+    }
+
+    /// A valid message from `robot_id` arrived (a hung robot that speaks again: `resumed`).
+    #[inline]
+    pub fn seen(&mut self, robot_id: u32, now: Instant) {
+        if let Some(l) = self.lines.get_mut(robot_id as usize) {
+            l.last_seen = Some(now);
+            if l.hung {
+                l.hung = false;
+                self.push(robot_id, LivenessKind::Resumed, 0);
+            }
+        }
+    }
+
+    /// The robot's process died (its node is gone or dead): event `lost`.
+    pub fn lost(&mut self, robot_id: u32, now: Instant) {
+        let silent = self.silent_ms(robot_id, now);
+        if let Some(l) = self.lines.get_mut(robot_id as usize) {
+            l.lost_at = Some(now);
+            l.hung = false;
+        }
+        self.push(robot_id, LivenessKind::Lost, silent);
+    }
+
+    /// The robot's process ended before it ever registered: event `neverregistered`.
+    pub fn never_registered(&mut self, robot_id: u32, now: Instant) {
+        if let Some(l) = self.lines.get_mut(robot_id as usize) {
+            l.lost_at = Some(now);
+        }
+        self.push(robot_id, LivenessKind::NeverRegistered, 0);
+    }
+
+    /// Heartbeat deadlines: each robot for which `busy(id)` holds (neither done nor lost) and
+    /// that sent nothing for the deadline becomes hung (once; event `hung`); returns them.
+    /// A process that has not spoken since it joined is still starting up (a restarted robot on
+    /// a loaded machine): it gets four deadlines. Call it only with every inbox drained, so a
+    /// coordinator that is behind never blames a robot.
+    pub fn deadlines(&mut self, now: Instant, busy: impl Fn(usize) -> bool) -> Vec<u32> {
+        let mut hung = Vec::new();
+        for id in 0..self.lines.len() {
+            let line = self.lines[id];
+            let deadline = if line.last_seen == line.joined_at {
+                self.hang_after * 4
+            } else {
+                self.hang_after
+            };
+            let late = line
+                .last_seen
+                .is_some_and(|t| now.saturating_duration_since(t) >= deadline);
+            if busy(id) && late && !line.hung {
+                self.lines[id].hung = true;
+                let silent = self.silent_ms(id as u32, now);
+                self.push(id as u32, LivenessKind::Hung, silent);
+                hung.push(id as u32);
+            }
+        }
+        hung
+    }
+
+    /// Whether a lost or hung robot no longer holds up the end of the run: a hung one never
+    /// does; a lost one does while a restart may still bring it back.
+    pub fn settled(&self, robot_id: usize, lost: bool, now: Instant) -> bool {
+        let Some(l) = self.lines.get(robot_id) else {
+            return true;
+        };
+        if l.hung {
+            return true;
+        }
+        lost && (l.restarts >= self.restarts_allowed
+            || l.lost_at
+                .is_none_or(|t| now.saturating_duration_since(t) >= self.wait_restart))
+    }
+
+    /// Robots currently hung.
+    pub fn hung(&self) -> Vec<u32> {
+        (0..self.lines.len() as u32)
+            .filter(|&i| self.lines[i as usize].hung)
+            .collect()
+    }
+
+    /// Whether `robot_id` is hung.
+    pub fn is_hung(&self, robot_id: usize) -> bool {
+        self.lines.get(robot_id).is_some_and(|l| l.hung)
+    }
+
+    /// Restarts of `robot_id` and whether its latest process got the fleet table.
+    pub fn restarts(&self, robot_id: usize) -> (u32, bool) {
+        self.lines
+            .get(robot_id)
+            .map_or((0, false), |l| (l.restarts, l.warm_started))
+    }
+
+    /// Every event so far.
+    pub fn events(&self) -> &[LivenessEvent] {
+        &self.events
+    }
+
+    /// The events raised since the last call (to announce on stdout).
+    pub fn take_new(&mut self) -> &[LivenessEvent] {
+        let from = std::mem::replace(&mut self.announced, self.events.len());
+        &self.events[from..]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const HANG: Duration = Duration::from_millis(100);
+
+    fn kinds(life: &Life) -> Vec<(u32, LivenessKind)> {
+        life.events().iter().map(|e| (e.robot_id, e.kind)).collect()
+    }
+
+    #[test]
+    fn node_names_map_to_robot_ids() {
+        assert_eq!(robot_of_node("qfleet-robot-3"), Some(3));
+        assert_eq!(robot_of_node("qfleet-coordinator"), None);
+        assert_eq!(robot_of_node("qfleet-robot-x"), None);
+    }
+
+    #[test]
+    fn a_silent_busy_robot_is_hung_once_and_resumes_when_it_speaks() {
+        let t0 = Instant::now();
+        let mut life = Life::new(2, HANG, 0, HANG);
+        life.admitted(0, t0);
+        life.admitted(1, t0);
+        life.seen(0, t0 + HANG / 2);
+        life.seen(1, t0 + HANG / 2);
+        assert!(life.deadlines(t0 + HANG, |_| true).is_empty());
+        let t1 = t0 + HANG * 2;
+        life.seen(1, t1);
+        assert_eq!(life.deadlines(t1, |_| true), vec![0]);
+        assert_eq!(
+            life.deadlines(t1 + HANG, |_| true),
+            vec![1],
+            "0 is not raised twice"
+        );
+        assert!(life.is_hung(0) && life.settled(0, false, t1));
+        life.seen(0, t1 + HANG);
+        assert!(!life.is_hung(0));
+        assert_eq!(
+            kinds(&life),
+            vec![
+                (0, LivenessKind::Hung),
+                (1, LivenessKind::Hung),
+                (0, LivenessKind::Resumed)
+            ]
+        );
+    }
+
+    #[test]
+    fn a_robot_that_is_done_or_starting_up_is_not_hung() {
+        let t0 = Instant::now();
+        let mut life = Life::new(1, HANG, 0, HANG);
+        life.admitted(0, t0);
+        assert!(
+            life.deadlines(t0 + HANG * 3, |_| true).is_empty(),
+            "start-up grace"
+        );
+        assert_eq!(life.deadlines(t0 + HANG * 4, |_| true), vec![0]);
+        let mut life = Life::new(1, HANG, 0, HANG);
+        life.admitted(0, t0);
+        life.seen(0, t0);
+        assert!(life.deadlines(t0 + HANG * 9, |_| false).is_empty());
+    }
+
+    #[test]
+    fn a_lost_robot_holds_up_the_end_only_while_a_restart_may_come() {
+        let t0 = Instant::now();
+        let mut life = Life::new(2, HANG, 1, HANG * 10);
+        life.admitted(0, t0);
+        life.lost(0, t0);
+        assert!(
+            !life.settled(0, true, t0 + HANG),
+            "a restart may still come"
+        );
+        assert!(life.settled(0, true, t0 + HANG * 10), "waited long enough");
+        life.joined(0, true, t0 + HANG);
+        assert_eq!(life.restarts(0), (1, false));
+        life.lost(0, t0 + HANG * 2);
+        assert!(life.settled(0, true, t0 + HANG * 2), "no restarts left");
+        // without a restart policy a loss settles at once
+        let mut life = Life::new(1, HANG, 0, HANG * 10);
+        life.lost(0, t0);
+        assert!(life.settled(0, true, t0));
+        assert!(
+            !life.settled(0, false, t0),
+            "alive and not hung: not settled"
+        );
+    }
+
+    #[test]
+    fn joins_and_restarts_are_events_and_each_is_announced_once() {
+        let t0 = Instant::now();
+        let mut life = Life::new(2, HANG, 3, HANG);
+        life.joined(1, false, t0);
+        life.joined(0, true, t0);
+        assert_eq!(life.take_new().len(), 2);
+        assert!(life.take_new().is_empty());
+        life.lost(1, t0);
+        assert_eq!(life.take_new()[0].kind, LivenessKind::Lost);
+        assert_eq!(
+            kinds(&life),
+            vec![
+                (1, LivenessKind::Joined),
+                (0, LivenessKind::Restarted),
+                (1, LivenessKind::Lost)
+            ]
+        );
+        assert!(life.joined_since(0, t0) && !life.joined_since(0, t0 + HANG));
+    }
+}

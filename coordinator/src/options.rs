@@ -1,0 +1,177 @@
+//! The coordinator's command-line options, its wait strategies and its error type.
+//!
+//! # Wait strategies
+//! - `spin`: poll every inbox in a tight loop (lowest latency, one core busy all the time).
+//! - `event`: block on an iceoryx2 `WaitSet` over the inboxes' wake listeners (robots notify
+//!   after each hint batch, discovery, report and their final state); no core burnt while idle,
+//!   but every wakeup costs a cross-CPU wakeup (tens of µs on a VM).
+//! - `hybrid` (default): after any message, keep spinning for `--spin-us`, then block like
+//!   `event`. Bursts are served at spin latency, idle time costs nothing.
+//!
+//! All three also wake every 50 ms for the periodic work: progress lines, the end-of-run check.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use bus::BusError;
+use clap::{Args, ValueEnum};
+use qfleet_args::MapArgs;
+use serde::{Deserialize, Serialize};
+
+use crate::merge::MergeRule;
+
+/// How the coordinator waits for messages.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum WaitStrategy {
+    /// Busy-poll all inboxes.
+    Spin,
+    /// Block on a WaitSet of the inboxes' wake listeners.
+    Event,
+    /// Spin `--spin-us` after each message, then block.
+    Hybrid,
+}
+
+impl std::fmt::Display for WaitStrategy {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            WaitStrategy::Spin => "spin",
+            WaitStrategy::Event => "event",
+            WaitStrategy::Hybrid => "hybrid",
+        })
+    }
+}
+
+/// Every option of the coordinator process.
+#[derive(Debug, Clone, Args)]
+pub struct CoordArgs {
+    /// Run id shared by all processes of the run.
+    #[arg(long)]
+    pub run_id: String,
+    /// Fleet size: robot ids `0..robots`.
+    #[arg(long, default_value_t = 4)]
+    pub robots: u32,
+    /// Map and goal of the run (robots on another map are refused).
+    #[command(flatten)]
+    pub map: MapArgs,
+    /// How to wait for messages.
+    #[arg(long, value_enum, default_value_t = WaitStrategy::Hybrid)]
+    pub wait: WaitStrategy,
+    /// Hybrid: microseconds to keep spinning after the last message before blocking.
+    #[arg(long, default_value_t = 200)]
+    pub spin_us: u64,
+    /// How Q hints are merged into the fleet table.
+    #[arg(long, value_enum, default_value_t = MergeRule::Max)]
+    pub merge: MergeRule,
+    /// Directory for result.json and the .hgrm latency files.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Seconds to wait for every robot to register, and for reports after `Stop`.
+    #[arg(long, default_value_t = 30.0)]
+    pub timeout: f64,
+    /// Print `progress <episodes done> <total> <p50 ns> <p99 ns>` lines on stdout every 100 ms.
+    #[arg(long)]
+    pub progress: bool,
+    /// Hint batches buffered per robot (latest-wins).
+    #[arg(long, default_value_t = 64)]
+    pub hint_buffer: usize,
+    /// Merged batches buffered per robot (latest-wins); 0 = sized from the fleet.
+    #[arg(long, default_value_t = 0)]
+    pub merged_buffer: usize,
+    /// Heartbeat deadline: a running robot silent this long (ms) is reported hung.
+    #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..))]
+    pub hang_ms: u64,
+    /// Restarts per robot the launcher may make: the end of the run waits (up to `--timeout`)
+    /// for a lost robot to come back while it has restarts left.
+    #[arg(long, default_value_t = 0)]
+    pub restarts: u32,
+}
+
+/// Why the coordinator failed.
+#[derive(Debug, thiserror::Error)]
+pub enum CoordError {
+    /// An option value out of range.
+    #[error("{option} must be {must}, got {value}")]
+    Option {
+        /// The option, e.g. `--timeout`.
+        option: &'static str,
+        /// What it must be.
+        must: &'static str,
+        /// What it was.
+        value: String,
+    },
+    /// The map, scenario or learner options could not be loaded.
+    #[error("loading the map, task or learner options")]
+    Task(#[from] qfleet_args::ArgsError),
+    /// The map is larger than the wire format's 65535 cells a side.
+    #[error("maps larger than 65535 cells a side are not supported ({width}x{height})")]
+    MapTooLarge {
+        /// Width in cells.
+        width: usize,
+        /// Height in cells.
+        height: usize,
+    },
+    /// Stopped by a signal before the run started (nothing to report).
+    #[error("interrupted while {0}")]
+    Interrupted(&'static str),
+    /// A robot was refused at registration (the run cannot go on as asked).
+    #[error("refused robot {robot_id}: {reason}")]
+    Refused {
+        /// The robot.
+        robot_id: u32,
+        /// Why.
+        reason: String,
+    },
+    /// A bus failure.
+    #[error(transparent)]
+    Bus(#[from] BusError),
+    /// A helper thread could not be started.
+    #[error("cannot start the {what} thread")]
+    Thread {
+        /// Which thread.
+        what: &'static str,
+        /// The OS error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// Writing the result failed.
+    #[error("writing {path}")]
+    Output {
+        /// The file or directory.
+        path: PathBuf,
+        /// The OS error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// Encoding the result failed.
+    #[error("encoding the result")]
+    Encode(#[from] serde_json::Error),
+    /// Writing a latency file failed.
+    #[error("writing a latency file")]
+    Hist(#[from] robot_agent::hist::HistError),
+}
+
+impl CoordError {
+    /// The process exit code for this error: 2 bad input, 130 interrupted, 3 a robot refused,
+    /// 1 any other failure.
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            CoordError::Option { .. } | CoordError::Task(_) | CoordError::MapTooLarge { .. } => 2,
+            CoordError::Interrupted(_) => 130,
+            CoordError::Refused { .. } => 3,
+            _ => 1,
+        }
+    }
+}
+
+/// A positive, finite number of seconds as a `Duration`.
+pub(crate) fn secs(s: f64, option: &'static str) -> Result<Duration, CoordError> {
+    Duration::try_from_secs_f64(s)
+        .ok()
+        .filter(|d| !d.is_zero())
+        .ok_or_else(|| CoordError::Option {
+            option,
+            must: "a positive number of seconds",
+            value: s.to_string(),
+        })
+}

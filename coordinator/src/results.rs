@@ -1,0 +1,339 @@
+//! The coordinator's results as typed values: what `result.json` of a run and of an
+//! experiment hold, robot statuses and liveness events as enums. Everything is `Serialize +
+//! Deserialize`, so the launcher and the tests read results back into these types instead of
+//! indexing untyped JSON.
+
+use std::collections::BTreeMap;
+
+use robot_agent::hist::LatencyStats;
+use serde::{Deserialize, Serialize};
+
+use crate::merge::MergeRule;
+use crate::options::WaitStrategy;
+
+/// How a robot ended a run or a phase (as written in JSON: lower case).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RobotOutcome {
+    /// It ran all its episodes and reported.
+    Finished,
+    /// It reported, but was stopped early (a signal, a stop request) or gave up.
+    Stopped,
+    /// Its process died before it reported (and no restart took its place in time).
+    Lost,
+    /// Silent past the heartbeat deadline at the end, its process still there.
+    Hung,
+    /// No report, though its process was not seen to die (e.g. the report timed out).
+    Missing,
+}
+
+/// What happened to a robot (or the coordinator) during a run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LivenessKind {
+    /// Its process died (its node is gone or dead).
+    Lost,
+    /// Silent past the heartbeat deadline, process still there.
+    Hung,
+    /// A hung robot spoke again.
+    Resumed,
+    /// A new process took the place of a dead one.
+    Restarted,
+    /// A process this coordinator had not admitted registered during the run: a robot
+    /// re-joining a restarted coordinator, or a late one.
+    Joined,
+    /// The robot died before it ever registered (seen by the launcher or by its node).
+    NeverRegistered,
+    /// This coordinator took over a run whose previous coordinator died (`robot_id` is
+    /// `u32::MAX`).
+    CoordinatorRestarted,
+}
+
+impl LivenessKind {
+    /// The word printed in `event <kind> …` lines and written in JSON.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            LivenessKind::Lost => "lost",
+            LivenessKind::Hung => "hung",
+            LivenessKind::Resumed => "resumed",
+            LivenessKind::Restarted => "restarted",
+            LivenessKind::Joined => "joined",
+            LivenessKind::NeverRegistered => "neverregistered",
+            LivenessKind::CoordinatorRestarted => "coordinatorrestarted",
+        }
+    }
+}
+
+impl std::fmt::Display for LivenessKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// One liveness event of the run (also printed as an `event …` line on stdout).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LivenessEvent {
+    /// The robot.
+    pub robot_id: u32,
+    /// What happened.
+    pub kind: LivenessKind,
+    /// CLOCK_MONOTONIC time of the event, ns (comparable with other processes' clocks).
+    pub at_ns: u64,
+    /// How long the robot had been silent when the event was raised, ms.
+    pub silent_ms: u64,
+}
+
+/// One robot in the run result.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RobotEntry {
+    /// Robot id.
+    pub robot_id: u32,
+    /// How it ended.
+    pub status: RobotOutcome,
+    /// Greedy path length at the end (null: loops / unknown).
+    pub final_path_len: Option<u32>,
+    /// Greedy path length from the robot's own learning, before the final fleet sync.
+    pub own_final_path_len: Option<u32>,
+    /// BFS optimum.
+    pub optimal_path_len: Option<u32>,
+    /// Mean steps per episode.
+    pub avg_steps: f64,
+    /// Episodes run.
+    pub episodes: u32,
+    /// First episode with an optimal greedy path.
+    pub first_optimal_episode: Option<u32>,
+    /// Steps taken.
+    pub env_steps: u64,
+    /// Seed of the robot.
+    pub seed: u64,
+    /// Discoveries the robot published.
+    pub discoveries_sent: u64,
+    /// Of those, acknowledged by the coordinator.
+    pub discoveries_acked: u64,
+    /// Hint batches published.
+    pub hints_sent: u64,
+    /// Merged batches received.
+    pub hints_received: u64,
+    /// Merged entries that changed its Q-table.
+    pub hints_applied: u64,
+    /// End-to-end loop latency of the hints it applied.
+    pub loop_latency_ns: LatencyStats,
+    /// Times a new process took this robot's place (`qfleet run --restart on-failure`).
+    #[serde(default)]
+    pub restarts: u32,
+    /// Whether its latest process was warm-started from the coordinator's fleet table.
+    #[serde(default)]
+    pub warm_started: bool,
+    /// Fleet-table entries its latest process applied before its first episode.
+    #[serde(default)]
+    pub warm_start_entries: Option<u64>,
+}
+
+/// Throughput of the run, over the active time (Start → every robot finished).
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct Throughput {
+    /// Messages received per second (all robot→coordinator topics).
+    pub messages_per_s: f64,
+    /// Q-hint entries merged per second.
+    pub q_updates_merged_per_s: f64,
+    /// Messages received.
+    pub messages: u64,
+    /// Q-hint entries merged.
+    pub q_updates_merged: u64,
+    /// Fleet-table entries changed by merging.
+    pub fleet_changes: u64,
+    /// Merged batches published.
+    pub merged_batches_sent: u64,
+    /// Seconds from Start until every robot finished.
+    pub active_s: f64,
+}
+
+/// Node liveness as the coordinator saw it.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct LivenessReport {
+    /// Liveness checks made.
+    pub checks: u64,
+    /// Robots whose process died before reporting.
+    pub lost: Vec<u32>,
+    /// Robot nodes alive at the last check.
+    pub alive_at_end: Vec<u32>,
+    /// Robots hung at the end (silent past the heartbeat deadline, process still there).
+    #[serde(default)]
+    pub hung: Vec<u32>,
+    /// Restarts over the fleet.
+    #[serde(default)]
+    pub restarts: u32,
+    /// Discoveries received from robot processes that died and were restarted (their
+    /// successors start numbering again and report only their own).
+    #[serde(default)]
+    pub discoveries_from_dead: u64,
+    /// Every liveness event, in order.
+    #[serde(default)]
+    pub events: Vec<LivenessEvent>,
+}
+
+/// The result of a run (`result.json`, and what `qfleet run --json` prints).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RunResult {
+    /// Run id.
+    pub run_id: String,
+    /// Map name.
+    pub map: String,
+    /// Start cell.
+    pub start: String,
+    /// Goal cell.
+    pub goal: String,
+    /// Wait strategy.
+    pub wait: WaitStrategy,
+    /// Merge rule.
+    pub merge: MergeRule,
+    /// One entry per robot id.
+    pub robots: Vec<RobotEntry>,
+    /// Whether every robot ended on a shortest path.
+    pub all_optimal: bool,
+    /// Discoveries the robots report as published.
+    pub discoveries_sent: u64,
+    /// Distinct discoveries the coordinator received.
+    pub discoveries_received: u64,
+    /// Of `discoveries_received`, those from robots lost without a final report (their
+    /// processes cannot report what they sent): `discoveries_sent + discoveries_from_lost`
+    /// accounts for what was received.
+    #[serde(default)]
+    pub discoveries_from_lost: u64,
+    /// Discovery duplicates (re-sends) received and dropped.
+    pub discovery_duplicates: u64,
+    /// Distinct pseudo-target cells the fleet found.
+    pub pseudo_targets: usize,
+    /// Latency percentiles per measured path, ns.
+    pub latency_ns: BTreeMap<String, LatencyStats>,
+    /// Throughput.
+    pub throughput: Throughput,
+    /// Liveness.
+    pub liveness: LivenessReport,
+    /// Messages dropped as invalid: a field out of range (robot id, goal id, cell, count,
+    /// status, schema version, a non-finite value), or a message naming a robot id from a node
+    /// that did not register it.
+    pub rejected: u64,
+    /// Whether the run was stopped early by a signal.
+    pub interrupted: bool,
+    /// Wall time of the whole coordinator run, s.
+    pub elapsed_s: f64,
+}
+
+/// One robot's result in one phase.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RobotPhase {
+    /// Robot id.
+    pub robot_id: u32,
+    /// Goal index.
+    pub goal: usize,
+    /// How it ended the phase.
+    pub status: RobotOutcome,
+    /// Episodes run.
+    pub episodes: u32,
+    /// Env steps in the phase.
+    pub env_steps: u64,
+    /// Mean steps per episode.
+    pub avg_steps: f64,
+    /// BFS optimum from its start.
+    pub optimal_path_len: u32,
+    /// Its greedy path at the end (null: loops).
+    pub final_path_len: Option<u32>,
+    /// Env steps until its own greedy path was first optimal.
+    pub steps_to_optimal: Option<u64>,
+    /// Seconds until its own greedy path was first optimal.
+    pub time_to_optimal_s: Option<f64>,
+    /// Its env steps when the merged table of its goal first gave optimal paths.
+    pub steps_at_merged_optimal: Option<u64>,
+    /// Discoveries it published.
+    pub discoveries_sent: u64,
+    /// Relayed discoveries it used as pseudo targets.
+    pub relays_applied: u64,
+    /// Merged hint entries it applied.
+    pub hints_applied: u64,
+}
+
+/// One goal in one phase.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct GoalPhase {
+    /// Goal index.
+    pub goal: usize,
+    /// Goal name.
+    pub name: String,
+    /// Goal cell.
+    pub cell: String,
+    /// Robots assigned.
+    pub robots: Vec<u32>,
+    /// Merged-table greedy path length from each assigned robot's start at the end (null: loops).
+    pub merged_path_len: Vec<Option<u32>>,
+    /// BFS optimum from each assigned robot's start.
+    pub optimal_path_len: Vec<u32>,
+    /// Whether the merged table gave optimal paths from every start at some point.
+    pub merged_optimal: bool,
+    /// Seconds from the phase start until it first did.
+    pub merged_time_to_optimal_s: Option<f64>,
+    /// Mean env steps per robot when it first did.
+    pub merged_steps_per_robot: Option<f64>,
+    /// Mean env steps until their own greedy path was optimal, over the robots that got there.
+    pub robot_steps_to_optimal: Option<f64>,
+    /// Robots whose own greedy path became optimal in the phase.
+    pub robots_reached_optimal: usize,
+    /// Mean seconds until their own greedy path was optimal, over the robots that got there.
+    pub robot_time_to_optimal_s: Option<f64>,
+    /// Mean steps per episode over the robots.
+    pub avg_steps: f64,
+    /// Whether every assigned robot ended on an optimal path.
+    pub all_robots_optimal: bool,
+    /// Distinct pseudo-target cells relayed for this goal (over the run so far).
+    pub relayed: usize,
+}
+
+/// One phase.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PhaseResult {
+    /// Phase number.
+    pub phase: usize,
+    /// Phase name.
+    pub name: String,
+    /// Episodes per robot (upper bound with `stop_at_optimum`).
+    pub episodes: u32,
+    /// Per goal.
+    pub goals: Vec<GoalPhase>,
+    /// Per robot.
+    pub robots: Vec<RobotPhase>,
+    /// Wall time of the phase, s.
+    pub wall_s: f64,
+}
+
+/// The result of one experiment run (one seed).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ExperimentResult {
+    /// Experiment name.
+    pub name: String,
+    /// Run id.
+    pub run_id: String,
+    /// Seed.
+    pub seed: u64,
+    /// Map name.
+    pub map: String,
+    /// Robots.
+    pub robots: u32,
+    /// Sharing mode.
+    pub sharing: String,
+    /// Phases.
+    pub phases: Vec<PhaseResult>,
+    /// Discoveries received (distinct).
+    pub discoveries_received: u64,
+    /// Relays sent.
+    pub relays_sent: u64,
+    /// Q-hint entries merged.
+    pub q_updates_merged: u64,
+    /// Messages dropped as invalid (bad fields, or from a node that did not register the
+    /// robot id they name).
+    pub rejected: u64,
+    /// Liveness over the whole experiment.
+    #[serde(default)]
+    pub liveness: LivenessReport,
+    /// Wall time, s.
+    pub wall_s: f64,
+}
