@@ -10,7 +10,7 @@ use bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, QHintBatch};
 use coordinator::{FleetTable, MergeRule};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use planner::{Grid, QTable};
-use robot_agent::hist::new_hist;
+use report::hist::new_hist;
 use robot_agent::share::{ApplyCounters, ApplyCtx, ApplyRule, HintBatcher, apply_merged};
 
 const CELLS: usize = 900; // paper-30

@@ -25,10 +25,10 @@ use bus::bus_schema::{
     PseudoTargetDiscovery, QHintBatch, ROBOT_ID_ALL, RobotStatus,
 };
 use bus::{BusConfig, BusError, CoordinatorBus, Expected, check_nodes, monotonic_ns};
+use bus_schema::map_fingerprint;
 use planner::{Cell, Env};
 use qfleet_args::Plan;
-use robot_agent::experiment::{PhaseDetail, read_phase_detail};
-use robot_agent::map_fingerprint;
+use report::{OutDir, OutFile, PhaseDetail};
 use serde::{Deserialize, Serialize};
 
 use crate::merge::{FleetTable, MergeRule};
@@ -197,7 +197,7 @@ pub fn run_experiment(
     let bus = CoordinatorBus::create(&cfg)?;
     let expected = Expected {
         robots: m.robots,
-        map_hash: map_fingerprint(grid),
+        map_hash: map_fingerprint(grid.width(), grid.height(), grid.free_flags()),
         width,
         height,
     };
@@ -554,7 +554,13 @@ fn phase_result(
 ) -> PhaseResult {
     let m = &plan.manifest;
     let details: Vec<Option<PhaseDetail>> = (0..m.robots)
-        .map(|r| read_phase_detail(out, r, p as u32))
+        .map(|robot| {
+            let f = OutFile::RobotPhase {
+                robot,
+                phase: p as u32,
+            };
+            OutDir::new(out).read_json(f).ok()
+        })
         .collect();
     let mut robots = Vec::new();
     for (r, slot) in c.robots.iter().enumerate() {

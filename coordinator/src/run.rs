@@ -27,12 +27,12 @@ use bus::bus_schema::{
 };
 use bus::iceoryx2::prelude::*;
 use bus::{Admission, BusConfig, BusError, CoordinatorBus, Expected, monotonic_ns};
+use bus_schema::map_fingerprint;
 use clap::{Args, ValueEnum};
 use hdrhistogram::Histogram;
 use planner::task::Task;
 use qfleet_args::MapArgs;
-use robot_agent::hist::{self, LatencyStats, new_hist, record};
-use robot_agent::map_fingerprint;
+use report::hist::{self, LatencyStats, new_hist, record};
 use serde::{Deserialize, Serialize};
 
 use crate::merge::{FleetTable, MergeRule};
@@ -349,7 +349,11 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         .map_err(|e| CoordError::Output(format!("{}: {e}", args.out.display())))?;
     let expected = Expected {
         robots: args.robots,
-        map_hash: map_fingerprint(&task.grid),
+        map_hash: map_fingerprint(
+            task.grid.width(),
+            task.grid.height(),
+            task.grid.free_flags(),
+        ),
         width,
         height,
     };

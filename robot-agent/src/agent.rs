@@ -41,13 +41,12 @@ use hdrhistogram::Histogram;
 use planner::task::Task;
 use planner::{EpisodeRecord, Learner, Summary};
 use qfleet_args::{LearnerArgs, MapArgs};
-use serde::Serialize;
+use report::hist::{self, LatencyStats, new_hist, record};
+pub use report::{Counters, RobotResult};
+use report::{EndStatus, OutDir, OutFile, RobotHist};
 
-use crate::hist::{self, LatencyStats, new_hist, record};
-use crate::reconnect::{Link, LinkCounters, LinkEvent};
-use crate::share::{
-    ApplyCounters, ApplyCtx, HintBatcher, ShareArgs, ShareMode, apply_merged, map_fingerprint,
-};
+use crate::reconnect::{Link, LinkEvent};
+use crate::share::{ApplyCtx, HintBatcher, ShareArgs, apply_merged};
 
 /// Every option of the robot-agent process.
 #[derive(Debug, Clone, Args)]
@@ -103,9 +102,12 @@ pub enum AgentError {
     /// The coordinator's process is gone.
     #[error("the coordinator of run {0:?} is gone (its process died or exited)")]
     CoordinatorGone(String),
-    /// Writing the result files failed.
+    /// Writing a result file failed (full disk, missing directory, …).
     #[error("writing results: {0}")]
-    Output(String),
+    Output(#[from] report::WriteError),
+    /// Writing a latency histogram failed.
+    #[error("writing results: {0}")]
+    Hist(#[from] report::HistError),
 }
 
 /// Who a final report is from and what it is about: the fields that differ between a plain run
@@ -181,89 +183,6 @@ pub(crate) fn resend_due(
         any = true;
     }
     any
-}
-
-/// Bus traffic counters of one robot, reported in its result.
-#[derive(Debug, Clone, Copy, Default, Serialize)]
-pub struct Counters {
-    /// States published.
-    pub states_sent: u64,
-    /// Hint batches published.
-    pub hint_batches_sent: u64,
-    /// Hint entries published.
-    pub hint_entries_sent: u64,
-    /// Distinct discoveries published (re-sends not counted).
-    pub discoveries_sent: u64,
-    /// Discoveries the coordinator acknowledged.
-    pub discoveries_acked: u64,
-    /// Discovery re-sends after a missing ack.
-    pub discoveries_resent: u64,
-    /// Discovery sends that failed (retried later).
-    pub discovery_send_errors: u64,
-    /// State or hint sends that failed (latest-wins: dropped).
-    pub send_errors: u64,
-    /// Received messages dropped as invalid (bad robot id, unknown command).
-    pub rejected: u64,
-    /// Discoveries of other robots relayed by the coordinator.
-    pub relays_received: u64,
-    /// Of those, made pseudo targets of this robot (`--share discoveries|both`).
-    pub relays_applied: u64,
-    /// Merged-hint handling.
-    pub merged: ApplyCounters,
-    /// Fleet-table entries applied before the first episode (a restarted robot's warm start).
-    pub warm_start_entries: u64,
-    /// Losing and re-joining the coordinator.
-    pub link: LinkCounters,
-}
-
-/// What a robot writes to `robot-<id>.json` (its learning metrics as in `qfleet learn --json`
-/// plus its bus counters and latencies).
-#[derive(Debug, Clone, Serialize)]
-pub struct RobotResult {
-    /// Robot id.
-    pub robot_id: u32,
-    /// `finished` or `stopped` (stopped early by the coordinator or a signal).
-    pub status: String,
-    /// Map name.
-    pub map: String,
-    /// Learner kind.
-    pub learner: String,
-    /// Seed of this robot.
-    pub seed: u64,
-    /// Goal id learned.
-    pub goal_id: u32,
-    /// Start cell.
-    pub start: String,
-    /// Goal cell.
-    pub goal: String,
-    /// Episodes run.
-    pub episodes: u32,
-    /// BFS optimum.
-    pub optimal_path_len: u32,
-    /// Greedy path length at the end, after the fleet sync (null: it loops).
-    pub final_path_len: Option<u32>,
-    /// Greedy path length when its own episodes ended, before the fleet sync.
-    pub own_final_path_len: Option<u32>,
-    /// Mean steps per episode.
-    pub avg_steps: f64,
-    /// Most steps in one episode.
-    pub max_steps: u32,
-    /// First episode after which the greedy path was optimal.
-    pub first_optimal_episode: Option<u32>,
-    /// Steps taken in all.
-    pub env_steps: u64,
-    /// Episodes ending at the goal / a pseudo target / the step cap.
-    pub outcomes: [u32; 3],
-    /// Seconds from `Start` to the end of the last episode.
-    pub learn_s: f64,
-    /// Sharing mode.
-    pub share: ShareMode,
-    /// Traffic counters.
-    pub counters: Counters,
-    /// Origin of a Q update at another robot → applied here.
-    pub loop_latency_ns: LatencyStats,
-    /// Coordinator sent a merged batch → received here.
-    pub merged_latency_ns: LatencyStats,
 }
 
 struct Discoveries {
@@ -352,7 +271,11 @@ pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, Agent
         height,
         start_x: task.start.x,
         start_y: task.start.y,
-        map_hash: map_fingerprint(&task.grid),
+        map_hash: bus::bus_schema::map_fingerprint(
+            task.grid.width(),
+            task.grid.height(),
+            task.grid.free_flags(),
+        ),
         seed: cfg.seed,
         ..Register::ZEROED
     };
@@ -785,7 +708,11 @@ impl Agent<'_> {
     ) -> RobotResult {
         RobotResult {
             robot_id: self.args.robot_id,
-            status: if finished { "finished" } else { "stopped" }.into(),
+            status: if finished {
+                EndStatus::Finished
+            } else {
+                EndStatus::Stopped
+            },
             map: self.task.map_name.clone(),
             learner: self.args.learner.learner.to_string(),
             seed: self.learner.config().seed,
@@ -813,24 +740,21 @@ impl Agent<'_> {
         let Some(dir) = &self.args.out else {
             return Ok(());
         };
-        let out = |e: String| AgentError::Output(e);
-        std::fs::create_dir_all(dir).map_err(|e| out(format!("{}: {e}", dir.display())))?;
-        let id = self.args.robot_id;
-        let json = serde_json::to_string_pretty(r).map_err(|e| out(e.to_string()))?;
-        let path = dir.join(format!("robot-{id}.json"));
-        std::fs::write(&path, json).map_err(|e| out(format!("{}: {e}", path.display())))?;
-        let path = dir.join(format!("robot-{id}-episodes.csv"));
+        let dir = OutDir::new(dir);
+        dir.create()?;
+        let robot = self.args.robot_id;
+        dir.write_json(OutFile::Robot(robot), r)?;
         let mut csv = Vec::with_capacity(records.len() * 24);
-        planner::metrics::write_episodes_csv(&mut csv, records)
-            .and_then(|()| std::fs::write(&path, csv))
-            .map_err(|e| out(format!("{}: {e}", path.display())))?;
-        hist::write_binary(&self.loop_hist, &dir.join(format!("robot-{id}-loop.hdr")))
-            .map_err(|e| out(e.to_string()))?;
-        hist::write_binary(
-            &self.merged_hist,
-            &dir.join(format!("robot-{id}-merged.hdr")),
-        )
-        .map_err(|e| out(e.to_string()))?;
+        // writing into a Vec cannot fail
+        if planner::metrics::write_episodes_csv(&mut csv, records).is_ok() {
+            dir.write(OutFile::RobotEpisodes(robot), &csv)?;
+        }
+        for (kind, h) in [
+            (RobotHist::Loop, &self.loop_hist),
+            (RobotHist::Merged, &self.merged_hist),
+        ] {
+            hist::write_binary(h, &dir.path(OutFile::RobotHist { robot, kind }))?;
+        }
         Ok(())
     }
 

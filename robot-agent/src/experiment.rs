@@ -29,56 +29,11 @@ use bus::{BusConfig, BusError, RobotBus, check_nodes, monotonic_ns};
 use hdrhistogram::Histogram;
 use planner::task::Task;
 use planner::{Cell, EpisodeRecord, Learner, QTable, Summary};
-use serde::{Deserialize, Serialize};
+use report::hist::{LatencyStats, new_hist};
+use report::{Counters, EndStatus, OutDir, OutFile, PhaseDetail, RobotResult};
 
-use crate::agent::{AgentArgs, AgentError, Counters, ReportHead, RobotResult, final_report};
-use crate::hist::{LatencyStats, new_hist};
-use crate::share::{ApplyCtx, HintBatcher, apply_merged, map_fingerprint};
-
-/// What a robot writes after each phase (`robot-<id>-phase-<p>.json`).
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct PhaseDetail {
-    /// Robot id.
-    pub robot_id: u32,
-    /// Phase number.
-    pub phase: u32,
-    /// Goal learned.
-    pub goal_id: u32,
-    /// Start cell.
-    pub start: String,
-    /// Goal cell.
-    pub goal: String,
-    /// Episodes run.
-    pub episodes: u32,
-    /// Steps taken in the phase.
-    pub env_steps: u64,
-    /// Mean steps per episode.
-    pub avg_steps: f64,
-    /// BFS optimum.
-    pub optimal_path_len: u32,
-    /// Greedy path at the end of the phase (null: loops).
-    pub final_path_len: Option<u32>,
-    /// First episode (0-based) after which the greedy path was optimal.
-    pub first_optimal_episode: Option<u32>,
-    /// Env steps taken until the greedy path was first optimal.
-    pub steps_to_optimal: Option<u64>,
-    /// Seconds from the phase's start until the greedy path was first optimal.
-    pub time_to_optimal_s: Option<f64>,
-    /// Monotonic time (ns) the phase started at this robot.
-    pub start_ns: u64,
-    /// Monotonic time (ns) of every episode's end.
-    pub episode_end_ns: Vec<u64>,
-    /// Cumulative env steps at every episode's end.
-    pub episode_cum_steps: Vec<u64>,
-    /// Discoveries published in the phase.
-    pub discoveries_sent: u64,
-    /// Relayed discoveries made pseudo targets in the phase.
-    pub relays_applied: u64,
-    /// Merged hint entries applied in the phase.
-    pub hints_applied: u64,
-    /// Whether the phase ran to its end (not stopped).
-    pub finished: bool,
-}
+use crate::agent::{AgentArgs, AgentError, ReportHead, final_report};
+use crate::share::{ApplyCtx, HintBatcher, apply_merged};
 
 struct Exp<'a> {
     args: &'a AgentArgs,
@@ -141,7 +96,11 @@ pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, Agent
         height,
         start_x: base.start.x,
         start_y: base.start.y,
-        map_hash: map_fingerprint(&base.grid),
+        map_hash: bus::bus_schema::map_fingerprint(
+            base.grid.width(),
+            base.grid.height(),
+            base.grid.free_flags(),
+        ),
         seed: cfg.seed,
         ..Register::ZEROED
     };
@@ -247,7 +206,11 @@ impl Exp<'_> {
         });
         Ok(RobotResult {
             robot_id: self.args.robot_id,
-            status: if d.finished { "finished" } else { "stopped" }.into(),
+            status: if d.finished {
+                EndStatus::Finished
+            } else {
+                EndStatus::Stopped
+            },
             map: self.base.map_name.clone(),
             learner: self.args.learner.learner.to_string(),
             seed: self.args.learner.seed,
@@ -489,11 +452,10 @@ impl Exp<'_> {
             finished,
         };
         if let Some(dir) = &self.args.out {
-            let path = dir.join(format!("robot-{}-phase-{phase}.json", self.args.robot_id));
-            let json = serde_json::to_string(&d).map_err(|e| AgentError::Output(e.to_string()))?;
-            std::fs::create_dir_all(dir)
-                .and_then(|_| std::fs::write(&path, json))
-                .map_err(|e| AgentError::Output(format!("{}: {e}", path.display())))?;
+            let dir = OutDir::new(dir);
+            dir.create()?;
+            let robot = self.args.robot_id;
+            dir.write_json(OutFile::RobotPhase { robot, phase }, &d)?;
         }
         self.send_state(goal_id, s.episodes, RobotStatus::Finished);
         let head = ReportHead {
@@ -588,11 +550,4 @@ impl Exp<'_> {
             let _ = self.bus.discovery.notify();
         }
     }
-}
-
-/// Reads a robot's phase detail file.
-pub fn read_phase_detail(dir: &std::path::Path, robot: u32, phase: u32) -> Option<PhaseDetail> {
-    let text =
-        std::fs::read_to_string(dir.join(format!("robot-{robot}-phase-{phase}.json"))).ok()?;
-    serde_json::from_str(&text).ok()
 }

@@ -34,35 +34,11 @@ use bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, QHintBatch, ROBOT_ID_AL
 use clap::{Args, ValueEnum};
 use hdrhistogram::Histogram;
 use planner::QTable;
+pub use qfleet_args::ShareMode;
+pub use report::ApplyCounters;
 use serde::Serialize;
 
-use crate::hist::record;
-
-/// Whether the robot takes part in Q-value sharing.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum ShareMode {
-    /// Learn alone: no hints sent or applied (states, discoveries and the report still flow).
-    None,
-    /// Take other robots' relayed pseudo-target discoveries as own pseudo targets; no hints.
-    Discoveries,
-    /// Send Q-hint batches and apply the fleet's merged hints.
-    Hints,
-    /// Both: hints and relayed discoveries.
-    Both,
-}
-
-impl ShareMode {
-    /// Whether Q hints are sent and merged hints applied.
-    pub fn hints(self) -> bool {
-        matches!(self, ShareMode::Hints | ShareMode::Both)
-    }
-
-    /// Whether relayed discoveries of other robots become pseudo targets of this one.
-    pub fn discoveries(self) -> bool {
-        matches!(self, ShareMode::Discoveries | ShareMode::Both)
-    }
-}
+use report::hist::record;
 
 /// How a robot applies a merged hint to its own Q-table (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
@@ -74,17 +50,6 @@ pub enum ApplyRule {
     Blend,
     /// Take the hint as is (can lower values): one shared table, delayed by a batch.
     Latest,
-}
-
-impl std::fmt::Display for ShareMode {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            ShareMode::None => "none",
-            ShareMode::Discoveries => "discoveries",
-            ShareMode::Hints => "hints",
-            ShareMode::Both => "both",
-        })
-    }
 }
 
 impl std::fmt::Display for ApplyRule {
@@ -298,25 +263,6 @@ impl HintBatcher {
     }
 }
 
-/// Counters of merged-hint handling, reported in the robot's result.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
-pub struct ApplyCounters {
-    /// Merged batches received.
-    pub batches: u64,
-    /// Batches skipped whole: another goal, or a `count` above the capacity.
-    pub batches_rejected: u64,
-    /// Entries looked at (valid, foreign).
-    pub entries_seen: u64,
-    /// Entries that changed the local Q-table.
-    pub entries_applied: u64,
-    /// Entries of this robot's own coming back, skipped.
-    pub entries_own: u64,
-    /// Entries with an out-of-range cell, action, origin robot or a non-finite value.
-    pub entries_rejected: u64,
-    /// Batches the robot never saw (gaps in `coordinator_seq`: overwritten, latest-wins).
-    pub batches_missed: u64,
-}
-
 /// Who this robot is, for checking merged batches.
 #[derive(Debug, Clone, Copy)]
 pub struct ApplyCtx {
@@ -402,31 +348,10 @@ pub fn apply_merged(
     }
 }
 
-/// 64-bit FNV-1a fingerprint of a grid's size and walls, sent in `Register` so that a robot
-/// started on another map is refused.
-pub fn map_fingerprint(grid: &planner::Grid) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    let mut eat = |b: u8| {
-        h ^= u64::from(b);
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    };
-    for b in (grid.width() as u64)
-        .to_le_bytes()
-        .into_iter()
-        .chain((grid.height() as u64).to_le_bytes())
-    {
-        eat(b);
-    }
-    for &free in grid.free_flags() {
-        eat(free as u8);
-    }
-    h
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::hist::new_hist;
+    use report::hist::new_hist;
 
     fn grid() -> planner::Grid {
         planner::Grid::new(4, 2, vec![true; 8]).unwrap()
@@ -582,17 +507,5 @@ mod tests {
             (c.entries_applied, c.entries_own, c.entries_rejected),
             (4, 1, 1)
         );
-    }
-
-    #[test]
-    fn fingerprint_tells_maps_apart() {
-        let a = planner::Grid::new(4, 2, vec![true; 8]).unwrap();
-        let mut free = vec![true; 8];
-        free[3] = false;
-        let b = planner::Grid::new(4, 2, free).unwrap();
-        let c = planner::Grid::new(2, 4, vec![true; 8]).unwrap();
-        assert_ne!(map_fingerprint(&a), map_fingerprint(&b));
-        assert_ne!(map_fingerprint(&a), map_fingerprint(&c));
-        assert_eq!(map_fingerprint(&a), map_fingerprint(&a.clone()));
     }
 }

@@ -12,7 +12,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use clap::{Args, ValueEnum};
 use coordinator::MergeRule;
 use coordinator::experiment::{ExperimentOptions, ExperimentResult, run_experiment};
-use qfleet_args::{Plan, Sharing, load_manifest};
+use qfleet_args::{Plan, ShareMode, load_manifest};
 use robot_agent::ApplyRule;
 use std::os::unix::process::CommandExt;
 
@@ -248,7 +248,7 @@ impl ExperimentCmd {
     pub fn run(self) -> Result<()> {
         let mut plan = load_plan(&self.file)?;
         if let Some(s) = &self.sharing {
-            plan.manifest.sharing = Sharing::parse(s)
+            plan.manifest.sharing = ShareMode::parse(s)
                 .ok_or_else(|| anyhow!("--sharing must be none, discoveries, hints or both"))?;
         }
         if let Some(s) = self.seed {

@@ -11,6 +11,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
+use ::report::hist::new_hist;
 use bus::bus_schema::{
     Command, FinalReport, QHintBatch, Register, RobotState, RobotStatus, SCHEMA_VERSION,
 };
@@ -20,7 +21,6 @@ use coordinator::CoordArgs;
 use planner::QTable;
 use planner::task::Task;
 use qfleet_args::MapArgs;
-use robot_agent::hist::new_hist;
 use robot_agent::share::{ApplyCounters, ApplyCtx, ApplyRule, HintBatcher, apply_merged};
 
 use super::{Deadline, Updates, Window, idle_peer_cpu, save, window_ns};
@@ -125,7 +125,11 @@ fn join(
         height: task.grid.height() as u16,
         start_x: task.start.x,
         start_y: task.start.y,
-        map_hash: robot_agent::map_fingerprint(&task.grid),
+        map_hash: bus_schema::map_fingerprint(
+            task.grid.width(),
+            task.grid.height(),
+            task.grid.free_flags(),
+        ),
         seed: u64::from(robot_id),
         ..Register::ZEROED
     };

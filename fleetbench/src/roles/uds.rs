@@ -8,11 +8,11 @@ use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::Path;
 use std::time::Duration;
 
+use ::report::hist::new_hist;
 use bus::bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHintBatch};
 use bus::monotonic_ns;
 use coordinator::{FleetTable, MergeRule};
 use planner::{Grid, QTable};
-use robot_agent::hist::new_hist;
 use robot_agent::share::{ApplyCounters, ApplyCtx, ApplyRule, HintBatcher, apply_merged};
 
 use super::{Deadline, Updates, Window, idle_peer_cpu, save, window_ns};
