@@ -153,7 +153,7 @@ pub fn run_once(
         let log = std::fs::File::create(out.join(format!("robot-{r}.log")))
             .with_context(|| format!("creating logs in {}", out.display()))?;
         let mut cmd = Command::new(&robot_bin);
-        cmd.args(["--experiment", "--run-id", run_id])
+        cmd.args(["--run-id", run_id])
             .args([
                 "--robot-id",
                 &r.to_string(),
