@@ -10,8 +10,7 @@ use bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, QHintBatch};
 use coordinator::{FleetTable, MergeRule};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use planner::{Grid, QTable};
-use robot_agent::hist::new_hist;
-use robot_agent::share::{ApplyCounters, ApplyCtx, ApplyRule, HintBatcher, apply_merged};
+use robot_agent::share::{ApplyCtx, ApplyRule, HintBatcher, MergedApplier};
 
 const CELLS: usize = 900; // paper-30
 
@@ -107,15 +106,11 @@ fn bench(c: &mut Criterion) {
         goal_id: 0,
         rule: ApplyRule::Max,
     };
-    let mut h = new_hist();
-    let mut c = ApplyCounters::default();
-    let mut last = None;
+    let mut applier = MergedApplier::new(ctx);
     g.bench_function("apply-merged-256", |bch| {
         bch.iter(|| {
-            apply_merged(
-                &merged, &ctx, &mut q, &visits, 1_000, &mut h, &mut last, &mut c,
-            );
-            black_box(c.entries_seen)
+            applier.apply(&merged, &mut q, &visits, 1_000);
+            black_box(applier.counters().entries_seen)
         })
     });
     g.finish();

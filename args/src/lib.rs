@@ -6,8 +6,10 @@
 //! Not here: anything about the bus or the fleet.
 
 pub mod manifest;
+pub mod share_mode;
 
-pub use manifest::{Manifest, ManifestError, Plan, Sharing, load_manifest, parse_manifest};
+pub use manifest::{Manifest, ManifestError, Plan, load_manifest, parse_manifest};
+pub use share_mode::ShareMode;
 
 use clap::Args;
 use planner::map::{self, MapError};

@@ -43,7 +43,7 @@ use planner::task::{self, Task};
 use planner::{Cell, EpsilonReading, LearnerKind, QScale, Schedule};
 use serde::Deserialize;
 
-use crate::{LearnerArgs, MapArgs};
+use crate::{LearnerArgs, MapArgs, ShareMode};
 
 /// Most robots a manifest may ask for (the bus's limit).
 pub const MAX_ROBOTS: u32 = 256;
@@ -80,43 +80,6 @@ pub enum AssignPolicy {
     Nearest,
 }
 
-/// What robots share.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, serde::Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Sharing {
-    /// Nothing: every robot learns alone.
-    None,
-    /// Relayed pseudo-target discoveries only.
-    Discoveries,
-    /// Q hints only.
-    Hints,
-    /// Hints and discoveries.
-    Both,
-}
-
-impl Sharing {
-    /// The robot-agent's `--share` value.
-    pub fn as_cli(self) -> &'static str {
-        match self {
-            Sharing::None => "none",
-            Sharing::Discoveries => "discoveries",
-            Sharing::Hints => "hints",
-            Sharing::Both => "both",
-        }
-    }
-
-    /// Parses a `--share`-style word.
-    pub fn parse(s: &str) -> Option<Sharing> {
-        match s {
-            "none" => Some(Sharing::None),
-            "discoveries" => Some(Sharing::Discoveries),
-            "hints" => Some(Sharing::Hints),
-            "both" => Some(Sharing::Both),
-            _ => None,
-        }
-    }
-}
-
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawManifest {
@@ -128,7 +91,7 @@ struct RawManifest {
     assignment: Option<RawAssignment>,
     #[serde(default)]
     learner: RawLearner,
-    sharing: Option<Sharing>,
+    sharing: Option<ShareMode>,
     episodes: Option<u32>,
     seeds: Option<Vec<u64>>,
     #[serde(default)]
@@ -258,8 +221,8 @@ pub struct Manifest {
     pub starts: Vec<Option<Cell>>,
     /// Learner options (episodes and seed are set per phase and robot).
     pub learner: LearnerArgs,
-    /// Sharing mode.
-    pub sharing: Sharing,
+    /// What robots share.
+    pub sharing: ShareMode,
     /// Phases, at least one.
     pub phases: Vec<Phase>,
     /// Seeds, at least one.
@@ -552,7 +515,7 @@ pub fn parse_manifest(source: &str, text: &str) -> Result<Manifest, ManifestErro
         robots,
         starts,
         learner,
-        sharing: raw.sharing.unwrap_or(Sharing::Hints),
+        sharing: raw.sharing.unwrap_or(ShareMode::Hints),
         phases,
         seeds,
         stop_at_optimum: raw.stop_at_optimum.unwrap_or(false),
@@ -753,7 +716,7 @@ rotate = 1
     fn a_good_manifest_parses_and_resolves() {
         let m = parse_manifest("m.toml", GOOD).unwrap();
         assert_eq!(m.robots, 4);
-        assert_eq!(m.sharing, Sharing::Both);
+        assert_eq!(m.sharing, ShareMode::Both);
         assert_eq!(m.phases.len(), 2);
         assert_eq!(m.phases[0].episodes, 20);
         assert_eq!(m.phases[1].episodes, 50);

@@ -11,7 +11,10 @@ mod layout;
 pub use coordinator_to_robot::{
     Command, Control, DiscoveryAck, DiscoveryRelay, MergedHintBatch, REASON_LEN, ROBOT_ID_ALL,
 };
-pub use names::{Delivery, Direction, RUN_ID_MAX_LEN, Topic};
+pub use names::{
+    COORDINATOR_NODE_NAME, Delivery, Direction, RUN_ID_MAX_LEN, Topic, map_fingerprint,
+    parse_robot_node_name, robot_node_name,
+};
 pub use robot_to_coordinator::{
     FinalReport, HINT_BATCH_CAP, LatencySummary, PseudoTargetDiscovery, QHint, QHintBatch,
     Register, RobotState, RobotStatus,

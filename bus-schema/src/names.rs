@@ -233,3 +233,86 @@ pub fn coord_ack(run_id: &str) -> String {
 pub fn coord_discovery(run_id: &str) -> String {
     Topic::Relay.service_name(run_id)
 }
+
+/// The iceoryx2 node name of a run's coordinator (one per run).
+pub const COORDINATOR_NODE_NAME: &str = "qfleet-coordinator";
+
+/// Start of every robot's iceoryx2 node name: `qfleet-robot-<id>`.
+pub const ROBOT_NODE_PREFIX: &str = "qfleet-robot-";
+
+/// The iceoryx2 node name of robot `robot_id`: `qfleet-robot-<id>` (what liveness checks and
+/// `qfleet clean` look for).
+pub fn robot_node_name(robot_id: u32) -> String {
+    format!("{ROBOT_NODE_PREFIX}{robot_id}")
+}
+
+/// The robot id in a node name built by [`robot_node_name`]; `None` for any other name
+/// (the coordinator, an outside node, `qfleet-robot-x`, `qfleet-robot-01`).
+pub fn parse_robot_node_name(name: &str) -> Option<u32> {
+    let digits = name.strip_prefix(ROBOT_NODE_PREFIX)?;
+    let canonical = !digits.is_empty()
+        && digits.bytes().all(|b| b.is_ascii_digit())
+        && (digits == "0" || !digits.starts_with('0'));
+    if canonical { digits.parse().ok() } else { None }
+}
+
+/// 64-bit FNV-1a fingerprint of a grid's size and walls (`free`, row by row: true = free cell),
+/// sent in `Register` so that a robot started on another map is refused.
+///
+/// Takes the grid's parts rather than a planner type: the wire contract does not depend on the
+/// planner. Every process computes it the same way from `Grid::width/height/free_flags`.
+pub fn map_fingerprint(width: usize, height: usize, free: &[bool]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |b: u8| {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    };
+    for b in (width as u64)
+        .to_le_bytes()
+        .into_iter()
+        .chain((height as u64).to_le_bytes())
+    {
+        eat(b);
+    }
+    for &cell in free {
+        eat(u8::from(cell));
+    }
+    h
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn robot_node_names_round_trip_and_nothing_else_parses() {
+        for id in [0, 1, 42, 255, u32::MAX] {
+            assert_eq!(parse_robot_node_name(&robot_node_name(id)), Some(id));
+        }
+        for name in [
+            COORDINATOR_NODE_NAME,
+            "qfleet-robot-",
+            "qfleet-robot-x",
+            "qfleet-robot-01",
+            "qfleet-robot--1",
+            "qfleet-robot-1 ",
+            "qfleet-robot-99999999999",
+            "robot-1",
+        ] {
+            assert_eq!(parse_robot_node_name(name), None, "{name:?}");
+        }
+    }
+
+    #[test]
+    fn fingerprint_tells_maps_apart() {
+        let open = [true; 8];
+        let mut walled = open;
+        walled[3] = false;
+        assert_ne!(map_fingerprint(4, 2, &open), map_fingerprint(4, 2, &walled));
+        assert_ne!(map_fingerprint(4, 2, &open), map_fingerprint(2, 4, &open));
+        assert_eq!(
+            map_fingerprint(4, 2, &open),
+            map_fingerprint(4, 2, &[true; 8])
+        );
+    }
+}

@@ -61,7 +61,7 @@ impl CoordinatorBus {
     /// Subscribers are created before anything else happens, so they exist before any robot
     /// can publish (the first half of the start handshake).
     pub fn create(config: &BusConfig) -> Result<Self, BusError> {
-        let node = config.create_node("qfleet-coordinator")?;
+        let node = config.create_node(bus_schema::COORDINATOR_NODE_NAME)?;
         let r = Role::Creator;
         Ok(Self {
             register: Inbox::create(&node, config, r)?,
@@ -317,7 +317,7 @@ impl RobotBus {
                 config.robots
             )));
         }
-        let node = config.create_node(&format!("qfleet-robot-{robot_id}"))?;
+        let node = config.create_node(&bus_schema::robot_node_name(robot_id))?;
         let deadline = Instant::now() + wait;
         loop {
             match Self::open_ports(&node, config, robot_id) {

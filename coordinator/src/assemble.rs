@@ -2,22 +2,21 @@
 //! own files into a [`RunResult`] or a [`PhaseResult`]. No bus, no decisions.
 
 use std::collections::BTreeMap;
-use std::path::Path;
 
 use bus::bus_schema::{FinalReport, RobotStatus};
 use hdrhistogram::Histogram;
 use planner::task::Task;
 use qfleet_args::Plan;
-use robot_agent::experiment::{PhaseDetail, read_phase_detail};
-use robot_agent::hist::{self, LatencyStats, new_hist};
-
-use crate::engine::{Engine, Slot};
-use crate::experiment::merged_path_len;
-use crate::options::{CoordArgs, CoordError};
-use crate::results::{
+use report::hist::{self, LatencyStats, new_hist};
+use report::run::{
     GoalPhase, LivenessReport, PhaseResult, RobotEntry, RobotOutcome, RobotPhase, RunResult,
     Throughput,
 };
+use report::{LatencyPath, OutDir, OutFile, PhaseDetail, RobotHist, RobotResult};
+
+use crate::engine::{Engine, Slot};
+use crate::experiment::merged_path_len;
+use crate::options::CoordArgs;
 
 /// The fleet's loop and merged latency histograms, added up from every robot's `.hdr` files
 /// (read once; a robot that wrote none adds nothing).
@@ -28,14 +27,18 @@ pub(crate) struct FleetHists {
 
 impl FleetHists {
     /// Reads `robot-<id>-loop.hdr` and `robot-<id>-merged.hdr` of robots `0..robots`.
-    pub(crate) fn read(dir: &Path, robots: usize) -> Self {
+    pub(crate) fn read(dir: &OutDir, robots: u32) -> Self {
         let mut f = FleetHists {
             loop_h: new_hist(),
             merged_h: new_hist(),
         };
-        for id in 0..robots {
-            for (name, h) in [("loop", &mut f.loop_h), ("merged", &mut f.merged_h)] {
-                if let Ok(r) = hist::read_binary(&dir.join(format!("robot-{id}-{name}.hdr"))) {
+        for robot in 0..robots {
+            for kind in RobotHist::ALL {
+                let h = match kind {
+                    RobotHist::Loop => &mut f.loop_h,
+                    RobotHist::Merged => &mut f.merged_h,
+                };
+                if let Ok(r) = hist::read_binary(&dir.path(OutFile::RobotHist { robot, kind })) {
                     let _ = h.add(&r);
                 }
             }
@@ -43,16 +46,16 @@ impl FleetHists {
         f
     }
 
-    /// Every latency path measured, by name: the coordinator's one-way ones and the fleet's.
-    pub(crate) fn paths<'a>(&'a self, e: &'a Engine) -> [(&'static str, &'a Histogram<u64>); 7] {
+    /// Every latency path measured: the coordinator's one-way ones and the fleet's.
+    pub(crate) fn paths<'a>(&'a self, e: &'a Engine) -> [(LatencyPath, &'a Histogram<u64>); 7] {
         [
-            ("state_one_way", &e.h.state),
-            ("discovery_one_way", &e.h.discovery),
-            ("hints_one_way", &e.h.hints),
-            ("hint_age_at_merge", &e.h.hint_age),
-            ("report_one_way", &e.h.report),
-            ("merged_one_way", &self.merged_h),
-            ("loop", &self.loop_h),
+            (LatencyPath::StateOneWay, &e.h.state),
+            (LatencyPath::DiscoveryOneWay, &e.h.discovery),
+            (LatencyPath::HintsOneWay, &e.h.hints),
+            (LatencyPath::HintAgeAtMerge, &e.h.hint_age),
+            (LatencyPath::ReportOneWay, &e.h.report),
+            (LatencyPath::MergedOneWay, &self.merged_h),
+            (LatencyPath::Loop, &self.loop_h),
         ]
     }
 }
@@ -69,28 +72,12 @@ fn outcome(e: &Engine, id: usize) -> RobotOutcome {
     }
 }
 
-/// The fields of a robot's own `robot-<id>.json` the coordinator reports.
-fn robot_extras(dir: &Path, id: usize) -> (Option<u32>, Option<u64>) {
-    let Some(v) = std::fs::read_to_string(dir.join(format!("robot-{id}.json")))
-        .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-    else {
-        return (None, None);
-    };
-    let own = v
-        .get("own_final_path_len")
-        .and_then(serde_json::Value::as_u64)
-        .and_then(|x| u32::try_from(x).ok());
-    let warm = v
-        .get("counters")
-        .and_then(|c| c.get("warm_start_entries"))
-        .and_then(serde_json::Value::as_u64);
-    (own, warm)
-}
-
-fn robot_entry(e: &Engine, id: usize, slot: &Slot, task: &Task, dir: &Path) -> RobotEntry {
+fn robot_entry(e: &Engine, id: usize, slot: &Slot, task: &Task, dir: &OutDir) -> RobotEntry {
     let opt = |v: i32| u32::try_from(v).ok();
-    let (own_final_path_len, warm_start_entries) = robot_extras(dir, id);
+    // the robot's own file, typed; a lost robot wrote none (or an earlier process's)
+    let own: Option<RobotResult> = dir.read_json(OutFile::Robot(id as u32)).ok();
+    let own_final_path_len = own.as_ref().and_then(|o| o.own_final_path_len);
+    let warm_start_entries = own.as_ref().map(|o| o.counters.warm_start_entries);
     let (restarts, warm_started) = e.life.restarts(id);
     let r: FinalReport = slot.report.unwrap_or(FinalReport {
         final_path_len: -1,
@@ -147,26 +134,41 @@ pub(crate) fn liveness(e: &Engine) -> LivenessReport {
     }
 }
 
+/// How a run's active part ended.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct RunEnd {
+    /// Seconds from Start until every robot finished.
+    pub(crate) active_s: f64,
+    /// Stopped by a signal.
+    pub(crate) interrupted: bool,
+    /// Wall time of the whole coordinator run, s.
+    pub(crate) elapsed_s: f64,
+}
+
 /// The result of a plain run.
 pub(crate) fn run_result(
     e: &Engine,
     args: &CoordArgs,
     task: &Task,
+    dir: &OutDir,
     hists: &FleetHists,
-    active_s: f64,
-    interrupted: bool,
-    elapsed_s: f64,
-) -> Result<RunResult, CoordError> {
+    end: RunEnd,
+) -> RunResult {
+    let RunEnd {
+        active_s,
+        interrupted,
+        elapsed_s,
+    } = end;
     let robots: Vec<RobotEntry> = e
         .robots
         .iter()
         .enumerate()
-        .map(|(id, slot)| robot_entry(e, id, slot, task, &args.out))
+        .map(|(id, slot)| robot_entry(e, id, slot, task, dir))
         .collect();
     let latency_ns: BTreeMap<String, LatencyStats> = hists
         .paths(e)
         .into_iter()
-        .map(|(k, h)| (k.to_string(), LatencyStats::of(h)))
+        .map(|(k, h)| (k.as_str().to_string(), LatencyStats::of(h)))
         .collect();
     let per_s = |x: u64| {
         if active_s > 0.0 {
@@ -178,7 +180,7 @@ pub(crate) fn run_result(
     let all_optimal = robots
         .iter()
         .all(|r| r.final_path_len.is_some() && r.final_path_len == r.optimal_path_len);
-    Ok(RunResult {
+    RunResult {
         run_id: args.run_id.clone(),
         map: task.map_name.clone(),
         start: task.start.to_string(),
@@ -211,7 +213,7 @@ pub(crate) fn run_result(
         rejected: e.rejected,
         interrupted,
         elapsed_s,
-    })
+    }
 }
 
 /// A robot's env steps at monotonic time `t_ns`, interpolated between its episode ends.
@@ -249,12 +251,18 @@ pub(crate) fn phase_result(
     goals: &[GoalTrack<'_>],
     p: usize,
     phase_ns: u64,
-    out: &Path,
+    out: &OutDir,
     wall_s: f64,
 ) -> PhaseResult {
     let m = &plan.manifest;
     let details: Vec<Option<PhaseDetail>> = (0..m.robots)
-        .map(|r| read_phase_detail(out, r, p as u32))
+        .map(|robot| {
+            let f = OutFile::RobotPhase {
+                robot,
+                phase: p as u32,
+            };
+            out.read_json(f).ok()
+        })
         .collect();
     let mut robots = Vec::new();
     for (r, d) in details.iter().enumerate() {

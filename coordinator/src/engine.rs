@@ -23,7 +23,7 @@ use bus::{
 };
 use hdrhistogram::Histogram;
 use planner::Cell;
-use robot_agent::hist::{new_hist, record};
+use report::hist::{new_hist, record};
 
 use crate::admission::{Roster, Sender, Verdict};
 use crate::discovery::{Discoveries, Seen};

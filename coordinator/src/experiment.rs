@@ -24,16 +24,15 @@ use bus::bus_schema::{Command, ROBOT_ID_ALL};
 use bus::{BusConfig, CoordinatorBus, Expected, monotonic_ns};
 use planner::{Cell, Env};
 use qfleet_args::Plan;
-use robot_agent::map_fingerprint;
 
 use crate::assemble::{self, GoalTrack};
 use crate::engine::{Assignment, Engine, tolerate};
 use crate::liveness::{Life, Lister};
 use crate::merge::{FleetTable, MergeRule};
 use crate::options::{CoordError, WaitStrategy, secs};
-pub use crate::results::{ExperimentResult, GoalPhase, PhaseResult, RobotPhase};
 use crate::run::LIST_EVERY;
 use crate::wait::{Waiting, serve};
+pub use report::run::{ExperimentResult, GoalPhase, PhaseResult, RobotPhase};
 
 /// What the coordinator needs besides the plan.
 #[derive(Debug, Clone)]
@@ -112,7 +111,7 @@ pub fn run_experiment_with(
     let bus = CoordinatorBus::create(&cfg)?;
     let expected = Expected {
         robots: m.robots,
-        map_hash: map_fingerprint(grid),
+        map_hash: bus::bus_schema::map_fingerprint(grid.width(), grid.height(), grid.free_flags()),
         width,
         height,
     };
@@ -153,6 +152,7 @@ fn drive(
         strategy: WaitStrategy::Hybrid,
         spin: Duration::from_micros(200),
     };
+    let out_dir = report::OutDir::new(&opts.out);
     let mut phases = Vec::new();
     for (p, phase) in m.phases.iter().enumerate() {
         let t_phase = Instant::now();
@@ -214,7 +214,7 @@ fn drive(
             })
             .collect();
         phases.push(assemble::phase_result(
-            plan, engine, &tracks, p, phase_ns, &opts.out, wall_s,
+            plan, engine, &tracks, p, phase_ns, &out_dir, wall_s,
         ));
         if interrupted {
             break;

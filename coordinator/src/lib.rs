@@ -17,7 +17,6 @@ pub mod liveness;
 pub mod merge;
 pub mod options;
 pub mod output;
-pub mod results;
 pub mod run;
 pub mod validate;
 mod wait;
@@ -25,7 +24,7 @@ mod wait;
 pub use engine::exited_file;
 pub use merge::{FleetTable, MergeRule};
 pub use options::{CoordArgs, CoordError, WaitStrategy};
-pub use results::{
+pub use report::run::{
     LivenessEvent, LivenessKind, LivenessReport, RobotEntry, RobotOutcome, RunResult, Throughput,
 };
 pub use run::run;

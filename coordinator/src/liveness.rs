@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 use bus::{BusConfig, BusError, NodeReport, check_nodes, monotonic_ns};
 use crossbeam::channel::{Receiver, TrySendError, bounded};
 
-pub use crate::results::{LivenessEvent, LivenessKind};
+pub use report::run::{LivenessEvent, LivenessKind};
 
 /// One listing of the run's nodes, made by the [`Lister`] thread.
 pub(crate) struct Listing {

@@ -13,31 +13,9 @@
 //! An entry that changes is queued for the next `MergedHintBatch` with the origin time and robot
 //! of the update that changed it (the end-to-end latency is measured from there).
 
-use bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, ROBOT_ID_ALL};
-use clap::ValueEnum;
-use serde::{Deserialize, Serialize};
+use bus::bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, ROBOT_ID_ALL};
 
-/// How the coordinator merges robots' Q-values into the fleet table.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum MergeRule {
-    /// Largest last-reported value (the owner may lower its own).
-    Max,
-    /// Visit-weighted mean.
-    Mean,
-    /// Newest value wins.
-    Latest,
-}
-
-impl std::fmt::Display for MergeRule {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            MergeRule::Max => "max",
-            MergeRule::Mean => "mean",
-            MergeRule::Latest => "latest",
-        })
-    }
-}
+pub use report::run::MergeRule;
 
 /// `owner` of an entry no robot has reported yet.
 const NO_OWNER: u32 = u32::MAX;

@@ -14,33 +14,12 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use bus::BusError;
-use clap::{Args, ValueEnum};
+use clap::Args;
 use qfleet_args::MapArgs;
-use serde::{Deserialize, Serialize};
 
 use crate::merge::MergeRule;
 
-/// How the coordinator waits for messages.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum WaitStrategy {
-    /// Busy-poll all inboxes.
-    Spin,
-    /// Block on a WaitSet of the inboxes' wake listeners.
-    Event,
-    /// Spin `--spin-us` after each message, then block.
-    Hybrid,
-}
-
-impl std::fmt::Display for WaitStrategy {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            WaitStrategy::Spin => "spin",
-            WaitStrategy::Event => "event",
-            WaitStrategy::Hybrid => "hybrid",
-        })
-    }
-}
+pub use report::run::WaitStrategy;
 
 /// Every option of the coordinator process.
 #[derive(Debug, Clone, Args)]
@@ -134,21 +113,12 @@ pub enum CoordError {
         #[source]
         source: std::io::Error,
     },
-    /// Writing the result failed.
-    #[error("writing {path}")]
-    Output {
-        /// The file or directory.
-        path: PathBuf,
-        /// The OS error.
-        #[source]
-        source: std::io::Error,
-    },
-    /// Encoding the result failed.
-    #[error("encoding the result")]
-    Encode(#[from] serde_json::Error),
     /// Writing a latency file failed.
     #[error("writing a latency file")]
-    Hist(#[from] robot_agent::hist::HistError),
+    Hist(#[from] report::HistError),
+    /// Writing the result failed (the error names the file; a full disk says so).
+    #[error(transparent)]
+    Write(#[from] report::WriteError),
 }
 
 impl CoordError {

@@ -8,15 +8,14 @@ use std::time::{Duration, Instant};
 
 use bus::bus_schema::{Command, ROBOT_ID_ALL};
 use bus::{BusConfig, CoordinatorBus, Expected};
-use robot_agent::map_fingerprint;
 
-use crate::assemble::FleetHists;
+use crate::assemble::{FleetHists, RunEnd};
 use crate::engine::{Assignment, Engine, tolerate};
 use crate::liveness::{Life, Lister};
 use crate::options::{CoordArgs, CoordError, secs};
-use crate::results::RunResult;
 use crate::wait::{Waiting, serve};
 use crate::{assemble, output};
+use report::{OutDir, RunResult};
 
 /// How often the liveness thread lists the run's nodes.
 pub(crate) const LIST_EVERY: Duration = Duration::from_millis(100);
@@ -47,10 +46,15 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
     // (SIGSTOP, or killed and not cleaned up yet) must not stall the whole run for long
     cfg.send_timeout = Duration::from_secs(1);
     cfg.validate()?;
-    output::create_dir(&args.out)?;
+    let dir = OutDir::new(&args.out);
+    dir.create()?;
     let expected = Expected {
         robots: args.robots,
-        map_hash: map_fingerprint(&task.grid),
+        map_hash: bus::bus_schema::map_fingerprint(
+            task.grid.width(),
+            task.grid.height(),
+            task.grid.free_flags(),
+        ),
         width,
         height,
     };
@@ -80,10 +84,14 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
     ];
     let outcome = drive(&mut engine, &bus, &args, plan, &stop, timeout);
     let result = outcome.and_then(|(active, interrupted)| {
-        let elapsed = t_begin.elapsed().as_secs_f64();
-        let hists = FleetHists::read(&args.out, args.robots as usize);
-        let r = assemble::run_result(&engine, &args, &task, &hists, active, interrupted, elapsed)?;
-        output::write_run(&args.out, &r, &engine, &hists)?;
+        let hists = FleetHists::read(&dir, args.robots);
+        let end = RunEnd {
+            active_s: active,
+            interrupted,
+            elapsed_s: t_begin.elapsed().as_secs_f64(),
+        };
+        let r = assemble::run_result(&engine, &args, &task, &dir, &hists, end);
+        output::write_run(&dir, &r, &engine, &hists)?;
         Ok(r)
     });
     // the last process of the run removes its files; errors here must not hide the result

@@ -6,11 +6,11 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use ::report::hist::{new_hist, read_binary};
 use bus::bus_schema::QHintBatch;
 use bus::bus_schema::names::iceoryx_prefix;
 use coordinator::WaitStrategy;
 use hdrhistogram::Histogram;
-use robot_agent::hist::{new_hist, read_binary};
 
 use crate::report::{ProcessCpu, Report, Row, ScaleRow};
 use crate::spec::{ChildReport, Plan, REPORT_PREFIX, RoleSpec};

@@ -69,7 +69,7 @@ pub enum BenchError {
     Spec(String),
     /// A latency histogram file could not be written or read.
     #[error(transparent)]
-    Hist(#[from] robot_agent::hist::HistError),
+    Hist(#[from] ::report::hist::HistError),
     /// The real coordinator failed.
     #[error("coordinator: {0}")]
     Coordinator(String),

@@ -480,7 +480,7 @@ impl Report {
         let csv = dir.join("latency.csv");
         std::fs::write(&csv, self.to_csv()).map_err(io(&csv))?;
         for r in &self.rows {
-            robot_agent::hist::write_hgrm(&r.hist, &dir.join(format!("{}.hgrm", r.label)))?;
+            ::report::hist::write_hgrm(&r.hist, &dir.join(format!("{}.hgrm", r.label)))?;
         }
         if !self.rows.is_empty() {
             crate::plot::percentiles(&dir.join("latency.svg"), &self.rows)?;

@@ -1,16 +1,30 @@
-//! The robot's side of a coordinator-driven experiment (`robot-agent --experiment`).
+//! The control protocol between the coordinator and a robot — the one protocol of plain runs
+//! and experiments — and [`Plan`], the robot's reading of it, without IO.
 //!
 //! # Protocol
-//! 1. Register as in a plain run.
+//! 1. The robot registers (`Register` on `robot/register`); the coordinator answers `Ack` or
+//!    `Refuse` on `coord/control` (see the `bus` crate's start handshake).
 //! 2. Before each phase `p` the coordinator sends `AssignGoal` to this robot (`goal_id`, goal
-//!    cell, `phase = p`, `episodes`), then `Start` (phase 0) or `Phase` (later phases) to all.
+//!    cell, `phase = p`, `episodes`, 0 = the robot's `--episodes`), then `Start` (phase 0) or
+//!    `Phase` (later phases) to all.
 //! 3. The robot learns `episodes` episodes towards its goal, sharing by `--share` (Q hints and
 //!    discoveries tagged with the goal id), and stops the phase early after the episode whose
 //!    greedy path is optimal when `--stop-at-optimum` is given.
 //! 4. It flushes its hints, waits until its discoveries are acknowledged, writes
-//!    `robot-<id>-phase-<p>.json` (the per-episode log the coordinator reads) and sends one
-//!    `FinalReport` for the phase (`status` Finished, or Failed if stopped).
-//! 5. Until the next `Phase` or `Stop` it keeps applying merged hints of its goal.
+//!    `robot-<id>-phase-<p>.json` and sends one `FinalReport` for the phase (`status` Finished,
+//!    or Failed if stopped), then publishes its state `Finished`.
+//! 5. Until the next `AssignGoal` + `Phase`, or `Stop`, it keeps applying merged hints of its
+//!    goal (the fleet sync: every robot ends with what the whole fleet learned).
+//! 6. At `Stop` it writes `robot-<id>.json` and exits.
+//!
+//! A plain run is a plan with one goal and one phase: `AssignGoal` with `episodes = 0` (the
+//! robot's own `--episodes`), `Start`, and `Stop` once every robot is `Finished`. A `Start`
+//! without any `AssignGoal` before it means the same with the command line's goal as goal 0.
+//! **When the report goes:** a phase whose assignment names its episodes (`episodes > 0`, what
+//! experiments send) is reported at its end (step 4), because the coordinator waits for the
+//! reports before the next phase; a single-phase plan (`episodes = 0`, or no assignment) is
+//! reported after `Stop`, so that its report carries the greedy path after the fleet sync.
+//! `Stop` may come at any time: the robot ends the phase it is in, reports it, and exits.
 //!
 //! # Q-tables per goal
 //! The robot keeps one Q-table per goal. A phase starts a fresh learner (its schedule and
@@ -19,580 +33,219 @@
 //! goal and become pseudo targets of every later learner on that goal (`--share
 //! discoveries|both`).
 
-use std::collections::{BTreeMap, VecDeque};
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, Instant};
+use bus::bus_schema::{Command, Control};
+use planner::Cell;
 
-use bus::bus_schema::{Command, PseudoTargetDiscovery, Register, RobotStatus, SCHEMA_VERSION};
-use bus::{BusConfig, BusError, RobotBus, check_nodes, monotonic_ns};
-use hdrhistogram::Histogram;
-use planner::task::Task;
-use planner::{Cell, EpisodeRecord, Learner, QTable, Summary};
-use serde::{Deserialize, Serialize};
-
-use crate::agent::{AgentArgs, AgentError, Counters, ReportHead, RobotResult, final_report};
-use crate::hist::{LatencyStats, new_hist};
-use crate::share::{ApplyCtx, HintBatcher, apply_merged, map_fingerprint};
-
-/// What a robot writes after each phase (`robot-<id>-phase-<p>.json`).
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct PhaseDetail {
-    /// Robot id.
-    pub robot_id: u32,
+/// One phase the coordinator asked for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Assignment {
+    /// Goal id (the fleet table and the hints of this goal).
+    pub goal_id: u32,
+    /// Goal cell; `None`: the goal of the robot's command line.
+    pub goal: Option<Cell>,
     /// Phase number.
     pub phase: u32,
-    /// Goal learned.
-    pub goal_id: u32,
-    /// Start cell.
-    pub start: String,
-    /// Goal cell.
-    pub goal: String,
-    /// Episodes run.
-    pub episodes: u32,
-    /// Steps taken in the phase.
-    pub env_steps: u64,
-    /// Mean steps per episode.
-    pub avg_steps: f64,
-    /// BFS optimum.
-    pub optimal_path_len: u32,
-    /// Greedy path at the end of the phase (null: loops).
-    pub final_path_len: Option<u32>,
-    /// First episode (0-based) after which the greedy path was optimal.
-    pub first_optimal_episode: Option<u32>,
-    /// Env steps taken until the greedy path was first optimal.
-    pub steps_to_optimal: Option<u64>,
-    /// Seconds from the phase's start until the greedy path was first optimal.
-    pub time_to_optimal_s: Option<f64>,
-    /// Monotonic time (ns) the phase started at this robot.
-    pub start_ns: u64,
-    /// Monotonic time (ns) of every episode's end.
-    pub episode_end_ns: Vec<u64>,
-    /// Cumulative env steps at every episode's end.
-    pub episode_cum_steps: Vec<u64>,
-    /// Discoveries published in the phase.
-    pub discoveries_sent: u64,
-    /// Relayed discoveries made pseudo targets in the phase.
-    pub relays_applied: u64,
-    /// Merged hint entries applied in the phase.
-    pub hints_applied: u64,
-    /// Whether the phase ran to its end (not stopped).
-    pub finished: bool,
+    /// Episodes; `None`: the robot's `--episodes`.
+    pub episodes: Option<u32>,
+    /// Whether the phase is reported at its end (its assignment named its episodes: a phase
+    /// of an experiment) or after `Stop` (a single-phase plan; see the protocol).
+    pub report_at_end: bool,
 }
 
-struct Exp<'a> {
-    args: &'a AgentArgs,
-    bus: RobotBus,
-    base: Task,
-    tables: BTreeMap<u32, QTable>,
-    relayed: BTreeMap<u32, Vec<(u32, f32)>>,
-    c: Counters,
-    disc_next: u64,
-    unacked: VecDeque<(u64, PseudoTargetDiscovery, Instant)>,
-    acked_up_to: Option<u64>,
-    state_seq: u64,
-    hint_seq: u64,
-    last_merged_seq: Option<u64>,
-    loop_hist: Histogram<u64>,
-    stop: Arc<AtomicBool>,
-    stopped: bool,
-    /// Next phase to run (goal id, goal cell, phase, episodes), set by controls.
-    assigned: Option<(u32, Cell, u32, u32)>,
+impl Assignment {
+    /// The implicit plan of a plain run: the command line's goal as goal 0, phase 0.
+    pub const IMPLICIT: Assignment = Assignment {
+        goal_id: 0,
+        goal: None,
+        phase: 0,
+        episodes: None,
+        report_at_end: false,
+    };
+}
+
+/// What one control message did to the plan.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Effect {
+    /// `Stop`: end the phase, report, exit.
+    Stop,
+    /// `AssignGoal`: the next phase is known.
+    Assigned,
+    /// `Start` / `Phase`: go on to the assigned phase.
+    Go,
+    /// Handshake traffic (`Ack`, `Refuse`): the link's business, nothing for the plan.
+    Handshake,
+    /// An unknown command byte: dropped, count it as rejected.
+    Rejected,
+}
+
+/// The robot's reading of the coordinator's controls (see the protocol above).
+#[derive(Debug, Default, Clone)]
+pub struct Plan {
+    assigned: Option<Assignment>,
     go: bool,
+    stopped: bool,
+    started: bool,
 }
 
-/// Runs one robot of an experiment to the coordinator's `Stop`.
-pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, AgentError> {
-    let timeout = Duration::try_from_secs_f64(args.timeout)
-        .ok()
-        .filter(|d| !d.is_zero())
-        .ok_or_else(|| AgentError::Input("--timeout must be positive".into()))?;
-    args.share.validate().map_err(AgentError::Input)?;
-    let base = args
-        .map
-        .task()
-        .map_err(|e| AgentError::Input(e.to_string()))?;
-    let cfg = args
-        .learner
-        .config()
-        .map_err(|e| AgentError::Input(e.to_string()))?;
-    let (Ok(width), Ok(height)) = (
-        u16::try_from(base.grid.width()),
-        u16::try_from(base.grid.height()),
-    ) else {
-        return Err(AgentError::Input(
-            "maps larger than 65535 cells a side are not supported".into(),
-        ));
-    };
-    if args.robot_id >= args.robots {
-        return Err(AgentError::Input(format!(
-            "--robot-id {} is outside 0..{}",
-            args.robot_id, args.robots
-        )));
+impl Plan {
+    /// Takes one control addressed to this robot (or to all).
+    pub fn on(&mut self, ctl: &Control) -> Effect {
+        match Command::try_from(ctl.command) {
+            Ok(Command::Stop) => {
+                self.stopped = true;
+                Effect::Stop
+            }
+            Ok(Command::AssignGoal) => {
+                self.assigned = Some(Assignment {
+                    goal_id: ctl.goal_id,
+                    goal: Some(Cell::new(ctl.goal_x, ctl.goal_y)),
+                    phase: ctl.phase,
+                    episodes: (ctl.episodes > 0).then_some(ctl.episodes),
+                    report_at_end: ctl.episodes > 0,
+                });
+                Effect::Assigned
+            }
+            Ok(Command::Start | Command::Phase) => {
+                if !self.started && self.assigned.is_none() {
+                    self.assigned = Some(Assignment::IMPLICIT);
+                }
+                self.started = true;
+                self.go = true;
+                Effect::Go
+            }
+            Ok(Command::Ack | Command::Refuse) => Effect::Handshake,
+            Err(_) => Effect::Rejected,
+        }
     }
-    let bus_cfg = BusConfig::new(args.run_id.clone(), args.robots)?;
-    let bus = RobotBus::open(&bus_cfg, args.robot_id, timeout)?;
-    let reg = Register {
-        schema_version: args.schema_version_override.unwrap_or(SCHEMA_VERSION),
-        robot_id: args.robot_id,
-        pid: std::process::id(),
-        episodes: cfg.episodes,
-        width,
-        height,
-        start_x: base.start.x,
-        start_y: base.start.y,
-        map_hash: map_fingerprint(&base.grid),
-        seed: cfg.seed,
-        ..Register::ZEROED
-    };
-    match bus.register(&reg, timeout) {
-        Ok(_) => {}
-        Err(e @ BusError::Refused { .. }) => return Err(AgentError::Refused(e)),
-        Err(e) => return Err(e.into()),
+
+    /// Whether `Stop` came (or the caller stopped the robot).
+    pub fn stopped(&self) -> bool {
+        self.stopped
     }
-    let mut e = Exp {
-        args,
-        bus,
-        base,
-        tables: BTreeMap::new(),
-        relayed: BTreeMap::new(),
-        c: Counters::default(),
-        disc_next: 0,
-        unacked: VecDeque::new(),
-        acked_up_to: None,
-        state_seq: 0,
-        hint_seq: 0,
-        last_merged_seq: None,
-        loop_hist: new_hist(),
-        stop,
-        stopped: false,
-        assigned: None,
-        go: false,
-    };
-    let out = e.run_all(timeout);
-    let closed = e.bus.close();
-    let out = out?;
-    closed?;
-    Ok(out)
+
+    /// Stops the plan from outside (a signal).
+    pub fn stop(&mut self) {
+        self.stopped = true;
+    }
+
+    /// The phase to learn now, if one is assigned and its `Start`/`Phase` came (and no `Stop`).
+    pub fn take_next(&mut self) -> Option<Assignment> {
+        if self.stopped || !self.go {
+            return None;
+        }
+        let a = self.assigned.take()?;
+        self.go = false;
+        Some(a)
+    }
+
+    /// Drops an assignment that turned out unusable (a goal outside the map or on a wall).
+    pub fn drop_assignment(&mut self) {
+        self.assigned = None;
+        self.go = false;
+    }
 }
 
-impl Exp<'_> {
-    fn run_all(&mut self, timeout: Duration) -> Result<RobotResult, AgentError> {
-        let mut last: Option<(PhaseDetail, f64)> = None;
-        loop {
-            // wait for an assignment and its Start/Phase
-            let deadline = Instant::now() + timeout;
-            let mut last_liveness = Instant::now();
-            while !(self.stopped || (self.go && self.assigned.is_some())) {
-                self.poll(None)?;
-                if self.stopped || (self.go && self.assigned.is_some()) {
-                    break;
-                }
-                let now = Instant::now();
-                if now >= deadline {
-                    return Err(BusError::Timeout {
-                        what: "the coordinator's next phase or Stop".into(),
-                        timeout,
-                    }
-                    .into());
-                }
-                if now.duration_since(last_liveness) >= Duration::from_millis(250) {
-                    last_liveness = now;
-                    let report = check_nodes(self.bus.config(), false)?;
-                    if !report.alive().any(|n| n.name == "qfleet-coordinator") {
-                        return Err(AgentError::CoordinatorGone(
-                            self.bus.config().run_id.clone(),
-                        ));
-                    }
-                }
-                self.bus.control.wait(Duration::from_millis(2))?;
-            }
-            if self.stopped {
-                break;
-            }
-            let Some((goal_id, cell, phase, episodes)) = self.assigned.take() else {
-                continue;
-            };
-            self.go = false;
-            let t0 = Instant::now();
-            let detail = self.phase(goal_id, cell, phase, episodes, timeout)?;
-            last = Some((detail, t0.elapsed().as_secs_f64()));
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ctl(command: Command) -> Control {
+        Control {
+            command: command.as_u8(),
+            ..Control::ZEROED
         }
-        let (d, learn_s) = last.unwrap_or_else(|| {
-            (
-                PhaseDetail {
-                    robot_id: self.args.robot_id,
-                    phase: 0,
-                    goal_id: 0,
-                    start: self.base.start.to_string(),
-                    goal: self.base.goal.to_string(),
-                    episodes: 0,
-                    env_steps: 0,
-                    avg_steps: 0.0,
-                    optimal_path_len: self.base.optimal_len,
-                    final_path_len: None,
-                    first_optimal_episode: None,
-                    steps_to_optimal: None,
-                    time_to_optimal_s: None,
-                    start_ns: 0,
-                    episode_end_ns: Vec::new(),
-                    episode_cum_steps: Vec::new(),
-                    discoveries_sent: 0,
-                    relays_applied: 0,
-                    hints_applied: 0,
-                    finished: false,
-                },
-                0.0,
-            )
-        });
-        Ok(RobotResult {
-            robot_id: self.args.robot_id,
-            status: if d.finished { "finished" } else { "stopped" }.into(),
-            map: self.base.map_name.clone(),
-            learner: self.args.learner.learner.to_string(),
-            seed: self.args.learner.seed,
-            goal_id: d.goal_id,
-            start: d.start.clone(),
-            goal: d.goal.clone(),
-            episodes: d.episodes,
-            optimal_path_len: d.optimal_path_len,
-            final_path_len: d.final_path_len,
-            own_final_path_len: d.final_path_len,
-            avg_steps: d.avg_steps,
-            max_steps: 0,
-            first_optimal_episode: d.first_optimal_episode,
-            env_steps: d.env_steps,
-            outcomes: [0; 3],
-            learn_s,
-            share: self.args.share.share,
-            counters: self.c,
-            loop_latency_ns: LatencyStats::of(&self.loop_hist),
-            merged_latency_ns: LatencyStats::default(),
-        })
     }
 
-    /// Takes in controls, merged hints (applied to `learner` if given), relays and acks.
-    fn poll(
-        &mut self,
-        mut learner: Option<(&mut Learner, &mut HintBatcher, u32)>,
-    ) -> Result<(), AgentError> {
-        while let Some(sample) = self.bus.merged.receive_sample()? {
-            if let Some((l, b, goal_id)) = learner.as_mut()
-                && self.args.share.share.hints()
-            {
-                let ctx = ApplyCtx {
-                    robot_id: self.args.robot_id,
-                    robots: self.args.robots,
-                    goal_id: *goal_id,
-                    rule: self.args.share.apply,
-                };
-                apply_merged(
-                    sample.payload(),
-                    &ctx,
-                    l.q_mut(),
-                    b.visits(),
-                    monotonic_ns(),
-                    &mut self.loop_hist,
-                    &mut self.last_merged_seq,
-                    &mut self.c.merged,
-                );
-            }
-        }
-        while let Some(r) = self.bus.relay.receive()? {
-            self.c.relays_received += 1;
-            if !self.args.share.share.discoveries()
-                || r.origin_robot == self.args.robot_id
-                || (r.cell_x as usize) >= self.base.grid.width()
-                || (r.cell_y as usize) >= self.base.grid.height()
-                || !r.value.is_finite()
-            {
-                continue;
-            }
-            let cell = self.base.grid.index(Cell::new(r.cell_x, r.cell_y)) as u32;
-            self.relayed
-                .entry(r.goal_id)
-                .or_default()
-                .push((cell, r.value));
-            if let Some((l, _, goal_id)) = learner.as_mut()
-                && *goal_id == r.goal_id
-                && l.add_pseudo_target(cell, r.value)
-            {
-                self.c.relays_applied += 1;
-            }
-        }
-        while let Some(ack) = self.bus.ack.receive()? {
-            if ack.robot_id != self.args.robot_id || ack.up_to_seq >= self.disc_next {
-                continue;
-            }
-            if self.acked_up_to.is_none_or(|a| ack.up_to_seq > a) {
-                self.acked_up_to = Some(ack.up_to_seq);
-                self.c.discoveries_acked = ack.up_to_seq + 1;
-                while self
-                    .unacked
-                    .front()
-                    .is_some_and(|(s, _, _)| *s <= ack.up_to_seq)
-                {
-                    self.unacked.pop_front();
-                }
-            }
-        }
-        while let Some(ctl) = self.bus.recv_control()? {
-            match Command::try_from(ctl.command) {
-                Ok(Command::Stop) => self.stopped = true,
-                Ok(Command::AssignGoal) => {
-                    self.assigned = Some((
-                        ctl.goal_id,
-                        Cell::new(ctl.goal_x, ctl.goal_y),
-                        ctl.phase,
-                        ctl.episodes,
-                    ));
-                }
-                Ok(Command::Start | Command::Phase) => self.go = true,
-                Ok(_) => {}
-                Err(_) => self.c.rejected += 1,
-            }
-        }
-        if self.stop.load(Ordering::Relaxed) {
-            self.stopped = true;
-        }
-        Ok(())
-    }
-
-    fn phase(
-        &mut self,
-        goal_id: u32,
-        cell: Cell,
-        phase: u32,
-        episodes: u32,
-        timeout: Duration,
-    ) -> Result<PhaseDetail, AgentError> {
-        let mut m = self.args.map.clone();
-        m.goal = Some(cell);
-        let task = m
-            .task()
-            .map_err(|e| AgentError::Input(format!("assigned goal {cell} is unusable: {e}")))?;
-        let mut cfg = self
-            .args
-            .learner
-            .config()
-            .map_err(|e| AgentError::Input(e.to_string()))?;
-        if episodes > 0 {
-            cfg.episodes = episodes;
-        }
-        cfg.seed = cfg
-            .seed
-            .wrapping_add(u64::from(phase).wrapping_mul(0x9E37_79B9));
-        let mut learner = Learner::new(&task, cfg).map_err(|e| AgentError::Input(e.to_string()))?;
-        if let Some(q) = self.tables.get(&goal_id) {
-            *learner.q_mut() = q.clone();
-        }
-        let mut relays_applied = 0;
-        for &(c, v) in self.relayed.get(&goal_id).map_or(&[][..], |v| &v[..]) {
-            relays_applied += u64::from(learner.add_pseudo_target(c, v));
-        }
-        let share = self.args.share.share.hints();
-        let mut batcher = HintBatcher::new(
-            task.grid.len(),
-            self.args.share.hint_batch as usize,
-            self.args.share.hint_min_change,
-        );
-        let poll_every = u64::from(self.args.share.poll_every);
-        let flush_steps = u64::from(self.args.share.hint_flush_steps);
-        let state_every = u64::from(self.args.share.state_every);
-        let (relays0, hints0, disc0) = (
-            self.c.relays_applied,
-            self.c.merged.entries_applied,
-            self.c.discoveries_sent,
-        );
-        let t0 = Instant::now();
-        let start_ns = monotonic_ns();
-        let mut records: Vec<EpisodeRecord> = Vec::new();
-        let (mut end_ns, mut cum) = (Vec::new(), Vec::new());
-        let mut steps: u64 = 0;
-        let (mut steps_opt, mut time_opt) = (None, None);
-        let optimal = learner.optimal_len();
-        while !learner.finished() && !self.stopped {
-            learner.begin_episode();
-            loop {
-                let info = learner.step();
-                steps += 1;
-                if share && batcher.note(info.state, info.action, info.q, steps, monotonic_ns) {
-                    self.send_hints(&mut batcher, goal_id);
-                }
-                if steps.is_multiple_of(state_every) {
-                    self.send_state(goal_id, learner.episodes_done(), RobotStatus::Running);
-                }
-                if steps.is_multiple_of(poll_every) {
-                    if share && batcher.due(steps, flush_steps) {
-                        self.send_hints(&mut batcher, goal_id);
-                    }
-                    self.poll(Some((&mut learner, &mut batcher, goal_id)))?;
-                    if self.stopped {
-                        break;
-                    }
-                }
-                if info.done {
-                    records.push(learner.end_episode(info.transition));
-                    break;
-                }
-            }
-            end_ns.push(monotonic_ns());
-            cum.push(steps);
-            for (c, v) in learner.take_new_pseudo_targets() {
-                self.queue_discovery(goal_id, c, v, records.len() as u32);
-            }
-            self.resend_discoveries();
-            if steps_opt.is_none() && learner.greedy_path_len() == Some(optimal) {
-                steps_opt = Some(steps);
-                time_opt = Some(t0.elapsed().as_secs_f64());
-                if self.args.stop_at_optimum {
-                    break;
-                }
-            }
-        }
-        if share && !batcher.is_empty() {
-            self.send_hints(&mut batcher, goal_id);
-        }
-        let deadline = Instant::now() + timeout;
-        while !self.unacked.is_empty() && !self.stop.load(Ordering::Relaxed) {
-            self.poll(Some((&mut learner, &mut batcher, goal_id)))?;
-            self.resend_discoveries();
-            if Instant::now() >= deadline {
-                break;
-            }
-            self.bus.ack.wait(Duration::from_millis(5))?;
-        }
-        let finished = !self.stopped;
-        let final_len = learner.greedy_path_len();
-        let s = Summary::from_records(&records, optimal, final_len);
-        self.tables.insert(goal_id, learner.q().clone());
-        let d = PhaseDetail {
-            robot_id: self.args.robot_id,
+    fn assign(goal_id: u32, x: u16, phase: u32, episodes: u32) -> Control {
+        Control {
+            goal_id,
+            goal_x: x,
+            goal_y: 1,
             phase,
-            goal_id,
-            start: task.start.to_string(),
-            goal: task.goal.to_string(),
-            episodes: s.episodes,
-            env_steps: s.env_steps,
-            avg_steps: s.avg_steps,
-            optimal_path_len: optimal,
-            final_path_len: final_len,
-            first_optimal_episode: s.first_optimal_episode,
-            steps_to_optimal: steps_opt,
-            time_to_optimal_s: time_opt,
-            start_ns,
-            episode_end_ns: end_ns,
-            episode_cum_steps: cum,
-            discoveries_sent: self.c.discoveries_sent - disc0,
-            relays_applied: self.c.relays_applied - relays0 + relays_applied,
-            hints_applied: self.c.merged.entries_applied - hints0,
-            finished,
-        };
-        if let Some(dir) = &self.args.out {
-            let path = dir.join(format!("robot-{}-phase-{phase}.json", self.args.robot_id));
-            let json = serde_json::to_string(&d).map_err(|e| AgentError::Output(e.to_string()))?;
-            std::fs::create_dir_all(dir)
-                .and_then(|_| std::fs::write(&path, json))
-                .map_err(|e| AgentError::Output(format!("{}: {e}", path.display())))?;
-        }
-        self.send_state(goal_id, s.episodes, RobotStatus::Finished);
-        let head = ReportHead {
-            robot_id: self.args.robot_id,
-            goal_id,
-            final_path_len: final_len,
-            optimal_path_len: optimal,
-        };
-        let rep = final_report(head, &s, finished, t0, &self.c, &self.loop_hist);
-        match self.bus.report.send_and_notify(&rep) {
-            Ok(_) | Err(BusError::NoSubscriber { .. }) if self.stopped => {}
-            Ok(_) => {}
-            Err(e) => return Err(e.into()),
-        }
-        Ok(d)
-    }
-
-    fn send_state(&mut self, goal_id: u32, episode: u32, status: RobotStatus) {
-        let (robot_id, seq) = (self.args.robot_id, self.state_seq);
-        self.state_seq += 1;
-        let sent = self.bus.state.send_with(|m| {
-            m.robot_id = robot_id;
-            m.goal_id = goal_id;
-            m.episode = episode;
-            m.status = status.as_u8();
-            m.seq = seq;
-            m.send_time_ns = monotonic_ns();
-        });
-        match sent {
-            Ok(_) => self.c.states_sent += 1,
-            Err(_) => self.c.send_errors += 1,
+            episodes,
+            ..ctl(Command::AssignGoal)
         }
     }
 
-    fn send_hints(&mut self, batcher: &mut HintBatcher, goal_id: u32) {
-        let (robot_id, seq) = (self.args.robot_id, self.hint_seq);
-        self.hint_seq += 1;
-        let mut n = 0;
-        let sent = self.bus.hints.send_batch(|b| {
-            b.robot_id = robot_id;
-            b.goal_id = goal_id;
-            b.seq = seq;
-            n = batcher.fill(b);
-            b.send_time_ns = monotonic_ns();
-        });
-        if n == 0 {
-            batcher.clear_shared();
-        }
-        match sent {
-            Ok(_) => {
-                self.c.hint_batches_sent += 1;
-                self.c.hint_entries_sent += n as u64;
-                let _ = self.bus.hints.notify();
+    #[test]
+    fn a_start_without_an_assignment_is_the_command_lines_goal_as_goal_0_phase_0() {
+        let mut p = Plan::default();
+        assert_eq!(p.take_next(), None);
+        assert_eq!(p.on(&ctl(Command::Start)), Effect::Go);
+        assert_eq!(p.take_next(), Some(Assignment::IMPLICIT));
+        assert_eq!(p.take_next(), None, "one phase per Start");
+    }
+
+    #[test]
+    fn an_assignment_waits_for_its_start_and_carries_goal_phase_and_episodes() {
+        let mut p = Plan::default();
+        assert_eq!(p.on(&assign(2, 5, 0, 0)), Effect::Assigned);
+        assert_eq!(p.take_next(), None, "no Start yet");
+        p.on(&ctl(Command::Start));
+        let a = p.take_next().unwrap();
+        assert_eq!(
+            a,
+            Assignment {
+                goal_id: 2,
+                goal: Some(Cell::new(5, 1)),
+                phase: 0,
+                episodes: None,
+                report_at_end: false,
             }
-            Err(_) => self.c.send_errors += 1,
-        }
+        );
+        // the next phase: a new assignment, then Phase
+        p.on(&assign(1, 3, 1, 40));
+        assert_eq!(p.take_next(), None);
+        p.on(&ctl(Command::Phase));
+        let b = p.take_next().unwrap();
+        assert_eq!((b.goal_id, b.phase, b.episodes), (1, 1, Some(40)));
+        assert!(
+            b.report_at_end,
+            "a phase of an experiment reports at its end"
+        );
     }
 
-    fn queue_discovery(&mut self, goal_id: u32, cell: u32, value: f32, episode: u32) {
-        let c = self.base.grid.cell(cell as usize);
-        let seq = self.disc_next;
-        self.disc_next += 1;
-        let d = PseudoTargetDiscovery {
-            robot_id: self.args.robot_id,
-            goal_id,
-            cell_x: c.x,
-            cell_y: c.y,
-            value,
-            seq,
-            time_ns: monotonic_ns(),
-            episode,
-            ..PseudoTargetDiscovery::ZEROED
+    #[test]
+    fn a_later_phase_without_a_new_assignment_is_not_a_phase() {
+        let mut p = Plan::default();
+        p.on(&ctl(Command::Start));
+        p.take_next().unwrap();
+        p.on(&ctl(Command::Phase));
+        assert_eq!(p.take_next(), None, "the implicit plan is only the first phase");
+    }
+
+    #[test]
+    fn stop_wins_over_everything_pending() {
+        let mut p = Plan::default();
+        p.on(&assign(0, 1, 0, 0));
+        p.on(&ctl(Command::Start));
+        assert_eq!(p.on(&ctl(Command::Stop)), Effect::Stop);
+        assert!(p.stopped());
+        assert_eq!(p.take_next(), None);
+    }
+
+    #[test]
+    fn unknown_commands_are_rejected_and_handshake_traffic_is_not_the_plans() {
+        let mut p = Plan::default();
+        let bad = Control {
+            command: 250,
+            ..Control::ZEROED
         };
-        self.c.discoveries_sent += 1;
-        if self
-            .bus
-            .discovery
-            .send_with(|m| {
-                *m = d;
-                m.send_time_ns = monotonic_ns();
-            })
-            .is_err()
-        {
-            self.c.discovery_send_errors += 1;
-        }
-        self.unacked.push_back((seq, d, Instant::now()));
-        let _ = self.bus.discovery.notify();
+        assert_eq!(p.on(&bad), Effect::Rejected);
+        assert_eq!(p.on(&ctl(Command::Ack)), Effect::Handshake);
+        assert_eq!(p.take_next(), None);
+        assert!(!p.stopped());
     }
 
-    fn resend_discoveries(&mut self) {
-        if crate::agent::resend_due(&self.bus, &mut self.unacked, &mut self.c) {
-            let _ = self.bus.discovery.notify();
-        }
+    #[test]
+    fn an_unusable_assignment_is_dropped_with_its_start() {
+        let mut p = Plan::default();
+        p.on(&assign(0, 999, 0, 0));
+        p.on(&ctl(Command::Start));
+        p.drop_assignment();
+        assert_eq!(p.take_next(), None);
+        p.on(&assign(0, 2, 0, 0));
+        p.on(&ctl(Command::Phase));
+        assert_eq!(p.take_next().map(|a| a.goal), Some(Some(Cell::new(2, 1))));
     }
-}
-
-/// Reads a robot's phase detail file.
-pub fn read_phase_detail(dir: &std::path::Path, robot: u32, phase: u32) -> Option<PhaseDetail> {
-    let text =
-        std::fs::read_to_string(dir.join(format!("robot-{robot}-phase-{phase}.json"))).ok()?;
-    serde_json::from_str(&text).ok()
 }

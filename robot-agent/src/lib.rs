@@ -1,15 +1,21 @@
 //! The robot-agent: one planner learner wired to the qfleet bus.
 //!
-//! A thin process: the learning is the `planner` crate's, the transport the `bus` crate's.
-//! This crate decides what a robot shares and when ([`share`]), how it applies what the fleet
-//! shares (the documented rule in [`share`]), and the life cycle of a robot's run ([`agent`]).
-//! [`hist`] holds the latency-histogram helpers the coordinator uses too.
+//! A thin process: the learning is the `planner` crate's, the transport the `bus` crate's, the
+//! result files the `report` crate's. This crate decides what a robot shares and when
+//! ([`share`]), keeps its discoveries until acknowledged ([`discovery`]), reads the
+//! coordinator's plan ([`experiment`]: the one control protocol of runs and experiments),
+//! survives a coordinator restart ([`reconnect`]), and drives it all phase by phase
+//! ([`robot`]). Not here: merging the fleet's values (the coordinator) or launching processes.
 
-pub mod agent;
+pub mod args;
+pub mod discovery;
+pub mod error;
 pub mod experiment;
-pub mod hist;
 pub mod reconnect;
+pub mod robot;
 pub mod share;
 
-pub use agent::{AgentArgs, AgentError, Counters, RobotResult, run};
-pub use share::{ApplyRule, HintBatcher, ShareArgs, ShareMode, map_fingerprint};
+pub use args::AgentArgs;
+pub use error::AgentError;
+pub use robot::run;
+pub use share::{ApplyRule, HintBatcher, ShareArgs};

@@ -1,11 +1,20 @@
-//! `robot-agent`: one simulated robot of a qfleet run (started by `qfleet run`).
+//! `robot-agent`: one simulated robot of a qfleet run (started by `qfleet run` and
+//! `qfleet experiment`).
+//!
+//! Exit codes:
+//! - 0: the robot ran its plan to the coordinator's `Stop`, or was stopped by SIGINT/SIGTERM
+//!   after the run started and reported cleanly;
+//! - 1: a runtime failure (bus error, no coordinator within `--timeout`, results not written);
+//! - 2: bad input (an option, the map, a learner parameter);
+//! - 3: the coordinator refused this robot (schema version, map, id);
+//! - 130: interrupted by SIGINT/SIGTERM before the coordinator started the run.
 
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::Parser;
-use robot_agent::{AgentArgs, AgentError};
+use robot_agent::AgentArgs;
 
 /// One robot of a qfleet run: learns its path and shares Q-values with the coordinator.
 #[derive(Debug, Parser)]
@@ -39,11 +48,7 @@ fn main() -> ExitCode {
         }
         Err(e) => {
             eprintln!("robot-agent {id}: error: {e}");
-            match e {
-                AgentError::Input(_) => ExitCode::from(2),
-                AgentError::Refused(_) => ExitCode::from(3),
-                _ => ExitCode::FAILURE,
-            }
+            ExitCode::from(e.exit_code())
         }
     }
 }

@@ -14,31 +14,15 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use bus::bus_schema::{Command, Control, Register};
+use bus::bus_schema::{COORDINATOR_NODE_NAME, Command, Control, Register};
 use bus::{BusError, RobotBus, check_nodes, monotonic_ns, reason};
-use serde::Serialize;
+pub use report::LinkCounters;
 
 /// How often the robot looks for its coordinator.
 const CHECK_EVERY: Duration = Duration::from_millis(250);
 
 /// How often a `Register` is re-sent to a new coordinator until it answers.
 const REGISTER_EVERY: Duration = Duration::from_millis(250);
-
-/// The coordinator's node name (see `bus::CoordinatorBus::create`).
-const COORDINATOR_NODE: &str = "qfleet-coordinator";
-
-/// Counters of the robot's link to its coordinator, reported in its result.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
-pub struct LinkCounters {
-    /// Times the coordinator was found gone.
-    pub coordinator_losses: u64,
-    /// Times the robot re-registered with a restarted coordinator.
-    pub rejoins: u64,
-    /// Milliseconds spent without a coordinator.
-    pub alone_ms: u64,
-    /// Discoveries made while no coordinator had accepted this robot (delivered later).
-    pub discoveries_while_alone: u64,
-}
 
 /// What a control message meant for the link.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -127,7 +111,7 @@ impl Link {
         let nodes = check_nodes(bus.config(), false)?;
         let alive = nodes
             .alive()
-            .find(|n| n.name == COORDINATOR_NODE)
+            .find(|n| n.name == COORDINATOR_NODE_NAME)
             .and_then(|n| n.pid);
         let id = bus.robot_id();
         match alive {
@@ -238,7 +222,7 @@ pub fn handshake(
         register_until(bus, reg, left, stop)?;
         let coordinator = check_nodes(bus.config(), false)?
             .alive()
-            .find(|n| n.name == COORDINATOR_NODE)
+            .find(|n| n.name == COORDINATOR_NODE_NAME)
             .and_then(|n| n.pid);
         loop {
             let left = deadline.saturating_duration_since(Instant::now());

@@ -34,35 +34,11 @@ use bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, QHintBatch, ROBOT_ID_AL
 use clap::{Args, ValueEnum};
 use hdrhistogram::Histogram;
 use planner::QTable;
+pub use qfleet_args::ShareMode;
+pub use report::ApplyCounters;
 use serde::Serialize;
 
-use crate::hist::record;
-
-/// Whether the robot takes part in Q-value sharing.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum ShareMode {
-    /// Learn alone: no hints sent or applied (states, discoveries and the report still flow).
-    None,
-    /// Take other robots' relayed pseudo-target discoveries as own pseudo targets; no hints.
-    Discoveries,
-    /// Send Q-hint batches and apply the fleet's merged hints.
-    Hints,
-    /// Both: hints and relayed discoveries.
-    Both,
-}
-
-impl ShareMode {
-    /// Whether Q hints are sent and merged hints applied.
-    pub fn hints(self) -> bool {
-        matches!(self, ShareMode::Hints | ShareMode::Both)
-    }
-
-    /// Whether relayed discoveries of other robots become pseudo targets of this one.
-    pub fn discoveries(self) -> bool {
-        matches!(self, ShareMode::Discoveries | ShareMode::Both)
-    }
-}
+use report::hist::{new_hist, record};
 
 /// How a robot applies a merged hint to its own Q-table (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize)]
@@ -74,17 +50,6 @@ pub enum ApplyRule {
     Blend,
     /// Take the hint as is (can lower values): one shared table, delayed by a batch.
     Latest,
-}
-
-impl std::fmt::Display for ShareMode {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            ShareMode::None => "none",
-            ShareMode::Discoveries => "discoveries",
-            ShareMode::Hints => "hints",
-            ShareMode::Both => "both",
-        })
-    }
 }
 
 impl std::fmt::Display for ApplyRule {
@@ -139,14 +104,19 @@ impl Default for ShareArgs {
     }
 }
 
+/// A sharing option out of range.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ShareOptionError {
+    /// `--hint-min-change` is negative, NaN or infinite.
+    #[error("--hint-min-change must be a finite number >= 0, got {0}")]
+    HintMinChange(f32),
+}
+
 impl ShareArgs {
     /// Checks the values clap cannot (floats).
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), ShareOptionError> {
         if !(self.hint_min_change >= 0.0 && self.hint_min_change.is_finite()) {
-            return Err(format!(
-                "--hint-min-change must be a finite number >= 0, got {}",
-                self.hint_min_change
-            ));
+            return Err(ShareOptionError::HintMinChange(self.hint_min_change));
         }
         Ok(())
     }
@@ -298,25 +268,6 @@ impl HintBatcher {
     }
 }
 
-/// Counters of merged-hint handling, reported in the robot's result.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
-pub struct ApplyCounters {
-    /// Merged batches received.
-    pub batches: u64,
-    /// Batches skipped whole: another goal, or a `count` above the capacity.
-    pub batches_rejected: u64,
-    /// Entries looked at (valid, foreign).
-    pub entries_seen: u64,
-    /// Entries that changed the local Q-table.
-    pub entries_applied: u64,
-    /// Entries of this robot's own coming back, skipped.
-    pub entries_own: u64,
-    /// Entries with an out-of-range cell, action, origin robot or a non-finite value.
-    pub entries_rejected: u64,
-    /// Batches the robot never saw (gaps in `coordinator_seq`: overwritten, latest-wins).
-    pub batches_missed: u64,
-}
-
 /// Who this robot is, for checking merged batches.
 #[derive(Debug, Clone, Copy)]
 pub struct ApplyCtx {
@@ -330,103 +281,116 @@ pub struct ApplyCtx {
     pub rule: ApplyRule,
 }
 
-/// Applies one merged batch to `q` by `ctx.rule` (module docs), recording the end-to-end
-/// latency of every foreign entry at `now_ns`; `last_seq` tracks gaps in `coordinator_seq`.
-// The hot-path state is passed apart so the caller can borrow the learner's table mutably
-// next to the batcher's visits; bundling it would force a copy or a RefCell.
-#[allow(clippy::too_many_arguments)]
-pub fn apply_merged(
-    batch: &MergedHintBatch,
-    ctx: &ApplyCtx,
-    q: &mut QTable,
-    visits: &[u16],
-    now_ns: u64,
-    loop_hist: &mut Histogram<u64>,
-    last_seq: &mut Option<u64>,
-    c: &mut ApplyCounters,
-) {
-    c.batches += 1;
-    if let Some(prev) = *last_seq
-        && batch.coordinator_seq > prev + 1
-    {
-        c.batches_missed += batch.coordinator_seq - prev - 1;
-    }
-    *last_seq = Some(batch.coordinator_seq);
-    let n = batch.count as usize;
-    if batch.goal_id != ctx.goal_id || n > HINT_BATCH_CAP {
-        c.batches_rejected += 1;
-        return;
-    }
-    let cells = q.cells();
-    for i in 0..n {
-        let h = &batch.entries[i];
-        let origin = batch.origin_robot[i];
-        if origin == ctx.robot_id {
-            c.entries_own += 1;
-            continue;
-        }
-        let cell = h.cell as usize;
-        let action = h.action as usize;
-        if cell >= cells
-            || action >= 4
-            || !h.q.is_finite()
-            || (origin != ROBOT_ID_ALL && origin >= ctx.robots)
-        {
-            c.entries_rejected += 1;
-            continue;
-        }
-        c.entries_seen += 1;
-        let local = q.row(cell)[action];
-        let new = match ctx.rule {
-            ApplyRule::Max => {
-                if h.q > 0.0 && h.q > local {
-                    h.q
-                } else {
-                    local
-                }
-            }
-            ApplyRule::Blend => {
-                let vh = f32::from(h.visits.max(1));
-                let vl = f32::from(visits.get(cell * 4 + action).copied().unwrap_or(0));
-                local + vh / (vh + vl) * (h.q - local)
-            }
-            ApplyRule::Latest => h.q,
-        };
-        if new != local && q.set_checked(cell, action, new) {
-            c.entries_applied += 1;
-        }
-        let origin_ns = batch.origin_ns[i];
-        if origin != ROBOT_ID_ALL && origin_ns != 0 && origin_ns <= now_ns {
-            record(loop_hist, now_ns - origin_ns);
-        }
-    }
+/// Applies merged batches to a robot's Q-table by the documented rule (module docs): owns who
+/// the robot is ([`ApplyCtx`]), the gap tracking of `coordinator_seq`, the counters and the
+/// end-to-end loop-latency histogram.
+///
+/// Allocation-free after construction; [`apply`](Self::apply) runs in the learning loop.
+#[derive(Debug, Clone)]
+pub struct MergedApplier {
+    ctx: ApplyCtx,
+    last_seq: Option<u64>,
+    counters: ApplyCounters,
+    loop_hist: Histogram<u64>,
 }
 
-/// 64-bit FNV-1a fingerprint of a grid's size and walls, sent in `Register` so that a robot
-/// started on another map is refused.
-pub fn map_fingerprint(grid: &planner::Grid) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    let mut eat = |b: u8| {
-        h ^= u64::from(b);
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    };
-    for b in (grid.width() as u64)
-        .to_le_bytes()
-        .into_iter()
-        .chain((grid.height() as u64).to_le_bytes())
-    {
-        eat(b);
+impl MergedApplier {
+    /// An applier for the robot described by `ctx`.
+    pub fn new(ctx: ApplyCtx) -> Self {
+        MergedApplier {
+            ctx,
+            last_seq: None,
+            counters: ApplyCounters::default(),
+            loop_hist: new_hist(),
+        }
     }
-    for &free in grid.free_flags() {
-        eat(free as u8);
+
+    /// The robot now learns `goal_id`: batches of other goals are skipped from here on.
+    pub fn set_goal(&mut self, goal_id: u32) {
+        self.ctx.goal_id = goal_id;
     }
-    h
+
+    /// Counters so far.
+    pub fn counters(&self) -> &ApplyCounters {
+        &self.counters
+    }
+
+    /// Origin of a foreign Q update → applied here, one sample per applied foreign entry.
+    pub fn loop_hist(&self) -> &Histogram<u64> {
+        &self.loop_hist
+    }
+
+    /// Empties the loop-latency histogram: a new measurement window (benchmarks drop their
+    /// warm-up samples this way).
+    pub fn clear_loop_hist(&mut self) {
+        self.loop_hist.reset();
+    }
+
+    /// Applies one merged batch to `q` (`visits`: this robot's updates per (cell, action), for
+    /// `blend`), recording the loop latency of every foreign entry at `now_ns`.
+    pub fn apply(&mut self, batch: &MergedHintBatch, q: &mut QTable, visits: &[u16], now_ns: u64) {
+        let (ctx, c) = (&self.ctx, &mut self.counters);
+        c.batches += 1;
+        if let Some(prev) = self.last_seq
+            && batch.coordinator_seq > prev + 1
+        {
+            c.batches_missed += batch.coordinator_seq - prev - 1;
+        }
+        self.last_seq = Some(batch.coordinator_seq);
+        let n = batch.count as usize;
+        if batch.goal_id != ctx.goal_id || n > HINT_BATCH_CAP {
+            c.batches_rejected += 1;
+            return;
+        }
+        let cells = q.cells();
+        for i in 0..n {
+            let h = &batch.entries[i];
+            let origin = batch.origin_robot[i];
+            if origin == ctx.robot_id {
+                c.entries_own += 1;
+                continue;
+            }
+            let cell = h.cell as usize;
+            let action = h.action as usize;
+            if cell >= cells
+                || action >= 4
+                || !h.q.is_finite()
+                || (origin != ROBOT_ID_ALL && origin >= ctx.robots)
+            {
+                c.entries_rejected += 1;
+                continue;
+            }
+            c.entries_seen += 1;
+            let local = q.row(cell)[action];
+            let new = match ctx.rule {
+                ApplyRule::Max => {
+                    if h.q > 0.0 && h.q > local {
+                        h.q
+                    } else {
+                        local
+                    }
+                }
+                ApplyRule::Blend => {
+                    let vh = f32::from(h.visits.max(1));
+                    let vl = f32::from(visits.get(cell * 4 + action).copied().unwrap_or(0));
+                    local + vh / (vh + vl) * (h.q - local)
+                }
+                ApplyRule::Latest => h.q,
+            };
+            if new != local && q.set_checked(cell, action, new) {
+                c.entries_applied += 1;
+            }
+            let origin_ns = batch.origin_ns[i];
+            if origin != ROBOT_ID_ALL && origin_ns != 0 && origin_ns <= now_ns {
+                record(&mut self.loop_hist, now_ns - origin_ns);
+            }
+        }
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::hist::new_hist;
 
     fn grid() -> planner::Grid {
         planner::Grid::new(4, 2, vec![true; 8]).unwrap()
@@ -508,8 +472,12 @@ mod tests {
             (5, 0, 0.9, 9),            // origin outside the fleet
             (6, 3, 0.2, ROBOT_ID_ALL), // fleet resend: applied, no latency sample
         ]);
-        let (mut h, mut seq, mut c) = (new_hist(), Some(3), ApplyCounters::default());
-        apply_merged(&m, &ctx, &mut q, &[0; 32], 1100, &mut h, &mut seq, &mut c);
+        let mut a = MergedApplier::new(ctx);
+        let mut earlier = merged(&[]);
+        earlier.coordinator_seq = 3;
+        a.apply(&earlier, &mut q, &[0; 32], 1100);
+        a.apply(&m, &mut q, &[0; 32], 1100);
+        let (c, h) = (*a.counters(), a.loop_hist().clone());
         assert_eq!(q.row(1)[0], 0.5);
         assert_eq!(q.row(2)[1], 0.3);
         assert_eq!(q.row(3)[2], 0.0);
@@ -524,11 +492,15 @@ mod tests {
         // another goal, or a lying count: the batch is skipped whole
         let mut bad = m;
         bad.count = 10_000;
-        apply_merged(&bad, &ctx, &mut q, &[0; 32], 1100, &mut h, &mut seq, &mut c);
+        a.apply(&bad, &mut q, &[0; 32], 1100);
         bad.count = 1;
         bad.goal_id = 4;
-        apply_merged(&bad, &ctx, &mut q, &[0; 32], 1100, &mut h, &mut seq, &mut c);
-        assert_eq!(c.batches_rejected, 2);
+        a.apply(&bad, &mut q, &[0; 32], 1100);
+        assert_eq!(a.counters().batches_rejected, 2);
+        // after a goal change the same batch is the robot's goal again
+        a.set_goal(4);
+        a.apply(&bad, &mut q, &[0; 32], 1100);
+        assert_eq!(a.counters().batches_rejected, 2);
     }
 
     #[test]
@@ -543,9 +515,8 @@ mod tests {
             goal_id: 0,
             rule: ApplyRule::Blend,
         };
-        let (mut h, mut seq, mut c) = (new_hist(), None, ApplyCounters::default());
         let m = merged(&[(2, 1, 0.0, 1), (3, 0, -1.0, 1)]);
-        apply_merged(&m, &ctx, &mut q, &visits, 1100, &mut h, &mut seq, &mut c);
+        MergedApplier::new(ctx).apply(&m, &mut q, &visits, 1100);
         assert_eq!(q.row(2)[1], 0.5);
         assert_eq!(q.row(3)[0], -1.0);
     }
@@ -562,7 +533,7 @@ mod tests {
             goal_id: 0,
             rule: ApplyRule::Latest,
         };
-        let (mut h, mut seq, mut c) = (new_hist(), None, ApplyCounters::default());
+        let mut a = MergedApplier::new(ctx);
         let m = merged(&[
             (1, 0, 0.2, 1),            // lowered
             (2, 1, 0.3, 1),            // raised
@@ -571,7 +542,8 @@ mod tests {
             (5, 0, f32::NAN, 1),       // still validated
             (6, 3, 0.4, ROBOT_ID_ALL), // fleet resend
         ]);
-        apply_merged(&m, &ctx, &mut q, &[0; 32], 1100, &mut h, &mut seq, &mut c);
+        a.apply(&m, &mut q, &[0; 32], 1100);
+        let c = a.counters();
         assert_eq!(q.row(1)[0], 0.2);
         assert_eq!(q.row(2)[1], 0.3);
         assert_eq!(q.row(3)[2], -0.5);
@@ -582,17 +554,5 @@ mod tests {
             (c.entries_applied, c.entries_own, c.entries_rejected),
             (4, 1, 1)
         );
-    }
-
-    #[test]
-    fn fingerprint_tells_maps_apart() {
-        let a = planner::Grid::new(4, 2, vec![true; 8]).unwrap();
-        let mut free = vec![true; 8];
-        free[3] = false;
-        let b = planner::Grid::new(4, 2, free).unwrap();
-        let c = planner::Grid::new(2, 4, vec![true; 8]).unwrap();
-        assert_ne!(map_fingerprint(&a), map_fingerprint(&b));
-        assert_ne!(map_fingerprint(&a), map_fingerprint(&c));
-        assert_eq!(map_fingerprint(&a), map_fingerprint(&a.clone()));
     }
 }

@@ -12,7 +12,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use clap::{Args, ValueEnum};
 use coordinator::MergeRule;
 use coordinator::experiment::{ExperimentOptions, ExperimentResult, run_experiment};
-use qfleet_args::{Plan, Sharing, load_manifest};
+use qfleet_args::{Plan, ShareMode, load_manifest};
 use robot_agent::ApplyRule;
 use std::os::unix::process::CommandExt;
 
@@ -153,7 +153,7 @@ pub fn run_once(
         let log = std::fs::File::create(out.join(format!("robot-{r}.log")))
             .with_context(|| format!("creating logs in {}", out.display()))?;
         let mut cmd = Command::new(&robot_bin);
-        cmd.args(["--experiment", "--run-id", run_id])
+        cmd.args(["--run-id", run_id])
             .args([
                 "--robot-id",
                 &r.to_string(),
@@ -248,7 +248,7 @@ impl ExperimentCmd {
     pub fn run(self) -> Result<()> {
         let mut plan = load_plan(&self.file)?;
         if let Some(s) = &self.sharing {
-            plan.manifest.sharing = Sharing::parse(s)
+            plan.manifest.sharing = ShareMode::parse(s)
                 .ok_or_else(|| anyhow!("--sharing must be none, discoveries, hints or both"))?;
         }
         if let Some(s) = self.seed {

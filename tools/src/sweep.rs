@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use clap::Args;
 use plotters::prelude::*;
-use qfleet_args::Sharing;
+use qfleet_args::ShareMode;
 use serde::{Deserialize, Serialize};
 
 use crate::experiment::{Rules, load_plan, make_run_id, run_once};
@@ -141,8 +141,9 @@ impl SweepCmd {
         }
         let mut modes = Vec::new();
         for s in &self.sharing {
-            modes
-                .push(Sharing::parse(s).with_context(|| format!("--sharing: unknown mode {s:?}"))?);
+            modes.push(
+                ShareMode::parse(s).with_context(|| format!("--sharing: unknown mode {s:?}"))?,
+            );
         }
         std::fs::create_dir_all(&self.out)?;
         let mut rows: Vec<Row> = Vec::new();
@@ -161,10 +162,10 @@ impl SweepCmd {
             let mut baseline: Option<f64> = None;
             let mut baseline_median: Option<f64> = None;
             for &n in &self.robots {
-                let cells: Vec<(Sharing, Option<Rules>)> = modes
+                let cells: Vec<(ShareMode, Option<Rules>)> = modes
                     .iter()
-                    .flat_map(|&mode| -> Vec<(Sharing, Option<Rules>)> {
-                        if matches!(mode, Sharing::Hints | Sharing::Both) {
+                    .flat_map(|&mode| -> Vec<(ShareMode, Option<Rules>)> {
+                        if matches!(mode, ShareMode::Hints | ShareMode::Both) {
                             self.rules.iter().map(|&r| (mode, Some(r))).collect()
                         } else {
                             vec![(mode, None)]
@@ -172,7 +173,7 @@ impl SweepCmd {
                     })
                     .collect();
                 for (mode, rules) in cells {
-                    let lone = n == 1 && mode == Sharing::None;
+                    let lone = n == 1 && mode == ShareMode::None;
                     let seeds = if lone && !self.baseline_seeds.is_empty() {
                         &self.baseline_seeds
                     } else {

@@ -5,10 +5,10 @@
 use std::path::Path;
 use std::time::Duration;
 
+use ::report::hist::new_hist;
 use bus::bus_schema::{MergedHintBatch, QHintBatch};
 use bus::monotonic_ns;
 use crossbeam::channel::{Receiver, Sender, TryRecvError, bounded};
-use robot_agent::hist::new_hist;
 
 use super::{Deadline, Window, record_since, save, window_ns};
 use crate::BenchError;

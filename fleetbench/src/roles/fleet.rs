@@ -20,8 +20,7 @@ use coordinator::CoordArgs;
 use planner::QTable;
 use planner::task::Task;
 use qfleet_args::MapArgs;
-use robot_agent::hist::new_hist;
-use robot_agent::share::{ApplyCounters, ApplyCtx, ApplyRule, HintBatcher, apply_merged};
+use robot_agent::share::{ApplyCtx, ApplyRule, HintBatcher, MergedApplier};
 
 use super::{Deadline, Updates, Window, idle_peer_cpu, save, window_ns};
 use crate::BenchError;
@@ -125,7 +124,11 @@ fn join(
         height: task.grid.height() as u16,
         start_x: task.start.x,
         start_y: task.start.y,
-        map_hash: robot_agent::map_fingerprint(&task.grid),
+        map_hash: bus_schema::map_fingerprint(
+            task.grid.width(),
+            task.grid.height(),
+            task.grid.free_flags(),
+        ),
         seed: u64::from(robot_id),
         ..Register::ZEROED
     };
@@ -227,37 +230,26 @@ pub fn loop_robots(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
         goal_id: 0,
         rule: ApplyRule::Max,
     };
+    let mut applier = MergedApplier::new(ctx);
     let updates = Updates::new(cells, 64, 0);
-    let (mut h, mut warm) = (new_hist(), new_hist());
-    let mut c = ApplyCounters::default();
-    let mut last_seq = None;
     let mut deadline = Deadline::new(timeout, "the coordinator's merged hint", Some(*peer_pid));
     let mut window = None;
     let mut i = 0;
     while plan.more(i, || window_ns(&window)) {
         if i == plan.warmup {
             window = Some(Window::start(Some(*peer_pid)));
+            applier.clear_loop_hist(); // warm-up samples are not reported
         }
-        let hist = if i >= plan.warmup { &mut h } else { &mut warm };
         let (cell, action, q) = updates.get(i, cells);
         batcher.note(cell, action, q, i, monotonic_ns);
         send_hints(&r0, &mut batcher, i, *notify)?;
         // robot 1 polls its inbox until the merged hint is applied
-        let seen = c.entries_seen;
+        let seen = applier.counters().entries_seen;
         deadline.reset();
         let mut spins: u32 = 0;
-        while c.entries_seen == seen {
+        while applier.counters().entries_seen == seen {
             match r1.merged.receive_sample()? {
-                Some(sample) => apply_merged(
-                    sample.payload(),
-                    &ctx,
-                    &mut q1,
-                    &visits1,
-                    monotonic_ns(),
-                    hist,
-                    &mut last_seq,
-                    &mut c,
-                ),
+                Some(sample) => applier.apply(sample.payload(), &mut q1, &visits1, monotonic_ns()),
                 None => {
                     spins = spins.wrapping_add(1);
                     if spins.is_multiple_of(4096) {
@@ -271,16 +263,17 @@ pub fn loop_robots(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
         while r0.merged.receive_sample()?.is_some() {}
         i += 1;
     }
+    let h = applier.loop_hist();
     let mut r = ChildReport {
         samples: h.len(),
-        merged_seen: c.entries_seen,
+        merged_seen: applier.counters().entries_seen,
         ..ChildReport::default()
     };
     if let Some(w) = &window {
         w.finish(&mut r);
     }
     r.peer_idle_cpu_pct = idle_peer_cpu(*peer_pid, plan.idle_ms);
-    save(&h, hist_path)?;
+    save(h, hist_path)?;
     finish(vec![r0, r1], timeout)?;
     Ok(r)
 }
@@ -328,9 +321,7 @@ pub fn scale_robot(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
     // every batch changes the fleet table and comes back as merged entries of its own
     let span = (*batch).div_ceil(4).max(1);
     let updates = Updates::new(cells, span, robot_id.wrapping_mul(span));
-    let mut h = new_hist();
-    let mut c = ApplyCounters::default();
-    let mut last_seq = None;
+    let mut applier = MergedApplier::new(ctx);
     let mut r = ChildReport::default();
     let mut pending: std::collections::VecDeque<u64> = std::collections::VecDeque::new();
     let mut acked_ns = 0u64;
@@ -355,16 +346,7 @@ pub fn scale_robot(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
                     acked_ns = acked_ns.max(m.origin_ns[k]);
                 }
             }
-            apply_merged(
-                m,
-                &ctx,
-                &mut q,
-                batcher.visits(),
-                monotonic_ns(),
-                &mut h,
-                &mut last_seq,
-                &mut c,
-            );
+            applier.apply(m, &mut q, batcher.visits(), monotonic_ns());
         }
         while pending.front().is_some_and(|t| *t <= acked_ns) {
             pending.pop_front();
@@ -413,9 +395,9 @@ pub fn scale_robot(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
         }
     }
     window.finish(&mut r);
-    r.samples = h.len();
-    r.merged_seen = c.entries_seen;
-    save(&h, hist_path)?;
+    r.samples = applier.loop_hist().len();
+    r.merged_seen = applier.counters().entries_seen;
+    save(applier.loop_hist(), hist_path)?;
     finish(vec![bus], timeout)?;
     Ok(r)
 }

@@ -5,9 +5,9 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+use ::report::hist;
 use bus::monotonic_ns;
 use hdrhistogram::Histogram;
-use robot_agent::hist;
 
 use crate::BenchError;
 use crate::spec::{ChildReport, REPORT_PREFIX, RoleSpec};

@@ -8,6 +8,7 @@
 use std::path::Path;
 use std::time::Duration;
 
+use ::report::hist::new_hist;
 use bus::bus_schema::{MergedHintBatch, QHint, QHintBatch};
 use bus::{BusConfig, monotonic_ns};
 use iceoryx2::port::listener::Listener;
@@ -15,7 +16,6 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
-use robot_agent::hist::new_hist;
 
 use super::{Deadline, Window, idle_peer_cpu, record_since, save, window_ns};
 use crate::BenchError;

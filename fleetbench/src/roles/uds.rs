@@ -12,8 +12,7 @@ use bus::bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHintBatch};
 use bus::monotonic_ns;
 use coordinator::{FleetTable, MergeRule};
 use planner::{Grid, QTable};
-use robot_agent::hist::new_hist;
-use robot_agent::share::{ApplyCounters, ApplyCtx, ApplyRule, HintBatcher, apply_merged};
+use robot_agent::share::{ApplyCtx, ApplyRule, HintBatcher, MergedApplier};
 
 use super::{Deadline, Updates, Window, idle_peer_cpu, save, window_ns};
 use crate::BenchError;
@@ -231,10 +230,8 @@ pub fn client(
         goal_id: 0,
         rule: ApplyRule::Max,
     };
+    let mut applier = MergedApplier::new(ctx);
     let updates = Updates::new(cells, 64, 0);
-    let (mut h, mut warm) = (new_hist(), new_hist());
-    let mut c = ApplyCounters::default();
-    let mut last_seq = None;
     let mut batch = Box::new(QHintBatch::ZEROED);
     let mut merged = Box::new(MergedHintBatch::ZEROED);
     let mut window = None;
@@ -242,6 +239,7 @@ pub fn client(
     while plan.more(i, || window_ns(&window)) {
         if i == plan.warmup {
             window = Some(Window::start(Some(peer_pid)));
+            applier.clear_loop_hist(); // warm-up samples are not reported
         }
         let (cell, action, q) = updates.get(i, cells);
         batcher.note(cell, action, q, i, monotonic_ns);
@@ -250,22 +248,13 @@ pub fn client(
         batch.send_time_ns = monotonic_ns();
         conn.write_from(&*batch)?;
         conn.read_into(&mut *merged)?;
-        let hist = if i >= plan.warmup { &mut h } else { &mut warm };
-        apply_merged(
-            &merged,
-            &ctx,
-            &mut q1,
-            &visits1,
-            monotonic_ns(),
-            hist,
-            &mut last_seq,
-            &mut c,
-        );
+        applier.apply(&merged, &mut q1, &visits1, monotonic_ns());
         i += 1;
     }
+    let h = applier.loop_hist();
     let mut r = ChildReport {
         samples: h.len(),
-        merged_seen: c.entries_seen,
+        merged_seen: applier.counters().entries_seen,
         ..ChildReport::default()
     };
     if let Some(w) = &window {
@@ -274,6 +263,6 @@ pub fn client(
     r.peer_idle_cpu_pct = idle_peer_cpu(peer_pid, plan.idle_ms);
     batch.seq = STOP;
     conn.write_from(&*batch)?;
-    save(&h, hist_path)?;
+    save(h, hist_path)?;
     Ok(r)
 }

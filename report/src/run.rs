@@ -1,15 +1,59 @@
-//! The coordinator's results as typed values: what `result.json` of a run and of an
-//! experiment hold, robot statuses and liveness events as enums. Everything is `Serialize +
-//! Deserialize`, so the launcher and the tests read results back into these types instead of
-//! indexing untyped JSON.
+//! The coordinator's side of the results contract: what `result.json` of a run
+//! ([`RunResult`]) and of an experiment ([`ExperimentResult`]) hold, robot outcomes and
+//! liveness events as enums, and the two coordinator settings a result names ([`WaitStrategy`],
+//! [`MergeRule`]). Everything is `Serialize + Deserialize`, so the launcher and the tests read
+//! results back into these types instead of indexing untyped JSON.
 
 use std::collections::BTreeMap;
 
-use robot_agent::hist::LatencyStats;
+use clap::ValueEnum;
 use serde::{Deserialize, Serialize};
 
-use crate::merge::MergeRule;
-use crate::options::WaitStrategy;
+use crate::hist::LatencyStats;
+
+/// How the coordinator waits for messages.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum WaitStrategy {
+    /// Busy-poll all inboxes.
+    Spin,
+    /// Block on a WaitSet of the inboxes' wake listeners.
+    Event,
+    /// Spin `--spin-us` after each message, then block.
+    Hybrid,
+}
+
+impl std::fmt::Display for WaitStrategy {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            WaitStrategy::Spin => "spin",
+            WaitStrategy::Event => "event",
+            WaitStrategy::Hybrid => "hybrid",
+        })
+    }
+}
+
+/// How the coordinator merges robots' Q-values into the fleet table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MergeRule {
+    /// Largest last-reported value (the owner may lower its own).
+    Max,
+    /// Visit-weighted mean.
+    Mean,
+    /// Newest value wins.
+    Latest,
+}
+
+impl std::fmt::Display for MergeRule {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            MergeRule::Max => "max",
+            MergeRule::Mean => "mean",
+            MergeRule::Latest => "latest",
+        })
+    }
+}
 
 /// How a robot ended a run or a phase (as written in JSON: lower case).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

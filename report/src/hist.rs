@@ -1,8 +1,7 @@
-//! Latency histograms shared by the robot-agent and the coordinator: one bounded hdrhistogram
-//! shape, its summary on the wire and in JSON, `.hgrm` percentile files, and a binary file
-//! format so a robot can hand its full histogram to the coordinator.
+//! Latency histograms of every qfleet process: one bounded hdrhistogram shape, its summary on
+//! the wire and in JSON, `.hgrm` percentile files, and a binary file format so a robot can hand
+//! its full histogram to the coordinator. Files are written with [`write_atomic`].
 
-use std::io::Write;
 use std::path::Path;
 
 use bus_schema::LatencySummary;
@@ -10,15 +9,20 @@ use hdrhistogram::Histogram;
 use hdrhistogram::serialization::{Deserializer, Serializer, V2Serializer};
 use serde::{Deserialize, Serialize};
 
+use crate::atomic::{WriteError, write_atomic};
+
 /// Largest latency a histogram records exactly (60 s); larger samples are clamped to it.
 pub const MAX_TRACKED_NS: u64 = 60_000_000_000;
 
 /// Why a histogram file could not be written or read.
 #[derive(Debug, thiserror::Error)]
 pub enum HistError {
-    /// The file could not be created, written or read.
-    #[error("{path}: {source}")]
-    Io {
+    /// The file could not be written (full disk, missing directory, …).
+    #[error(transparent)]
+    Write(#[from] WriteError),
+    /// The file could not be read.
+    #[error("reading {path}: {source}")]
+    Read {
         /// The file.
         path: String,
         /// The OS error.
@@ -124,13 +128,6 @@ pub fn summary(h: &Histogram<u64>) -> LatencySummary {
     }
 }
 
-fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> HistError + '_ {
-    move |source| HistError::Io {
-        path: path.display().to_string(),
-        source,
-    }
-}
-
 /// Writes the histogram as an HdrHistogram percentile-distribution (`.hgrm`) file, values in
 /// microseconds, readable by HdrHistogram's plotter and `hdr-plot`.
 pub fn write_hgrm(h: &Histogram<u64>, path: &Path) -> Result<(), HistError> {
@@ -167,7 +164,7 @@ pub fn write_hgrm(h: &Histogram<u64>, path: &Path) -> Result<(), HistError> {
         h.buckets(),
         h.distinct_values()
     ));
-    std::fs::write(path, out).map_err(io_err(path))
+    Ok(write_atomic(path, out.as_bytes())?)
 }
 
 /// Writes the histogram in HdrHistogram's V2 binary encoding (lossless, to be added up later).
@@ -179,13 +176,15 @@ pub fn write_binary(h: &Histogram<u64>, path: &Path) -> Result<(), HistError> {
             path: path.display().to_string(),
             detail: format!("{e:?}"),
         })?;
-    let mut f = std::fs::File::create(path).map_err(io_err(path))?;
-    f.write_all(&buf).map_err(io_err(path))
+    Ok(write_atomic(path, &buf)?)
 }
 
 /// Reads a histogram written by [`write_binary`].
 pub fn read_binary(path: &Path) -> Result<Histogram<u64>, HistError> {
-    let bytes = std::fs::read(path).map_err(io_err(path))?;
+    let bytes = std::fs::read(path).map_err(|source| HistError::Read {
+        path: path.display().to_string(),
+        source,
+    })?;
     Deserializer::new()
         .deserialize(&mut bytes.as_slice())
         .map_err(|e| HistError::Format {

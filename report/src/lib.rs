@@ -1,0 +1,31 @@
+//! qfleet's typed results contract: what a run leaves in its `--out` directory and how it
+//! gets there.
+//!
+//! - [`robot`]: what a robot reports about itself ([`RobotResult`], [`PhaseDetail`],
+//!   [`Counters`], [`EndStatus`]), `Serialize + Deserialize` both ways, so readers get types,
+//!   not untyped JSON;
+//! - [`hist`]: the latency-histogram shape every process records, its summaries and files;
+//! - [`outdir`]: every file name of an out directory ([`OutFile`]) and the directory that reads
+//!   and writes them ([`OutDir`]);
+//! - [`run`]: what the coordinator reports about a run or an experiment ([`RunResult`],
+//!   [`ExperimentResult`], [`RobotOutcome`], [`LivenessEvent`]);
+//! - [`atomic`]: the one writer ([`write_atomic`]: temp file, `fsync`, rename), whose errors
+//!   name the file and keep the OS error (a full disk is an error, never a panic).
+//!
+//! Not here: the bus, the learner, or any decision about a run; this crate only describes and
+//! stores results.
+
+pub mod atomic;
+pub mod hist;
+pub mod outdir;
+pub mod robot;
+pub mod run;
+
+pub use atomic::{WriteError, WriteStep, write_atomic, write_json_atomic};
+pub use hist::{HistError, LatencyStats};
+pub use outdir::{LatencyPath, OutDir, OutFile, ReadError, RobotHist};
+pub use robot::{ApplyCounters, Counters, EndStatus, LinkCounters, PhaseDetail, RobotResult};
+pub use run::{
+    ExperimentResult, GoalPhase, LivenessEvent, LivenessKind, LivenessReport, MergeRule,
+    PhaseResult, RobotEntry, RobotOutcome, RobotPhase, RunResult, Throughput, WaitStrategy,
+};
