@@ -71,6 +71,26 @@ pub enum RobotOutcome {
     Missing,
 }
 
+impl RobotOutcome {
+    /// The word written in JSON.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            RobotOutcome::Finished => "finished",
+            RobotOutcome::Stopped => "stopped",
+            RobotOutcome::Lost => "lost",
+            RobotOutcome::Hung => "hung",
+            RobotOutcome::Missing => "missing",
+        }
+    }
+}
+
+impl std::fmt::Display for RobotOutcome {
+    /// The JSON word (width and alignment flags are honoured).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.pad(self.as_str())
+    }
+}
+
 /// What happened to a robot (or the coordinator) during a run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -380,4 +400,41 @@ pub struct ExperimentResult {
     pub liveness: LivenessReport,
     /// Wall time, s.
     pub wall_s: f64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outcomes_and_event_kinds_are_written_as_their_words() {
+        for o in [
+            RobotOutcome::Finished,
+            RobotOutcome::Stopped,
+            RobotOutcome::Lost,
+            RobotOutcome::Hung,
+            RobotOutcome::Missing,
+        ] {
+            let json = serde_json::to_string(&o).unwrap();
+            assert_eq!(json, format!("\"{o}\""));
+            assert_eq!(serde_json::from_str::<RobotOutcome>(&json).unwrap(), o);
+        }
+        for k in [
+            LivenessKind::Lost,
+            LivenessKind::Hung,
+            LivenessKind::Resumed,
+            LivenessKind::Restarted,
+            LivenessKind::Joined,
+            LivenessKind::NeverRegistered,
+            LivenessKind::CoordinatorRestarted,
+        ] {
+            let json = serde_json::to_string(&k).unwrap();
+            assert_eq!(
+                json,
+                format!("\"{k}\""),
+                "the event line and the JSON agree"
+            );
+        }
+        assert_eq!(format!("{:8}|", RobotOutcome::Lost), "lost    |");
+    }
 }
