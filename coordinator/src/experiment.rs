@@ -31,7 +31,7 @@ use crate::liveness::{Life, Lister};
 use crate::merge::{FleetTable, MergeRule};
 use crate::options::{CoordError, WaitStrategy, secs};
 use crate::run::LIST_EVERY;
-use crate::wait::{Waiting, serve};
+use crate::wait::{Serving, Waiting, serve};
 pub use report::run::{ExperimentResult, GoalPhase, PhaseResult, RobotPhase};
 
 /// What the coordinator needs besides the plan.
@@ -152,6 +152,12 @@ fn drive(
         strategy: WaitStrategy::Hybrid,
         spin: Duration::from_micros(200),
     };
+    let serving = Serving {
+        bus,
+        lister: &lister,
+        how,
+        stop,
+    };
     let out_dir = report::OutDir::new(&opts.out);
     let mut phases = Vec::new();
     for (p, phase) in m.phases.iter().enumerate() {
@@ -193,10 +199,7 @@ fn drive(
         engine.start_phase(bus, plan_p, go)?;
         let interrupted = serve(
             engine,
-            bus,
-            &lister,
-            how,
-            stop,
+            &serving,
             |e| watch_merged(e, &mut watches),
             |e| {
                 let now = Instant::now();

@@ -13,7 +13,7 @@ use crate::assemble::{FleetHists, RunEnd};
 use crate::engine::{Assignment, Engine, tolerate};
 use crate::liveness::{Life, Lister};
 use crate::options::{CoordArgs, CoordError, secs};
-use crate::wait::{Waiting, serve};
+use crate::wait::{Serving, Waiting, serve};
 use crate::{assemble, output};
 use report::{OutDir, RunResult};
 
@@ -122,12 +122,15 @@ fn drive(
         spin: Duration::from_micros(args.spin_us),
     };
     let progress = args.progress;
-    let interrupted = serve(
-        engine,
+    let serving = Serving {
         bus,
-        &lister,
+        lister: &lister,
         how,
         stop,
+    };
+    let interrupted = serve(
+        engine,
+        &serving,
         |_| {},
         |e| {
             if progress {

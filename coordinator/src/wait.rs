@@ -32,18 +32,30 @@ fn waitset_error(e: impl std::fmt::Debug) -> BusError {
     }
 }
 
+/// What a phase is served over: the bus, the liveness thread, the wait strategy and the stop
+/// flag a signal sets.
+pub(crate) struct Serving<'a> {
+    pub(crate) bus: &'a CoordinatorBus,
+    pub(crate) lister: &'a Lister,
+    pub(crate) how: Waiting,
+    pub(crate) stop: &'a AtomicBool,
+}
+
 /// Serves the bus until `periodic` says the phase is over (true) or `stop` is set; returns
 /// whether it was stopped by a signal. `after_drain` runs after every drain that took
 /// something (the experiment watches its merged tables there).
 pub(crate) fn serve(
     engine: &mut Engine,
-    bus: &CoordinatorBus,
-    lister: &Lister,
-    how: Waiting,
-    stop: &AtomicBool,
+    with: &Serving<'_>,
     mut after_drain: impl FnMut(&mut Engine),
     mut periodic: impl FnMut(&mut Engine) -> bool,
 ) -> Result<bool, CoordError> {
+    let Serving {
+        bus,
+        lister,
+        how,
+        stop,
+    } = *with;
     let strategy = how.strategy;
     let waitset = match strategy {
         WaitStrategy::Spin => None,
