@@ -108,9 +108,6 @@ pub enum LivenessKind {
     Joined,
     /// The robot died before it ever registered (seen by the launcher or by its node).
     NeverRegistered,
-    /// This coordinator took over a run whose previous coordinator died (`robot_id` is
-    /// `u32::MAX`).
-    CoordinatorRestarted,
 }
 
 impl LivenessKind {
@@ -123,7 +120,6 @@ impl LivenessKind {
             LivenessKind::Restarted => "restarted",
             LivenessKind::Joined => "joined",
             LivenessKind::NeverRegistered => "neverregistered",
-            LivenessKind::CoordinatorRestarted => "coordinatorrestarted",
         }
     }
 }
@@ -426,7 +422,6 @@ mod tests {
             LivenessKind::Restarted,
             LivenessKind::Joined,
             LivenessKind::NeverRegistered,
-            LivenessKind::CoordinatorRestarted,
         ] {
             let json = serde_json::to_string(&k).unwrap();
             assert_eq!(
