@@ -9,6 +9,7 @@ use bus_schema::{
     Command, Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch,
     PseudoTargetDiscovery, QHintBatch, ROBOT_ID_ALL, Register, RobotState, SCHEMA_VERSION,
 };
+use iceoryx2::identifiers::UniquePublisherId;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
 
@@ -298,7 +299,10 @@ pub struct RobotBus {
     /// Discoveries of other robots relayed by the coordinator (lossless, broadcast).
     pub relay: Inbox<DiscoveryRelay>,
     robot_id: u32,
-    pending: RefCell<VecDeque<Control>>,
+    /// Controls read during `register` before its answer, with their publisher.
+    pending: RefCell<VecDeque<(Control, UniquePublisherId)>>,
+    /// The publisher whose `Ack` answered the last `register` (the coordinator's control port).
+    accepted_by: Cell<Option<UniquePublisherId>>,
     config: BusConfig,
     // Declared last so it is dropped after every port.
     node: Node<ipc::Service>,
@@ -403,7 +407,7 @@ impl RobotBus {
                     Err(e) => return Err(e),
                 }
             }
-            while let Some(ctl) = self.next_control_from_bus()? {
+            while let Some((ctl, from)) = self.next_control_from_bus()? {
                 let answer = ctl.robot_id == self.robot_id && ctl.time_ns >= asked_ns;
                 match Command::try_from(ctl.command) {
                     Ok(Command::Ack | Command::Refuse) if !answer => {}
@@ -417,6 +421,7 @@ impl RobotBus {
                                 ),
                             });
                         }
+                        self.accepted_by.set(Some(from));
                         return Ok(ctl);
                     }
                     Ok(Command::Refuse) => {
@@ -425,7 +430,7 @@ impl RobotBus {
                             reason: reason(&ctl),
                         });
                     }
-                    _ => self.pending.borrow_mut().push_back(ctl),
+                    _ => self.pending.borrow_mut().push_back((ctl, from)),
                 }
             }
             let now = Instant::now();
@@ -444,16 +449,30 @@ impl RobotBus {
 
     /// The next control addressed to this robot or to all, without blocking.
     pub fn recv_control(&self) -> Result<Option<Control>, BusError> {
-        if let Some(ctl) = self.pending.borrow_mut().pop_front() {
-            return Ok(Some(ctl));
+        Ok(self.recv_control_from()?.map(|(ctl, _)| ctl))
+    }
+
+    /// [`recv_control`](Self::recv_control) with the id of the publisher that sent the
+    /// control, so a robot can obey only its coordinator (compare with
+    /// [`accepted_by`](Self::accepted_by)).
+    pub fn recv_control_from(&self) -> Result<Option<(Control, UniquePublisherId)>, BusError> {
+        if let Some(c) = self.pending.borrow_mut().pop_front() {
+            return Ok(Some(c));
         }
         self.next_control_from_bus()
     }
 
-    fn next_control_from_bus(&self) -> Result<Option<Control>, BusError> {
-        while let Some(ctl) = self.control.receive()? {
+    /// The publisher whose `Ack` answered the last [`register`](Self::register): the control
+    /// port of the coordinator that accepted this robot (`None` before).
+    pub fn accepted_by(&self) -> Option<UniquePublisherId> {
+        self.accepted_by.get()
+    }
+
+    fn next_control_from_bus(&self) -> Result<Option<(Control, UniquePublisherId)>, BusError> {
+        while let Some(sample) = self.control.receive_sample()? {
+            let ctl = *sample.payload();
             if ctl.robot_id == self.robot_id || ctl.robot_id == ROBOT_ID_ALL {
-                return Ok(Some(ctl));
+                return Ok(Some((ctl, sample.header().publisher_id())));
             }
         }
         Ok(None)
@@ -549,6 +568,7 @@ impl RobotPorts {
             relay: self.relay,
             robot_id: self.robot_id,
             pending: RefCell::new(VecDeque::new()),
+            accepted_by: Cell::new(None),
             config: self.config,
             node,
         }

@@ -211,7 +211,11 @@ mod tests {
         p.on(&ctl(Command::Start));
         p.take_next().unwrap();
         p.on(&ctl(Command::Phase));
-        assert_eq!(p.take_next(), None, "the implicit plan is only the first phase");
+        assert_eq!(
+            p.take_next(),
+            None,
+            "the implicit plan is only the first phase"
+        );
     }
 
     #[test]

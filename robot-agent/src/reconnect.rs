@@ -15,7 +15,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::{COORDINATOR_NODE_NAME, Command, Control, Register};
+use bus::iceoryx2::identifiers::UniquePublisherId;
 use bus::{BusError, RobotBus, check_nodes, monotonic_ns, reason};
+
+use crate::gate::{ControlGate, Verdict};
 pub use report::LinkCounters;
 
 /// How often the robot looks for its coordinator.
@@ -204,15 +207,20 @@ pub fn register_until(
     }
 }
 
-/// The start handshake: [`register_until`], then [`RobotBus::wait_start`] in slices that look
-/// at the stop flag (giving up with [`BusError::Interrupted`]) and at the coordinator: if it
-/// dies before sending `Start`, its resources are cleaned and the robot registers again, with
-/// whatever coordinator comes up next (`qfleet run --restart on-failure` starts one).
+/// The start handshake: [`register_until`], then a wait for `Start` (or `Stop`) in slices that
+/// look at the stop flag (giving up with [`BusError::Interrupted`]) and at the coordinator: if
+/// it dies before sending `Start`, its resources are cleaned and the robot registers again,
+/// with whatever coordinator comes up next (`qfleet run --restart on-failure` starts one).
+///
+/// The publisher whose `Ack` accepted the registration becomes the `gate`'s coordinator;
+/// controls from any other publisher are dropped (and counted by the gate), the others before
+/// `Start` go to `on_other`.
 pub fn handshake(
     bus: &RobotBus,
     reg: &Register,
     timeout: Duration,
     stop: &AtomicBool,
+    gate: &mut ControlGate<UniquePublisherId>,
     mut on_other: impl FnMut(&Control),
 ) -> Result<Control, BusError> {
     let deadline = Instant::now() + timeout;
@@ -220,13 +228,16 @@ pub fn handshake(
     loop {
         let left = deadline.saturating_duration_since(Instant::now());
         register_until(bus, reg, left, stop)?;
+        if let Some(id) = bus.accepted_by() {
+            gate.accept(id);
+        }
         let coordinator = check_nodes(bus.config(), false)?
             .alive()
             .find(|n| n.name == COORDINATOR_NODE_NAME)
             .and_then(|n| n.pid);
         loop {
             let left = deadline.saturating_duration_since(Instant::now());
-            match bus.wait_start(left.min(HANDSHAKE_SLICE), &mut on_other) {
+            match wait_start(bus, left.min(HANDSHAKE_SLICE), gate, &mut on_other) {
                 Err(BusError::Timeout { what, .. }) => {
                     if stop.load(Ordering::Relaxed) {
                         return Err(BusError::Interrupted);
@@ -245,5 +256,35 @@ pub fn handshake(
                 other => return other,
             }
         }
+    }
+}
+
+/// Waits up to `timeout` for `Start` or `Stop` from the gate's coordinator; the coordinator's
+/// other controls go to `on_other`, everyone else's are dropped.
+fn wait_start(
+    bus: &RobotBus,
+    timeout: Duration,
+    gate: &mut ControlGate<UniquePublisherId>,
+    on_other: &mut impl FnMut(&Control),
+) -> Result<Control, BusError> {
+    let deadline = Instant::now() + timeout;
+    loop {
+        while let Some((ctl, from)) = bus.recv_control_from()? {
+            if gate.check(from) == Verdict::Drop {
+                continue;
+            }
+            match Command::try_from(ctl.command) {
+                Ok(Command::Start | Command::Stop) => return Ok(ctl),
+                _ => on_other(&ctl),
+            }
+        }
+        let now = Instant::now();
+        if now >= deadline {
+            return Err(BusError::Timeout {
+                what: "the coordinator's Start".into(),
+                timeout,
+            });
+        }
+        bus.control.wait(deadline - now)?;
     }
 }

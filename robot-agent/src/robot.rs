@@ -35,6 +35,7 @@ use std::time::{Duration, Instant};
 use bus::bus_schema::{
     FinalReport, PseudoTargetDiscovery, Register, RobotStatus, SCHEMA_VERSION, map_fingerprint,
 };
+use bus::iceoryx2::identifiers::UniquePublisherId;
 use bus::{BusConfig, BusError, RobotBus, monotonic_ns};
 use hdrhistogram::Histogram;
 use planner::task::Task;
@@ -46,6 +47,7 @@ use crate::args::AgentArgs;
 use crate::discovery::{AckOutcome, DISCOVERY_RESEND, DiscoveryLog};
 use crate::error::AgentError;
 use crate::experiment::{Assignment, Effect, Plan};
+use crate::gate::{ControlGate, Verdict};
 use crate::reconnect::{Link, LinkEvent, handshake};
 use crate::share::{ApplyCtx, HintBatcher, MergedApplier};
 
@@ -98,12 +100,14 @@ pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, Agent
     };
     // AssignGoal (and anything else) before Start is read into the plan
     let mut plan = Plan::default();
+    let mut gate = ControlGate::new();
     let mut rejected = 0;
-    let start = handshake(&bus, &reg, timeout, &stop, |c| {
+    let start = handshake(&bus, &reg, timeout, &stop, &mut gate, |c| {
         if plan.on(c) == Effect::Rejected {
             rejected += 1;
         }
     })?;
+    rejected += gate.rejected();
     plan.on(&start);
     let mut robot = Robot {
         args,
@@ -117,6 +121,7 @@ pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, Agent
         base,
         cfg,
         link: Link::new(reg),
+        gate,
         plan,
         disc: DiscoveryLog::new(args.robot_id, DISCOVERY_RESEND),
         disc_dirty: false,
@@ -147,6 +152,8 @@ struct Robot<'a> {
     base: Task,
     cfg: LearnerConfig,
     link: Link,
+    /// Which publisher on `coord/control` is the coordinator ([`crate::gate`]).
+    gate: ControlGate<UniquePublisherId>,
     plan: Plan,
     disc: DiscoveryLog,
     /// A discovery went out since the coordinator was last woken.
@@ -773,9 +780,17 @@ impl Robot<'_> {
             }
             self.c.discoveries_acked = self.disc.acked();
         }
-        while let Some(ctl) = self.bus.recv_control()? {
+        while let Some((ctl, from)) = self.bus.recv_control_from()? {
+            // a restarted coordinator's answer to our re-registration moves the gate to it
             if let Some(ev) = self.link.on_control(&ctl) {
+                if ev == LinkEvent::Rejoined {
+                    self.gate.accept(from);
+                }
                 self.on_link(ev)?;
+                continue;
+            }
+            if self.gate.check(from) == Verdict::Drop {
+                self.c.rejected += 1; // not from our coordinator: a forged or stale control
                 continue;
             }
             if self.plan.on(&ctl) == Effect::Rejected {
