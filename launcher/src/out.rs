@@ -123,6 +123,14 @@ impl OutDir {
         &self.path
     }
 
+    /// Keeps the directory (a temporary one is then not removed) and returns its path.
+    pub fn keep(self) -> PathBuf {
+        match self.temp {
+            Some(t) => t.keep(),
+            None => self.path,
+        }
+    }
+
     /// Whether it is a temporary directory (removed when this value is dropped).
     pub fn is_temp(&self) -> bool {
         self.temp.is_some()
@@ -210,7 +218,9 @@ mod tests {
         std::fs::write(p.join("x"), "1").unwrap();
         drop(a);
         assert!(!p.exists());
-        assert!(b.path().exists());
+        let kept = b.keep();
+        assert!(kept.is_dir());
+        std::fs::remove_dir(kept).unwrap();
     }
 
     #[test]

@@ -488,7 +488,8 @@ pub fn supervise(
     };
     for p in &procs {
         let code = p.status.and_then(|s| s.code());
-        if p.failed() && !(interrupted && code == Some(130)) {
+        // 130 is how a process answers a stop: not a failure when the launcher asked for it
+        if p.failed() && !(stopping.is_some() && code == Some(130)) {
             let t = tail(&p.log, 5);
             warn(&format!(
                 "{} — last lines of {}:\n{t}",
