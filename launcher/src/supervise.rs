@@ -497,8 +497,9 @@ pub fn supervise(
                 p.log.display()
             ));
             failures.push(p.describe());
+            // after a stop the launcher asked for, a child's code says nothing about the input
             let class = match (p.kind, code) {
-                (Kind::Coordinator, Some(c)) => Exit::of_child(c),
+                (Kind::Coordinator, Some(c)) if stopping.is_none() => Exit::of_child(c),
                 _ => Exit::Failure,
             };
             exit = exit.worst(class);
