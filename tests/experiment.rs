@@ -225,10 +225,7 @@ fn an_experiment_robot_killed_mid_phase_is_restarted_and_warm_started() {
     assert!(qfleet_suite::wait_until(
         qfleet_suite::PROCESS_TIMEOUT,
         || {
-            robot = qfleet_suite::pids_of_run(&id).into_iter().find(|p| {
-                std::fs::read(format!("/proc/{p}/cmdline"))
-                    .is_ok_and(|c| String::from_utf8_lossy(&c).contains("--robot-id\01\0"))
-            });
+            robot = qfleet_suite::pid_with_arg(&id, "--robot-id", "1");
             robot.is_some()
         }
     ));
