@@ -2,7 +2,6 @@
 //! in-process experiment coordinator, over iceoryx2 shared memory. Unique run ids, bounded in
 //! time, no shared-memory files left behind.
 
-use std::path::Path;
 use std::process::Command;
 
 use qfleet_suite::{bin, describe, leftovers, run_bounded, run_id, scratch};
@@ -31,9 +30,24 @@ fn experiment(tag: &str, manifest: &str, extra: &[&str]) -> Value {
         .unwrap_or_else(|e| panic!("stdout is not JSON ({e}): {}", describe(&out)));
     let left = leftovers(&id);
     assert!(left.is_empty(), "files of run {id} left behind: {left:?}");
-    assert!(Path::new(&dir).exists());
     let runs = v.as_array().expect("a list of seeds");
     assert_eq!(runs.len(), 1, "{v}");
+    // the seed's result.json is the result printed, and every robot left its log
+    let seed = runs[0]["seed"].as_u64().expect("seed");
+    let seed_dir = dir.join("out").join(format!("seed-{seed}"));
+    let kept: Value = serde_json::from_str(
+        &std::fs::read_to_string(seed_dir.join("result.json")).expect("result.json in --out"),
+    )
+    .expect("result.json is JSON");
+    assert_eq!(kept, runs[0], "result.json differs from the printed result");
+    let robots = runs[0]["robots"].as_u64().expect("robots");
+    for r in 0..robots {
+        assert!(
+            seed_dir.join(format!("robot-{r}.log")).is_file(),
+            "robot {r} has no log in {}",
+            seed_dir.display()
+        );
+    }
     runs[0].clone()
 }
 
@@ -175,4 +189,73 @@ fn an_invalid_manifest_is_refused_with_the_field_and_reason() {
         "{}",
         describe(&out)
     );
+}
+
+/// A manifest long enough to kill a robot in the middle of its first phase.
+const LONG_TWO_PHASES: &str = r#"
+name = "long"
+sharing = "both"
+episodes = 4000
+seeds = [2]
+timeout_s = 100
+[map]
+source = "builtin:paper-20"
+[robots]
+count = 3
+[[phases]]
+[[phases]]
+episodes = 200
+"#;
+
+#[test]
+#[ignore = "needs the one coordinator engine (H-coord): the in-process experiment coordinator drops a late Register, so a restarted robot is never admitted"]
+fn an_experiment_robot_killed_mid_phase_is_restarted_and_warm_started() {
+    let dir = scratch("exp-restart");
+    let file = dir.join("m.toml");
+    std::fs::write(&file, LONG_TWO_PHASES).expect("write manifest");
+    let id = run_id("exprestart");
+    let child = qfleet_suite::spawn(
+        Command::new(bin("qfleet"))
+            .args(["experiment", "--json", "--run-id", &id])
+            .args(["--restart", "on-failure", "--max-restarts", "2", "--out"])
+            .arg(dir.join("out"))
+            .arg(&file),
+    );
+    let mut robot = None;
+    assert!(qfleet_suite::wait_until(
+        qfleet_suite::PROCESS_TIMEOUT,
+        || {
+            robot = qfleet_suite::pid_with_arg(&id, "--robot-id", "1");
+            robot.is_some()
+        }
+    ));
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    // SAFETY: kill(2) on a robot this test started through qfleet experiment.
+    unsafe {
+        libc::kill(robot.unwrap(), libc::SIGKILL);
+    }
+    let out = qfleet_suite::wait_bounded(child, qfleet_suite::PROCESS_TIMEOUT);
+    assert!(out.status.success(), "{}", describe(&out));
+    assert!(
+        String::from_utf8_lossy(&out.stderr)
+            .contains("robot-agent 1 was killed by signal 9; restarting it"),
+        "{}",
+        describe(&out)
+    );
+    let v: Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    for phase in v[0]["phases"].as_array().expect("phases") {
+        for x in phase["robots"].as_array().expect("robots") {
+            assert_eq!(x["status"], "finished", "{x}");
+        }
+    }
+    assert!(leftovers(&id).is_empty());
+}
+
+#[test]
+#[ignore = "needs the one coordinator engine (H-coord): the experiment coordinator runs inside the qfleet process, so it cannot be killed apart from its launcher yet"]
+fn an_experiment_survives_a_coordinator_kill() {
+    // With a coordinator process of its own, this test kills it mid-phase (as
+    // tests/reliability.rs does for runs) and expects the restarted coordinator to finish every
+    // phase with discoveries_received == discoveries_sent.
+    panic!("the experiment coordinator is not a process of its own yet");
 }

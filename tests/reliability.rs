@@ -422,9 +422,9 @@ fn qfleet_clean_removes_a_crashed_run_and_leaves_a_live_one_alone() {
     );
     // and a second run with the live run's id is refused, not mixed into it
     let clash = run_bounded(Command::new(bin("qfleet")).args(["run", "--run-id", &live]));
-    assert!(!clash.status.success());
+    assert_eq!(clash.status.code(), Some(2), "{}", describe(&clash));
     assert!(
-        String::from_utf8_lossy(&clash.stderr).contains("in use by a live run"),
+        String::from_utf8_lossy(&clash.stderr).contains("in use by another live qfleet launcher"),
         "{}",
         describe(&clash)
     );

@@ -149,3 +149,58 @@ pub fn describe(out: &Output) -> String {
 pub fn ok(status: ExitStatus) -> bool {
     status.success()
 }
+
+/// Says on the test's real stderr (not captured by the test harness, so it shows in every
+/// `cargo test` run) that a test skipped, and why.
+pub fn skip(test: &str, reason: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "SKIPPED {test}: {reason}");
+}
+
+/// Pids of every live process whose command line has `--run-id <id>` (the launcher included).
+pub fn pids_of_run(id: &str) -> Vec<i32> {
+    let needle = format!("--run-id\0{id}\0");
+    let Ok(entries) = std::fs::read_dir("/proc") else {
+        return Vec::new();
+    };
+    entries
+        .flatten()
+        .filter_map(|e| e.file_name().to_str()?.parse::<i32>().ok())
+        .filter(|pid| {
+            let alive = std::fs::read_to_string(format!("/proc/{pid}/stat"))
+                .map(|s| {
+                    // state is the field after the ")" that closes the command name
+                    s.rsplit_once(')')
+                        .is_some_and(|(_, rest)| !rest.trim_start().starts_with('Z'))
+                })
+                .unwrap_or(false);
+            alive
+                && std::fs::read(format!("/proc/{pid}/cmdline"))
+                    .is_ok_and(|c| String::from_utf8_lossy(&c).contains(&needle))
+        })
+        .collect()
+}
+
+/// The pid of the process of run `id` whose command line also contains `arg` and `value` as
+/// consecutive arguments (e.g. `--robot-id`, `1`), if one is alive.
+pub fn pid_with_arg(id: &str, arg: &str, value: &str) -> Option<i32> {
+    let needle = format!("{arg}\0{value}\0");
+    pids_of_run(id).into_iter().find(|pid| {
+        std::fs::read(format!("/proc/{pid}/cmdline"))
+            .is_ok_and(|c| String::from_utf8_lossy(&c).contains(&needle))
+    })
+}
+
+/// Waits (bounded by `timeout`) until `cond` holds; false if it never did.
+pub fn wait_until(timeout: Duration, mut cond: impl FnMut() -> bool) -> bool {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if cond() {
+            return true;
+        }
+        if Instant::now() >= deadline {
+            return false;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}

@@ -8,8 +8,10 @@
 //! block a new run (iceoryx2 cleans dead nodes when a node is created), but they take shared
 //! memory until removed.
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use clap::Args;
+
+use crate::term::out;
 
 /// Options of `qfleet clean`.
 #[derive(Debug, Args)]
@@ -27,6 +29,7 @@ impl CleanCmd {
     pub fn run(self) -> Result<()> {
         let prefixes = match &self.run_id {
             Some(id) => {
+                launcher::run_id::validate(id).context(launcher::Exit::BadInput)?;
                 bus::validate_run_id(id)?;
                 vec![bus_schema::names::iceoryx_prefix(id)]
             }
@@ -56,11 +59,11 @@ impl CleanCmd {
                 .collect();
             if !alive.is_empty() {
                 live += 1;
-                println!(
+                out!(
                     "run {run_id}: live ({} process(es) alive: {}), left alone",
                     alive.len(),
                     alive.join(", ")
-                );
+                )?;
                 continue;
             }
             if files.is_empty() {
@@ -68,31 +71,31 @@ impl CleanCmd {
             }
             let dead = nodes.dead().count();
             if self.dry_run {
-                println!(
+                out!(
                     "run {run_id}: would remove {} file(s) ({dead} dead process(es)):",
                     files.len()
-                );
+                )?;
                 for f in &files {
-                    println!("  {}", f.display());
+                    out!("  {}", f.display())?;
                 }
                 continue;
             }
             match bus::clean_stale(prefix) {
                 Ok(r) if !r.alive.is_empty() => {
                     live += 1;
-                    println!("run {run_id}: came alive meanwhile, left alone");
+                    out!("run {run_id}: came alive meanwhile, left alone")?;
                 }
                 Ok(r) => {
                     // iceoryx2's dead-node cleanup removes most files itself: report every
                     // file of the run that is gone now, whoever removed it
                     let gone: Vec<_> = files.iter().filter(|f| !f.exists()).collect();
-                    println!(
+                    out!(
                         "run {run_id}: removed {} file(s), cleaned {} dead process(es):",
                         gone.len(),
                         r.dead_cleaned
-                    );
+                    )?;
                     for f in &gone {
-                        println!("  {}", f.display());
+                        out!("  {}", f.display())?;
                     }
                     removed += gone.len();
                 }
@@ -100,7 +103,7 @@ impl CleanCmd {
             }
         }
         if prefixes.is_empty() || (removed == 0 && live == 0 && !self.dry_run) {
-            println!("nothing to clean");
+            out!("nothing to clean")?;
         }
         if !errors.is_empty() {
             bail!("{}", errors.join("; "));

@@ -1,20 +1,25 @@
 //! `qfleet experiment FILE`: run a manifest (see `qfleet_args::manifest`). This process is the
 //! coordinator (`coordinator::experiment`, in-process); the robots are `robot-agent
-//! --experiment` processes found next to `qfleet`. One run per seed of the manifest.
+//!` processes found next to `qfleet`, started and supervised by the `launcher`
+//! crate (the same restart policy as `qfleet run`). One run per seed of the manifest.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::time::Duration;
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::{Args, ValueEnum};
 use coordinator::MergeRule;
 use coordinator::experiment::{ExperimentOptions, ExperimentResult, run_experiment};
+use launcher::out::{OutDir, OutError, inventory, write_atomic};
+use launcher::run_id::{RunClaim, RunIdError};
+use launcher::spawn::sibling;
+use launcher::{Exit, Fleet, RestartPolicy, supervise};
 use qfleet_args::{Plan, ShareMode, load_manifest};
 use robot_agent::ApplyRule;
-use std::os::unix::process::CommandExt;
+
+use crate::term::{self, out};
 
 /// Options of `qfleet experiment`.
 #[derive(Debug, Args)]
@@ -24,9 +29,24 @@ pub struct ExperimentCmd {
     /// Print the results (one per seed) as a JSON array on stdout.
     #[arg(long)]
     json: bool,
-    /// Directory for results, per-robot phase files and logs (default: a temporary directory).
+    /// Directory for results, per-robot phase files and logs (default: a new private temporary
+    /// directory, removed after success and kept after a failure). A directory that is not
+    /// empty is refused unless `--force`.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Write into a non-empty `--out` directory, replacing files of the same names.
+    #[arg(long)]
+    force: bool,
+    /// Restart a robot-agent that died, crashed or hung (with backoff; the coordinator
+    /// warm-starts it from its goal's fleet table).
+    #[arg(long, value_enum, default_value_t = RestartPolicy::Never)]
+    restart: RestartPolicy,
+    /// Restarts allowed per robot with `--restart on-failure`.
+    #[arg(long, default_value_t = 3)]
+    max_restarts: u32,
+    /// Seconds the robots get to exit after the experiment ends before they are killed.
+    #[arg(long, default_value_t = 5.0)]
+    grace: f64,
     /// Override the manifest's sharing mode.
     #[arg(long)]
     sharing: Option<String>,
@@ -82,45 +102,9 @@ impl std::str::FromStr for Rules {
     }
 }
 
-/// The process-wide stop flag (Ctrl-C), installed once.
-pub fn stop_flag() -> Result<Arc<AtomicBool>> {
-    static FLAG: std::sync::OnceLock<Arc<AtomicBool>> = std::sync::OnceLock::new();
-    if let Some(f) = FLAG.get() {
-        return Ok(Arc::clone(f));
-    }
-    let f = Arc::new(AtomicBool::new(false));
-    let g = Arc::clone(&f);
-    ctrlc::set_handler(move || g.store(true, Ordering::SeqCst))
-        .context("installing the Ctrl-C handler")?;
-    let _ = FLAG.set(Arc::clone(&f));
-    Ok(f)
-}
-
-fn sibling(name: &str) -> Result<PathBuf> {
-    let exe = std::env::current_exe().context("cannot locate the qfleet executable")?;
-    let path = exe
-        .parent()
-        .ok_or_else(|| anyhow!("{} has no parent directory", exe.display()))?
-        .join(name);
-    if !path.is_file() {
-        bail!(
-            "{name} not found next to {} — build it with `cargo build --bins`",
-            exe.display()
-        );
-    }
-    Ok(path)
-}
-
-/// A run id for one repetition.
+/// A run id for one repetition: `<prefix or exp>-<tag>-<pid>-<time>`.
 pub fn make_run_id(prefix: Option<&str>, tag: &str) -> String {
-    let t = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_micros() as u64)
-        .unwrap_or(0);
-    let p = prefix.unwrap_or("exp");
-    let mut id = format!("{p}-{tag}-{}-{:x}", std::process::id(), t & 0xff_ffff_ffff);
-    id.truncate(bus::bus_schema::RUN_ID_MAX_LEN);
-    id
+    launcher::run_id::generate(&format!("{}-{tag}", prefix.unwrap_or("exp")))
 }
 
 /// Loads a manifest and resolves it relative to its directory.
@@ -130,28 +114,52 @@ pub fn load_plan(file: &Path) -> Result<Plan> {
     Ok(m.resolve(base)?)
 }
 
-/// Runs one repetition of `plan` with `seed` and the sharing `rules`: starts the robots,
-/// coordinates, cleans up.
+/// How the robot processes of a repetition are supervised.
+#[derive(Debug, Clone, Copy)]
+pub struct Supervision {
+    /// Restart policy.
+    pub policy: RestartPolicy,
+    /// Restarts allowed per robot.
+    pub max_restarts: u32,
+    /// Grace period of the robots after the coordinator's Stop, before they are killed.
+    pub grace: Duration,
+}
+
+impl Default for Supervision {
+    fn default() -> Self {
+        Supervision {
+            policy: RestartPolicy::Never,
+            max_restarts: 3,
+            grace: Duration::from_secs(5),
+        }
+    }
+}
+
+/// Runs one repetition of `plan` with `seed` and the sharing `rules`: claims the run id,
+/// starts and supervises the robots (`launcher::supervise`, on a thread that lives as long as
+/// they do), coordinates in this process, cleans up.
 pub fn run_once(
     plan: &Plan,
     seed: u64,
     rules: Rules,
     run_id: &str,
     out: &Path,
+    sup: Supervision,
 ) -> Result<ExperimentResult> {
-    bus::validate_run_id(run_id)?;
+    launcher::run_id::validate(run_id).context(Exit::BadInput)?;
+    bus::validate_run_id(run_id).context(Exit::BadInput)?;
+    let _claim = RunClaim::acquire(run_id).map_err(|e| match e {
+        RunIdError::InUse { .. } | RunIdError::Invalid { .. } => anyhow!(e).context(Exit::BadInput),
+        e => anyhow!(e),
+    })?;
     let robot_bin = sibling("robot-agent")?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let stop = stop_flag()?;
+    crate::catch_interrupts()?;
     let m = &plan.manifest;
-    let mut children: Vec<(u32, Child)> = Vec::new();
-    let mut spawn_err = None;
-    for r in 0..m.robots {
+    let robot = |r: u32| -> Command {
         let g0 = plan.assignment[0][r as usize];
         let mut learner = m.learner.clone();
         learner.episodes = m.phases[0].episodes;
-        let log = std::fs::File::create(out.join(format!("robot-{r}.log")))
-            .with_context(|| format!("creating logs in {}", out.display()))?;
         let mut cmd = Command::new(&robot_bin);
         cmd.args(["--run-id", run_id])
             .args([
@@ -162,37 +170,52 @@ pub fn run_once(
             ])
             .args(plan.map_args(r as usize, g0).to_cli())
             .args(learner.to_cli())
-            // seeds of different repetitions never overlap: robot r of seed s gets 1000·s + r
             .args([
                 "--seed",
-                &seed
-                    .wrapping_mul(1000)
-                    .wrapping_add(u64::from(r))
-                    .to_string(),
+                &launcher::seed::repetition_robot(seed, r).to_string(),
             ])
             .args(["--share", m.sharing.as_cli()])
             .args(["--apply", &rules.apply.to_string()])
             .args(["--timeout", &m.timeout_s.to_string()])
             .arg("--out")
-            .arg(out)
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(log)
-            .process_group(0);
+            .arg(out);
         if m.stop_at_optimum {
             cmd.arg("--stop-at-optimum");
         }
-        match cmd.spawn() {
-            Ok(c) => children.push((r, c)),
-            Err(e) => {
-                spawn_err = Some(e);
-                break;
+        cmd
+    };
+    // the coordinator's stop flag: a Ctrl-C, or robots that could not be started at all
+    let stop = AtomicBool::new(false);
+    let finished = AtomicBool::new(false);
+    let fleet = Fleet {
+        coordinator: None,
+        robot: &robot,
+        robots: m.robots,
+        policy: sup.policy,
+        max_restarts: sup.max_restarts,
+        grace: sup.grace,
+        time_limit: Duration::ZERO,
+        logs: out,
+        finished: Some(&finished),
+    };
+    let never = AtomicU32::new(0);
+    let (result, supervised) = std::thread::scope(|s| {
+        let robots = s.spawn(|| {
+            let r = supervise(&fleet, &never, |_, _, _, _| {}, term::warn);
+            if r.is_err() {
+                stop.store(true, Ordering::SeqCst);
             }
-        }
-    }
-    let result = match spawn_err {
-        Some(e) => Err(anyhow!(e).context(format!("starting {}", robot_bin.display()))),
-        None => run_experiment(
+            r
+        });
+        s.spawn(|| {
+            while !finished.load(Ordering::SeqCst) {
+                if crate::STOP.load(Ordering::SeqCst) {
+                    stop.store(true, Ordering::SeqCst);
+                }
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        });
+        let result = run_experiment(
             plan,
             &ExperimentOptions {
                 run_id: run_id.to_string(),
@@ -201,44 +224,28 @@ pub fn run_once(
                 merge: rules.merge,
             },
             &stop,
-        )
-        .map_err(anyhow::Error::from),
-    };
-    // robots exit after Stop; give them a grace period, then kill
-    let deadline = Instant::now() + Duration::from_secs(if result.is_ok() { 10 } else { 2 });
-    let mut failed = Vec::new();
-    for (r, mut c) in children {
-        loop {
-            match c.try_wait() {
-                Ok(Some(st)) => {
-                    if !st.success() {
-                        failed.push(format!("robot-agent {r} exited with {st}"));
-                    }
-                    break;
-                }
-                Ok(None) if Instant::now() < deadline => {
-                    std::thread::sleep(Duration::from_millis(10))
-                }
-                _ => {
-                    let _ = c.kill();
-                    let _ = c.wait();
-                    failed.push(format!("robot-agent {r} had to be killed"));
-                    break;
-                }
-            }
-        }
-    }
+        );
+        finished.store(true, Ordering::SeqCst);
+        let supervised = robots
+            .join()
+            .unwrap_or_else(|_| unreachable!("the supervise thread does not panic"));
+        (result, supervised)
+    });
     let prefix = bus_schema::names::iceoryx_prefix(run_id);
     if let Err(e) = bus::clean_stale(&prefix) {
-        eprintln!("qfleet: warning: cleaning up run {run_id}: {e}");
+        term::warn(&format!("warning: cleaning up run {run_id}: {e}"));
+    }
+    let supervised = supervised?;
+    if crate::STOP.load(Ordering::SeqCst) {
+        return Err(anyhow!("interrupted by Ctrl-C").context(Exit::Interrupted));
     }
     let result = result?;
-    if !failed.is_empty() {
-        let tails: Vec<String> = failed.iter().map(|f| f.to_string()).collect();
-        bail!("{} (logs in {})", tails.join("; "), out.display());
-    }
-    if stop.load(Ordering::SeqCst) {
-        bail!("interrupted by Ctrl-C");
+    if !supervised.failures.is_empty() {
+        bail!(
+            "{} (logs in {})",
+            supervised.failures.join("; "),
+            out.display()
+        );
     }
     Ok(result)
 }
@@ -246,40 +253,72 @@ pub fn run_once(
 impl ExperimentCmd {
     /// Runs the command.
     pub fn run(self) -> Result<()> {
-        let mut plan = load_plan(&self.file)?;
+        let mut plan = load_plan(&self.file).context(Exit::BadInput)?;
         if let Some(s) = &self.sharing {
             plan.manifest.sharing = ShareMode::parse(s)
-                .ok_or_else(|| anyhow!("--sharing must be none, discoveries, hints or both"))?;
+                .ok_or_else(|| anyhow!("--sharing must be none, discoveries, hints or both"))
+                .context(Exit::BadInput)?;
         }
         if let Some(s) = self.seed {
             plan.manifest.seeds = vec![s];
         }
-        let (out, temp) = match &self.out {
-            Some(d) => (d.clone(), false),
-            None => (
-                std::env::temp_dir().join(format!("qfleet-exp-{}", std::process::id())),
-                true,
-            ),
+        let grace = Duration::try_from_secs_f64(self.grace)
+            .map_err(|_| {
+                anyhow!(
+                    "--grace must be a number of seconds >= 0, got {}",
+                    self.grace
+                )
+            })
+            .context(Exit::BadInput)?;
+        if let Some(p) = &self.run_id {
+            launcher::run_id::validate(p).context(Exit::BadInput)?;
+        }
+        let sup = Supervision {
+            policy: self.restart,
+            max_restarts: self.max_restarts,
+            grace,
         };
+        let out_dir =
+            OutDir::prepare(self.out.as_deref(), self.force, "exp").map_err(|e| match e {
+                OutError::Io { .. } => anyhow!(e),
+                e => anyhow!(e).context(Exit::BadInput),
+            })?;
+        let out = out_dir.path().to_path_buf();
         let mut results = Vec::new();
         for &seed in &plan.manifest.seeds.clone() {
             let id = make_run_id(self.run_id.as_deref(), &format!("s{seed}"));
             let dir = out.join(format!("seed-{seed}"));
-            let r = run_once(&plan, seed, self.rules, &id, &dir)?;
+            let r = match run_once(&plan, seed, self.rules, &id, &dir, sup) {
+                Ok(r) => r,
+                Err(e) => {
+                    let kept = out_dir.keep();
+                    return Err(e.context(format!(
+                        "seed {seed} (kept in {}: {})",
+                        kept.display(),
+                        inventory(&dir)
+                    )));
+                }
+            };
             let json = serde_json::to_string_pretty(&r)?;
-            std::fs::write(dir.join("result.json"), json)?;
+            let file = dir.join("result.json");
+            if let Err(e) = write_atomic(&file, json.as_bytes()) {
+                let kept = out_dir.keep();
+                bail!(
+                    "writing {}: {e}; kept in {}: {}",
+                    file.display(),
+                    kept.display(),
+                    inventory(&dir)
+                );
+            }
             if !self.json {
-                print_human(&r);
+                print_human(&r)?;
             }
             results.push(r);
         }
         if self.json {
-            println!("{}", serde_json::to_string(&results)?);
-        }
-        if temp {
-            let _ = std::fs::remove_dir_all(&out);
-        } else if !self.json {
-            println!("wrote {}/seed-*/result.json", out.display());
+            out!("{}", serde_json::to_string(&results)?)?;
+        } else if !out_dir.is_temp() {
+            out!("wrote {}/seed-*/result.json", out.display())?;
         }
         Ok(())
     }
@@ -289,18 +328,26 @@ fn opt<T: std::fmt::Display>(v: Option<T>) -> String {
     v.map_or("-".into(), |v| v.to_string())
 }
 
-fn print_human(r: &ExperimentResult) {
-    println!(
+fn print_human(r: &ExperimentResult) -> Result<()> {
+    out!(
         "experiment {:?}, seed {}: {} robots on {}, sharing {}, {:.2} s",
-        r.name, r.seed, r.robots, r.map, r.sharing, r.wall_s
-    );
+        r.name,
+        r.seed,
+        r.robots,
+        r.map,
+        r.sharing,
+        r.wall_s
+    )?;
     for p in &r.phases {
-        println!(
+        out!(
             "  phase {} ({}), {} episodes, {:.2} s",
-            p.phase, p.name, p.episodes, p.wall_s
-        );
+            p.phase,
+            p.name,
+            p.episodes,
+            p.wall_s
+        )?;
         for g in &p.goals {
-            println!(
+            out!(
                 "    goal {} {:>8} at {:>7}: robots {:?}  merged path {:?} (optimal {:?}) at {} s / {} steps per robot; own optimum after {} steps (mean); avg steps/episode {:.1}; relayed {}",
                 g.goal,
                 g.name,
@@ -313,7 +360,8 @@ fn print_human(r: &ExperimentResult) {
                 opt(g.robot_steps_to_optimal.map(|s| format!("{s:.0}"))),
                 g.avg_steps,
                 g.relayed
-            );
+            )?;
         }
     }
+    Ok(())
 }

@@ -8,10 +8,13 @@ mod plots;
 mod replicate;
 mod run;
 mod runplots;
-mod supervise;
 mod sweep;
+mod term;
+
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use clap::{Parser, Subcommand};
+use launcher::Exit;
 
 /// Fleets of simulated robots learning grid paths with improved Q-learning.
 #[derive(Debug, Parser)]
@@ -39,6 +42,27 @@ enum Command {
     Bench(bench::BenchCmd),
 }
 
+/// SIGINT/SIGTERM received so far (the first stops a run gracefully, the second kills it).
+pub static INTERRUPTS: AtomicU32 = AtomicU32::new(0);
+/// Set on the first SIGINT/SIGTERM: the stop flag of in-process loops (the experiment
+/// coordinator).
+pub static STOP: AtomicBool = AtomicBool::new(false);
+
+/// Installs the SIGINT/SIGTERM handler once for the whole process (runs, experiments, sweeps).
+pub fn catch_interrupts() -> anyhow::Result<()> {
+    static INSTALLED: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    INSTALLED
+        .get_or_init(|| {
+            ctrlc::set_handler(|| {
+                INTERRUPTS.fetch_add(1, Ordering::SeqCst);
+                STOP.store(true, Ordering::SeqCst);
+            })
+            .map_err(|e| e.to_string())
+        })
+        .clone()
+        .map_err(|e| anyhow::anyhow!("installing the Ctrl-C handler: {e}"))
+}
+
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -50,10 +74,14 @@ fn main() {
         Command::Experiment(c) => c.run(),
         Command::Sweep(c) => c.run(),
     };
-    if let Err(e) = result {
-        eprintln!("qfleet: error: {}", report(&e));
-        std::process::exit(1);
-    }
+    let code = match result {
+        Ok(()) => Exit::Ok,
+        Err(e) => {
+            term::warn(&format!("error: {}", report(&e)));
+            e.downcast_ref::<Exit>().copied().unwrap_or(Exit::Failure)
+        }
+    };
+    std::process::exit(code.code());
 }
 
 /// The error and its causes on one line, each cause once: library errors often name their
@@ -62,7 +90,7 @@ fn report(e: &anyhow::Error) -> String {
     let mut out = String::new();
     for cause in e.chain() {
         let msg = cause.to_string();
-        if out.contains(&msg) {
+        if out.contains(&msg) || is_exit_marker(&msg) {
             continue;
         }
         if !out.is_empty() {
@@ -73,9 +101,16 @@ fn report(e: &anyhow::Error) -> String {
     out
 }
 
+/// Whether `msg` is the text of an [`Exit`] class marker (context that only sets the exit code).
+fn is_exit_marker(msg: &str) -> bool {
+    [Exit::BadInput, Exit::Interrupted, Exit::Failure]
+        .iter()
+        .any(|e| e.to_string() == msg)
+}
+
 #[cfg(test)]
 mod tests {
-    use super::report;
+    use super::{Exit, report};
     use anyhow::Context;
 
     #[test]
@@ -87,5 +122,15 @@ mod tests {
             report(&e),
             "loading the task: reading map.txt: disk on fire"
         );
+    }
+
+    #[test]
+    fn an_exit_class_sets_the_code_and_is_not_printed() {
+        let e = Err::<(), _>(anyhow::anyhow!("--robots 0"))
+            .context(Exit::BadInput)
+            .context("checking the command line")
+            .unwrap_err();
+        assert_eq!(e.downcast_ref::<Exit>(), Some(&Exit::BadInput));
+        assert_eq!(report(&e), "checking the command line: --robots 0");
     }
 }

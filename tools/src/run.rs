@@ -1,29 +1,32 @@
 //! `qfleet run`: start a coordinator and N robot-agents for one run, show progress, stop them
 //! cleanly, and print the run's result.
 //!
-//! The processes are found next to the `qfleet` executable. Each gets its own process group, so
-//! a Ctrl-C in the terminal reaches only this launcher, which then stops the run in order: the
+//! The processes are found next to the `qfleet` executable and started by the `launcher` crate:
+//! each in its own process group, so a Ctrl-C in the terminal reaches only this launcher, and
+//! each killed by the kernel if the launcher dies. The launcher stops the run in order: the
 //! first Ctrl-C asks the coordinator to stop (it tells the robots, collects their reports and
 //! writes a partial result) and kills whatever is still running after `--grace` seconds; a
 //! second Ctrl-C kills at once (SIGTERM to the launcher counts as a Ctrl-C). Afterwards every
 //! shared-memory file of the run is removed. Restarts of failed processes: see
-//! [`crate::supervise`].
+//! `launcher::supervise`. The run id is claimed exclusively (`launcher::run_id::RunClaim`)
+//! before anything starts.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::sync::Arc;
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::process::Command;
 use std::time::Duration;
 
-use anyhow::{Context, Result, anyhow, bail};
+use anyhow::{Context, Result, anyhow};
 use clap::Args;
 use coordinator::{MergeRule, RunResult, WaitStrategy};
 use indicatif::{ProgressBar, ProgressStyle};
+use launcher::out::{OutDir, OutError, inventory};
+use launcher::run_id::{RunClaim, RunIdError};
+use launcher::spawn::sibling;
+use launcher::{Exit, Fleet, RestartPolicy, supervise};
 use qfleet_args::{LearnerArgs, MapArgs};
 use robot_agent::ShareArgs;
-use std::os::unix::process::CommandExt;
 
-use crate::supervise::{Launch, RestartPolicy, supervise};
+use crate::term::{self, out};
 
 /// Options of `qfleet run`.
 #[derive(Debug, Args)]
@@ -53,9 +56,13 @@ pub struct RunCmd {
     #[arg(long)]
     json: bool,
     /// Directory for result.json, per-robot results, .hgrm latency files and process logs
-    /// (default: a temporary directory, removed afterwards).
+    /// (default: a new private temporary directory, removed after a successful run and kept
+    /// after a failed one). A directory that is not empty is refused unless `--force`.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Write into a non-empty `--out` directory, replacing files of the same names.
+    #[arg(long)]
+    force: bool,
     /// Seconds a stopping process gets before it is killed.
     #[arg(long, default_value_t = 5.0)]
     grace: f64,
@@ -73,34 +80,122 @@ pub struct RunCmd {
     hang_ms: u64,
 }
 
-fn sibling(name: &str) -> Result<PathBuf> {
-    let exe = std::env::current_exe().context("cannot locate the qfleet executable")?;
-    let dir = exe
-        .parent()
-        .ok_or_else(|| anyhow!("{} has no parent directory", exe.display()))?;
-    let path = dir.join(name);
-    if !path.is_file() {
-        bail!(
-            "{} not found next to {} — build it with `cargo build --bins` (or install all qfleet binaries into one directory)",
-            name,
-            exe.display()
-        );
-    }
-    Ok(path)
-}
-
-fn default_run_id() -> String {
-    let t = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_millis() as u64)
-        .unwrap_or(0);
-    format!("run-{}-{:x}", std::process::id(), t & 0xff_ffff_ffff)
-}
-
 impl RunCmd {
     /// Runs the command.
     pub fn run(self) -> Result<()> {
-        // check everything before starting any process
+        // check everything before starting any process: bad input is exit code 2
+        let (task, cfg, grace, time_limit, run_id) = self.check().context(Exit::BadInput)?;
+        // the run id is ours alone from here until this process ends, however it ends
+        let claim = RunClaim::acquire(&run_id).map_err(|e| match e {
+            RunIdError::InUse { .. } | RunIdError::Invalid { .. } => {
+                anyhow!(e).context(Exit::BadInput)
+            }
+            e => anyhow!(e),
+        })?;
+        // an earlier run with this id that crashed may have left services half-created (iceoryx2
+        // then reports them as hanging in creation forever): remove its leftovers before any
+        // process of this run exists — unless a process of that run is still alive
+        match bus::clean_stale(&bus_schema::names::iceoryx_prefix(&run_id)) {
+            Ok(r) if !r.alive.is_empty() => {
+                return Err(anyhow!(
+                    "run id {run_id} is in use by a live run ({} process(es) alive); pick another --run-id",
+                    r.alive.len()
+                )
+                .context(Exit::BadInput));
+            }
+            Ok(r) if r.dead_cleaned > 0 || !r.removed.is_empty() => term::warn(&format!(
+                "removed the leftovers of an earlier crashed run with id {run_id}"
+            )),
+            Ok(_) => {}
+            Err(e) => term::warn(&format!("warning: cleaning leftovers of run {run_id}: {e}")),
+        }
+        let coord_bin = sibling("qfleet-coordinator")?;
+        let robot_bin = sibling("robot-agent")?;
+        let out_dir =
+            OutDir::prepare(self.out.as_deref(), self.force, &run_id).map_err(|e| match e {
+                OutError::Io { .. } => anyhow!(e),
+                e => anyhow!(e).context(Exit::BadInput),
+            })?;
+        let out = out_dir.path().to_path_buf();
+        if self.force {
+            // --force replaces the files a run writes: an old result must not pass for ours
+            let _ = std::fs::remove_file(out.join("result.json"));
+        }
+        crate::catch_interrupts()?;
+        // observers of the run (e.g. a live view or a recorder) start here, with the run id,
+        // its iceoryx2 prefix and crate::STOP, and are joined after `supervise` returns
+
+        let outcome = self.supervise(
+            &run_id,
+            &out,
+            &coord_bin,
+            &robot_bin,
+            grace,
+            time_limit,
+            &task,
+            cfg.episodes,
+        );
+        // whatever happened: no file of the run may stay behind
+        let cleaned = bus::clean_stale(&bus_schema::names::iceoryx_prefix(&run_id));
+        let leftovers = bus::leftover_files(&bus_schema::names::iceoryx_prefix(&run_id));
+        let result = std::fs::read_to_string(out.join("result.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str::<RunResult>(&t).ok());
+        if result.is_some()
+            && !out_dir.is_temp()
+            && let Err(e) = crate::runplots::write(&out)
+        {
+            term::warn(&format!("warning: plotting the run: {e:#}"));
+        }
+        if let Err(e) = cleaned {
+            term::warn(&format!("warning: cleaning up run {run_id}: {e}"));
+        }
+        if !leftovers.is_empty() {
+            term::warn(&format!(
+                "warning: files of run {run_id} left behind: {leftovers:?}"
+            ));
+        }
+        let done = outcome?;
+        match &result {
+            Some(r) if self.json => out!("{}", serde_json::to_string(r)?)?,
+            Some(r) => print_human(r, &out, out_dir.is_temp())?,
+            None => {}
+        }
+        let mut failures = done.failures;
+        let mut exit = done.exit;
+        if result.is_none() {
+            failures.push("the coordinator wrote no result".into());
+            exit = exit.worst(Exit::Failure);
+        }
+        drop(claim);
+        if failures.is_empty() {
+            return Ok(());
+        }
+        // a failed run keeps its directory, temporary or not, and says what is in it
+        let kept = if out_dir.is_temp() {
+            out_dir.keep()
+        } else {
+            out.clone()
+        };
+        Err(anyhow!(
+            "{}; kept in {}: {}",
+            failures.join("; "),
+            kept.display(),
+            inventory(&kept)
+        )
+        .context(exit))
+    }
+
+    /// Validates every option; the task, learner config, grace, time limit and run id.
+    fn check(
+        &self,
+    ) -> Result<(
+        planner::task::Task,
+        planner::LearnerConfig,
+        Duration,
+        Duration,
+        String,
+    )> {
         let task = self.map.task()?;
         let cfg = self.learner.config()?;
         self.share.validate().map_err(|e| anyhow!(e))?;
@@ -116,84 +211,13 @@ impl RunCmd {
                 self.time_limit
             )
         })?;
-        let run_id = self.run_id.clone().unwrap_or_else(default_run_id);
-        bus::validate_run_id(&run_id)?;
-        // an earlier run with this id that crashed may have left services half-created (iceoryx2
-        // then reports them as hanging in creation forever): remove its leftovers before any
-        // process of this run exists — unless a process of that run is still alive
-        match bus::clean_stale(&bus_schema::names::iceoryx_prefix(&run_id)) {
-            Ok(r) if !r.alive.is_empty() => bail!(
-                "run id {run_id} is in use by a live run ({} process(es) alive); pick another --run-id",
-                r.alive.len()
-            ),
-            Ok(r) if r.dead_cleaned > 0 || !r.removed.is_empty() => eprintln!(
-                "qfleet: removed the leftovers of an earlier crashed run with id {run_id}"
-            ),
-            Ok(_) => {}
-            Err(e) => eprintln!("qfleet: warning: cleaning leftovers of run {run_id}: {e}"),
-        }
-        let coord_bin = sibling("qfleet-coordinator")?;
-        let robot_bin = sibling("robot-agent")?;
-        let (out, temp_out) = match &self.out {
-            Some(d) => (d.clone(), false),
-            None => (std::env::temp_dir().join(format!("qfleet-{run_id}")), true),
+        let run_id = match &self.run_id {
+            Some(id) => id.clone(),
+            None => launcher::run_id::generate("run"),
         };
-        std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-        // a result from an earlier run in the same directory must not be mistaken for ours
-        let _ = std::fs::remove_file(out.join("result.json"));
-
-        let interrupts = Arc::new(AtomicU32::new(0));
-        {
-            let i = Arc::clone(&interrupts);
-            ctrlc::set_handler(move || {
-                i.fetch_add(1, Ordering::SeqCst);
-            })
-            .context("installing the Ctrl-C handler")?;
-        }
-
-        let outcome = self.supervise(
-            &run_id,
-            &out,
-            &coord_bin,
-            &robot_bin,
-            &interrupts,
-            grace,
-            time_limit,
-            &task,
-            cfg.episodes,
-        );
-        // whatever happened: no file of the run may stay behind
-        let cleaned = bus::clean_stale(&bus_schema::names::iceoryx_prefix(&run_id));
-        let leftovers = bus::leftover_files(&bus_schema::names::iceoryx_prefix(&run_id));
-        let result = std::fs::read_to_string(out.join("result.json"))
-            .ok()
-            .and_then(|t| serde_json::from_str::<RunResult>(&t).ok());
-        if temp_out {
-            let _ = std::fs::remove_dir_all(&out);
-        } else if result.is_some()
-            && let Err(e) = crate::runplots::write(&out)
-        {
-            eprintln!("qfleet: warning: plotting the run: {e:#}");
-        }
-        let failures = outcome?;
-        if let Err(e) = cleaned {
-            eprintln!("qfleet: warning: cleaning up run {run_id}: {e}");
-        }
-        if !leftovers.is_empty() {
-            eprintln!("qfleet: warning: files of run {run_id} left behind: {leftovers:?}");
-        }
-        match &result {
-            Some(r) if self.json => println!("{}", serde_json::to_string(r)?),
-            Some(r) => print_human(r, &out, temp_out),
-            None => {}
-        }
-        if !failures.is_empty() {
-            bail!("{}", failures.join("; "));
-        }
-        if result.is_none() {
-            bail!("the coordinator wrote no result");
-        }
-        Ok(())
+        launcher::run_id::validate(&run_id)?;
+        bus::validate_run_id(&run_id)?;
+        Ok((task, cfg, grace, time_limit, run_id))
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -203,17 +227,16 @@ impl RunCmd {
         out: &Path,
         coord_bin: &Path,
         robot_bin: &Path,
-        interrupts: &AtomicU32,
         grace: Duration,
         time_limit: Duration,
         task: &planner::task::Task,
         episodes: u32,
-    ) -> Result<Vec<String>> {
+    ) -> Result<launcher::Supervised> {
         let restarts = match self.restart {
             RestartPolicy::Never => 0,
             RestartPolicy::OnFailure => self.max_restarts,
         };
-        let coordinator = || -> Result<Command> {
+        let coordinator = || -> Command {
             let mut cmd = Command::new(coord_bin);
             cmd.args(["--run-id", run_id, "--robots", &self.robots.to_string()])
                 .args(self.map.to_cli())
@@ -227,13 +250,10 @@ impl RunCmd {
                 .args(["--hang-ms", &self.hang_ms.to_string()])
                 .args(["--restarts", &restarts.to_string()])
                 .arg("--out")
-                .arg(out)
-                .stdin(Stdio::null())
-                .stdout(Stdio::piped())
-                .process_group(0);
-            Ok(cmd)
+                .arg(out);
+            cmd
         };
-        let robot = |id: u32| -> Result<Command> {
+        let robot = |id: u32| -> Command {
             let mut cmd = Command::new(robot_bin);
             cmd.args(["--run-id", run_id, "--robot-id", &id.to_string()])
                 .args(["--robots", &self.robots.to_string()])
@@ -241,24 +261,23 @@ impl RunCmd {
                 .args(self.learner.to_cli())
                 .args([
                     "--seed",
-                    &self.learner.seed.wrapping_add(u64::from(id)).to_string(),
+                    &launcher::seed::run_robot(self.learner.seed, id).to_string(),
                 ])
                 .args(self.share.to_cli())
                 .arg("--out")
-                .arg(out)
-                .stdin(Stdio::null())
-                .stdout(Stdio::null())
-                .process_group(0);
-            Ok(cmd)
+                .arg(out);
+            cmd
         };
-        let launch = Launch {
-            coordinator: &coordinator,
+        let fleet = Fleet {
+            coordinator: Some(&coordinator),
             robot: &robot,
             robots: self.robots,
             policy: self.restart,
             max_restarts: self.max_restarts,
             grace,
             time_limit,
+            logs: out,
+            finished: None,
         };
         let total = u64::from(self.robots) * u64::from(episodes);
         let bar = ProgressBar::new(total);
@@ -270,23 +289,31 @@ impl RunCmd {
             .progress_chars("=> "),
         );
         bar.set_message(format!("{} robots on {}", self.robots, task.map_name));
-        let done = supervise(&launch, out, interrupts, |done, tot, p50, p99| {
-            if tot > 0 {
-                bar.set_length(tot);
-            }
-            bar.set_position(done);
-            bar.set_message(format!(
-                "hint→coordinator p50 {:.1} µs p99 {:.1} µs",
-                p50 as f64 / 1e3,
-                p99 as f64 / 1e3
-            ));
-        });
+        let done = supervise(
+            &fleet,
+            &crate::INTERRUPTS,
+            |done, tot, p50, p99| {
+                if tot > 0 {
+                    bar.set_length(tot);
+                }
+                bar.set_position(done);
+                bar.set_message(format!(
+                    "hint→coordinator p50 {:.1} µs p99 {:.1} µs",
+                    p50 as f64 / 1e3,
+                    p99 as f64 / 1e3
+                ));
+            },
+            |msg| bar.suspend(|| term::warn(msg)),
+        );
         bar.finish_and_clear();
         let done = done?;
         if done.restarts > 0 {
-            eprintln!("qfleet: {} process restarts during the run", done.restarts);
+            term::warn(&format!(
+                "{} process restarts during the run",
+                done.restarts
+            ));
         }
-        Ok(done.failures)
+        Ok(done)
     }
 }
 
@@ -294,8 +321,8 @@ fn fmt_us(ns: u64) -> String {
     format!("{:.1} µs", ns as f64 / 1e3)
 }
 
-fn print_human(r: &RunResult, out: &Path, temp_out: bool) {
-    println!(
+fn print_human(r: &RunResult, out: &Path, temp_out: bool) -> Result<()> {
+    out!(
         "run {}: {} robots on {} ({} → {}), wait {}, merge {}",
         r.run_id,
         r.robots.len(),
@@ -304,10 +331,10 @@ fn print_human(r: &RunResult, out: &Path, temp_out: bool) {
         r.goal,
         r.wait,
         r.merge
-    );
+    )?;
     for x in &r.robots {
         let p = |v: Option<u32>| v.map_or("loops".to_string(), |v| v.to_string());
-        println!(
+        out!(
             "  robot {:>3}  {:8}  final path {:>5} (own {:>5}, optimal {:>5})  avg steps {:8.1}  hints applied {}",
             x.robot_id,
             x.status,
@@ -316,15 +343,17 @@ fn print_human(r: &RunResult, out: &Path, temp_out: bool) {
             p(x.optimal_path_len),
             x.avg_steps,
             x.hints_applied
-        );
+        )?;
     }
-    println!(
+    out!(
         "  all robots optimal: {}   discoveries sent {} / received {}",
-        r.all_optimal, r.discoveries_sent, r.discoveries_received
-    );
-    println!("  latency            count      p50        p90        p99        p99.9      max");
+        r.all_optimal,
+        r.discoveries_sent,
+        r.discoveries_received
+    )?;
+    out!("  latency            count      p50        p90        p99        p99.9      max")?;
     for (k, s) in &r.latency_ns {
-        println!(
+        out!(
             "  {k:18} {:>6}  {:>10} {:>10} {:>10} {:>10} {:>10}",
             s.count,
             fmt_us(s.p50),
@@ -332,16 +361,19 @@ fn print_human(r: &RunResult, out: &Path, temp_out: bool) {
             fmt_us(s.p99),
             fmt_us(s.p999),
             fmt_us(s.max)
-        );
+        )?;
     }
-    println!(
+    out!(
         "  throughput         {:.0} messages/s, {:.0} Q-updates merged/s over {:.3} s",
-        r.throughput.messages_per_s, r.throughput.q_updates_merged_per_s, r.throughput.active_s
-    );
+        r.throughput.messages_per_s,
+        r.throughput.q_updates_merged_per_s,
+        r.throughput.active_s
+    )?;
     if !temp_out {
-        println!(
+        out!(
             "  wrote              {}/{{result.json,robot-*.json,latency-*.hgrm,*.log}}",
             out.display()
-        );
+        )?;
     }
+    Ok(())
 }

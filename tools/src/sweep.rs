@@ -15,8 +15,9 @@ use plotters::prelude::*;
 use qfleet_args::ShareMode;
 use serde::{Deserialize, Serialize};
 
-use crate::experiment::{Rules, load_plan, make_run_id, run_once};
+use crate::experiment::{Rules, Supervision, load_plan, make_run_id, run_once};
 use crate::plots::PALETTE;
+use crate::term::{self, out};
 
 /// Options of `qfleet sweep`.
 #[derive(Debug, Args)]
@@ -135,8 +136,8 @@ impl SweepCmd {
             let rows: Vec<Row> = serde_json::from_str(&text)
                 .with_context(|| format!("parsing {}", json.display()))?;
             plot(&self.svg, &rows)?;
-            print!("{}", markdown(&rows, &[]));
-            println!("wrote {}", self.svg.display());
+            out!("{}", markdown(&rows, &[]).trim_end())?;
+            out!("wrote {}", self.svg.display())?;
             return Ok(());
         }
         let mut modes = Vec::new();
@@ -152,7 +153,7 @@ impl SweepCmd {
             let base = match load_plan(file) {
                 Ok(p) => p,
                 Err(e) => {
-                    eprintln!("qfleet sweep: skipping {}: {e:#}", file.display());
+                    term::warn(&format!("sweep: skipping {}: {e:#}", file.display()));
                     skipped.push(format!("{}: {e:#}", file.display()));
                     continue;
                 }
@@ -208,14 +209,20 @@ impl SweepCmd {
                         let rules = rules.unwrap_or_default();
                         let mut attempt = 0;
                         let r = loop {
-                            match run_once(&plan, seed, rules, &id, &dir) {
+                            match run_once(&plan, seed, rules, &id, &dir, Supervision::default()) {
                                 Ok(r) => break r,
                                 // a run that failed on the bus (not in the learning) is run
                                 // again, up to twice, with a fresh run id; retries are reported
-                                Err(e) if attempt < 2 => {
+                                Err(e)
+                                    if attempt < 2
+                                        && !crate::STOP
+                                            .load(std::sync::atomic::Ordering::SeqCst) =>
+                                {
                                     attempt += 1;
                                     retries += 1;
-                                    eprintln!("qfleet sweep: {map} {tag} failed ({e:#}); retrying");
+                                    term::warn(&format!(
+                                        "sweep: {map} {tag} failed ({e:#}); retrying"
+                                    ));
                                     std::thread::sleep(std::time::Duration::from_secs(1));
                                     id = make_run_id(Some("sw"), &format!("n{n}s{seed}r{attempt}"));
                                     let _ = std::fs::remove_dir_all(&dir);
@@ -251,13 +258,13 @@ impl SweepCmd {
                             merged_t.push(t);
                         }
                         avg.push(gp.avg_steps);
-                        eprintln!(
-                            "qfleet sweep: {map} N={n} {label} seed {seed}: own optimum after {} steps/robot, merged after {}",
+                        term::warn(&format!(
+                            "sweep: {map} N={n} {label} seed {seed}: own optimum after {} steps/robot, merged after {}",
                             gp.robot_steps_to_optimal
                                 .map_or("-".into(), |s| format!("{s:.0}")),
                             gp.merged_steps_per_robot
                                 .map_or("-".into(), |s| format!("{s:.0}")),
-                        );
+                        ));
                     }
                     let robot_steps = mean(&own);
                     let median_steps = median(&mut all);
@@ -305,12 +312,12 @@ impl SweepCmd {
             std::fs::create_dir_all(dir)?;
         }
         plot(&self.svg, &rows)?;
-        print!("{md}");
-        println!(
+        out!("{}", md.trim_end())?;
+        out!(
             "wrote {}/sweep.{{md,json}} and {}",
             self.out.display(),
             self.svg.display()
-        );
+        )?;
         Ok(())
     }
 }

@@ -1,0 +1,284 @@
+//! Run ids: what an id may be, default ids, and the exclusive claim of an id.
+//!
+//! An id names a run's iceoryx2 prefix (`qfleet.<id>.`) and is handed to every child as the
+//! value of `--run-id`, so it must be checked before anything starts: 1 to
+//! [`MAX_LEN`] characters of `A-Z a-z 0-9 _ -`, starting with a letter or digit (an id such as
+//! `-x` would read as a flag on a child's command line).
+//!
+//! Two launchers started at the same moment with the same id must not both run: [`RunClaim`]
+//! takes an exclusive `flock` on `<private dir>/<id>.lock` (the private dir is
+//! `/tmp/qfleet-<uid>`, 0700, owned by the user, never a symlink). The lock is not a
+//! check-then-act: the kernel grants it to one process, and releases it when that process
+//! exits, however it exits (kill -9 included), so a dead launcher never keeps its id.
+
+use std::fs::File;
+use std::io::Write;
+use std::os::fd::AsRawFd;
+use std::os::unix::fs::{DirBuilderExt, MetadataExt, OpenOptionsExt};
+use std::path::{Path, PathBuf};
+
+/// Longest run id: the bus's limit (the id is part of every shared-memory file name).
+pub const MAX_LEN: usize = bus_schema::RUN_ID_MAX_LEN;
+
+/// Why a run id cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum RunIdError {
+    /// The id is not of the allowed form.
+    #[error(
+        "invalid run id {id:?}: {reason} (1 to {MAX_LEN} of A-Z a-z 0-9 _ -, starting with a letter or digit)"
+    )]
+    Invalid {
+        /// The id given.
+        id: String,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// Another live launcher holds the id.
+    #[error("run id {id} is in use by another live qfleet launcher (lock {}); pick another --run-id", path.display())]
+    InUse {
+        /// The id.
+        id: String,
+        /// The lock file held by the other launcher.
+        path: PathBuf,
+    },
+    /// The private directory or the lock file could not be used.
+    #[error("claiming run id {id}: {what} {}", path.display())]
+    Io {
+        /// The id.
+        id: String,
+        /// What was being done.
+        what: &'static str,
+        /// The path it was done to.
+        path: PathBuf,
+        /// The cause.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The private directory is not safe to use (a symlink, another owner, open to others).
+    #[error("claiming run id {id}: {} is not a private directory: {reason}", path.display())]
+    Unsafe {
+        /// The id.
+        id: String,
+        /// The directory.
+        path: PathBuf,
+        /// Why it is refused.
+        reason: String,
+    },
+}
+
+/// Checks that `id` is a usable run id.
+pub fn validate(id: &str) -> Result<(), RunIdError> {
+    let bad = |reason: String| RunIdError::Invalid {
+        id: id.to_string(),
+        reason,
+    };
+    let Some(first) = id.chars().next() else {
+        return Err(bad("it is empty".into()));
+    };
+    if id.len() > MAX_LEN {
+        return Err(bad(format!("it is {} bytes long", id.len())));
+    }
+    if let Some(c) = id
+        .chars()
+        .find(|c| !(c.is_ascii_alphanumeric() || *c == '_' || *c == '-'))
+    {
+        return Err(bad(format!("it contains {c:?}")));
+    }
+    if !first.is_ascii_alphanumeric() {
+        return Err(bad(format!("it starts with {first:?}")));
+    }
+    Ok(())
+}
+
+/// A default id: `<tag>-<pid>-<time in µs, hex>`, cut to [`MAX_LEN`].
+pub fn generate(tag: &str) -> String {
+    let t = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_micros() as u64)
+        .unwrap_or(0);
+    let mut id = format!("{tag}-{}-{:x}", std::process::id(), t & 0xff_ffff_ffff);
+    id.truncate(MAX_LEN);
+    id
+}
+
+/// The user's private directory for lock files: `/tmp/qfleet-<uid>`, created 0700 if missing;
+/// refused if it is a symlink, not a directory, owned by someone else or open to others.
+pub fn private_dir(id: &str) -> Result<PathBuf, RunIdError> {
+    // SAFETY: getuid(2) cannot fail.
+    let uid = unsafe { libc::getuid() };
+    let dir = PathBuf::from(format!("/tmp/qfleet-{uid}"));
+    match std::fs::DirBuilder::new().mode(0o700).create(&dir) {
+        Ok(()) => {}
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}
+        Err(source) => {
+            return Err(RunIdError::Io {
+                id: id.into(),
+                what: "creating",
+                path: dir,
+                source,
+            });
+        }
+    }
+    let meta = std::fs::symlink_metadata(&dir).map_err(|source| RunIdError::Io {
+        id: id.into(),
+        what: "reading",
+        path: dir.clone(),
+        source,
+    })?;
+    let unsafe_dir = |reason: String| RunIdError::Unsafe {
+        id: id.into(),
+        path: dir.clone(),
+        reason,
+    };
+    if !meta.file_type().is_dir() {
+        return Err(unsafe_dir("it is not a directory (or is a symlink)".into()));
+    }
+    if meta.uid() != uid {
+        return Err(unsafe_dir(format!("it is owned by uid {}", meta.uid())));
+    }
+    if meta.mode() & 0o077 != 0 {
+        return Err(unsafe_dir(format!(
+            "its mode is {:o}, others may write to it",
+            meta.mode() & 0o7777
+        )));
+    }
+    Ok(dir)
+}
+
+/// The exclusive claim of a run id, held until dropped or until the process dies.
+#[derive(Debug)]
+pub struct RunClaim {
+    /// Held open: the lock lives exactly as long as this descriptor.
+    _file: File,
+    path: PathBuf,
+}
+
+impl RunClaim {
+    /// Claims `id` (validating it first); [`RunIdError::InUse`] if a live launcher holds it.
+    pub fn acquire(id: &str) -> Result<RunClaim, RunIdError> {
+        validate(id)?;
+        let dir = private_dir(id)?;
+        Self::acquire_in(id, &dir)
+    }
+
+    /// Claims `id` with its lock file in `dir` (which the caller made private).
+    pub fn acquire_in(id: &str, dir: &Path) -> Result<RunClaim, RunIdError> {
+        let path = dir.join(format!("{id}.lock"));
+        let io = |what: &'static str, source: std::io::Error| RunIdError::Io {
+            id: id.into(),
+            what,
+            path: path.clone(),
+            source,
+        };
+        // a holder may unlink the file while we open it: retry on a stale inode
+        for _ in 0..10 {
+            let mut file = std::fs::OpenOptions::new()
+                .read(true)
+                .write(true)
+                .create(true)
+                .truncate(false)
+                .mode(0o600)
+                .custom_flags(libc::O_NOFOLLOW)
+                .open(&path)
+                .map_err(|e| io("opening", e))?;
+            // SAFETY: flock(2) on a descriptor we own.
+            let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+            if rc != 0 {
+                let e = std::io::Error::last_os_error();
+                if e.raw_os_error() == Some(libc::EWOULDBLOCK) {
+                    return Err(RunIdError::InUse {
+                        id: id.into(),
+                        path,
+                    });
+                }
+                return Err(io("locking", e));
+            }
+            let held = file.metadata().map_err(|e| io("reading", e))?;
+            match std::fs::symlink_metadata(&path) {
+                Ok(now) if now.ino() == held.ino() && now.dev() == held.dev() => {
+                    let _ = file.set_len(0);
+                    let _ = writeln!(file, "{}", std::process::id());
+                    return Ok(RunClaim { _file: file, path });
+                }
+                // unlinked (or replaced) by the previous holder: lock the new file
+                _ => continue,
+            }
+        }
+        Err(RunIdError::InUse {
+            id: id.into(),
+            path,
+        })
+    }
+
+    /// The lock file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl Drop for RunClaim {
+    fn drop(&mut self) {
+        // unlink while still holding the lock; a waiter that opened the old inode re-checks it
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn valid_ids_pass() {
+        for id in ["a", "run-1", "Z_9-x", &"a".repeat(MAX_LEN)] {
+            validate(id).unwrap_or_else(|e| panic!("{id}: {e}"));
+        }
+    }
+
+    #[test]
+    fn ids_that_are_flags_paths_or_too_long_are_refused() {
+        for id in [
+            "",
+            "-x",
+            "_x",
+            "--robots",
+            "a/b",
+            "../x",
+            "a b",
+            "a.b",
+            "é",
+            &"a".repeat(MAX_LEN + 1),
+        ] {
+            let e = validate(id).expect_err(id);
+            assert!(e.to_string().contains("invalid run id"), "{e}");
+        }
+    }
+
+    #[test]
+    fn generated_ids_are_valid() {
+        validate(&generate("run")).unwrap();
+        validate(&generate(&"x".repeat(100))).unwrap();
+    }
+
+    #[test]
+    fn a_second_claim_of_a_held_id_is_refused_and_free_again_after_drop() {
+        let dir = tempfile::tempdir().unwrap();
+        let a = RunClaim::acquire_in("claim-test", dir.path()).unwrap();
+        let e = RunClaim::acquire_in("claim-test", dir.path()).unwrap_err();
+        assert!(matches!(e, RunIdError::InUse { .. }), "{e}");
+        let other = RunClaim::acquire_in("claim-other", dir.path()).unwrap();
+        drop(a);
+        let again = RunClaim::acquire_in("claim-test", dir.path()).unwrap();
+        assert!(again.path().exists());
+        drop((again, other));
+    }
+
+    #[test]
+    fn a_symlinked_lock_file_is_not_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let victim = dir.path().join("victim");
+        std::fs::write(&victim, "keep").unwrap();
+        std::os::unix::fs::symlink(&victim, dir.path().join("s.lock")).unwrap();
+        assert!(RunClaim::acquire_in("s", dir.path()).is_err());
+        assert_eq!(std::fs::read_to_string(&victim).unwrap(), "keep");
+    }
+}
