@@ -1,6 +1,6 @@
 //! `qfleet experiment FILE`: run a manifest (see `qfleet_args::manifest`). This process is the
-//! coordinator (`coordinator::experiment`, in-process); the robots are `robot-agent
-//!` processes found next to `qfleet`, started and supervised by the `launcher`
+//! coordinator (`coordinator::experiment`, in-process); the robots are
+//! `robot-agent` processes found next to `qfleet`, started and supervised by the `launcher`
 //! crate (the same restart policy as `qfleet run`). One run per seed of the manifest.
 
 use std::path::{Path, PathBuf};
