@@ -144,8 +144,10 @@ mod clock;
 mod config;
 mod endpoints;
 mod error;
+mod files;
 mod handshake;
 mod liveness;
+mod observer;
 mod topic;
 
 pub use bus_schema;
@@ -153,15 +155,22 @@ pub use iceoryx2;
 
 pub use clock::monotonic_ns;
 pub use config::{
-    BusConfig, MAX_BUFFER, MAX_ROBOTS, iceoryx_config_for_prefix, unique_run_id, validate_run_id,
+    BusConfig, MAX_BUFFER, MAX_ROBOTS, OBSERVER_SLOTS, iceoryx_config_for_prefix,
+    quiet_library_logs, unique_run_id, validate_run_id,
 };
 pub use endpoints::{CoordinatorBus, RobotBus};
 pub use error::BusError;
+pub use files::{
+    DIR_MODE, FILE_MODE, check_iceoryx_root, check_run_files, check_shm_space, free_bytes,
+    preflight, restrict_run_files, shm_estimate,
+};
 pub use handshake::{Admission, Expected, check_register, control, reason, set_reason};
 pub use liveness::{
     CleanReport, Liveness, NodeInfo, NodeReport, check_nodes, clean_run, clean_stale,
     find_run_prefixes, iceoryx_root, leftover_files,
 };
+pub use observer::{OBSERVER_NODE_PREFIX, Observer};
 pub use topic::{
-    Batch, EVENT_DATA, EVENT_PEER_DEAD, Inbox, Message, Outbox, TopicLimits, Wakeups, limits,
+    Batch, EVENT_DATA, EVENT_PEER_DEAD, FLEET_PORT_NAME, Inbox, Message, OBSERVER_PORT_NAME,
+    Outbox, TopicLimits, Wakeups, control_buffer, limits,
 };

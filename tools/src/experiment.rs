@@ -140,6 +140,8 @@ pub fn run_once(
     out: &Path,
 ) -> Result<ExperimentResult> {
     bus::validate_run_id(run_id)?;
+    // iceoryx2 root usable, no other user's file in the prefix, room in /dev/shm
+    bus::preflight(&bus::BusConfig::new(run_id, plan.manifest.robots)?)?;
     let robot_bin = sibling("robot-agent")?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let stop = stop_flag()?;

@@ -118,6 +118,9 @@ impl RunCmd {
         })?;
         let run_id = self.run_id.clone().unwrap_or_else(default_run_id);
         bus::validate_run_id(&run_id)?;
+        // iceoryx2 root usable, no other user's file in the run's prefix, room in /dev/shm:
+        // an error here, before any process exists, not an opaque failure in every process
+        bus::preflight(&bus::BusConfig::new(run_id.clone(), self.robots)?)?;
         // an earlier run with this id that crashed may have left services half-created (iceoryx2
         // then reports them as hanging in creation forever): remove its leftovers before any
         // process of this run exists — unless a process of that run is still alive
