@@ -37,7 +37,8 @@ use crate::liveness::{SHM_DIR, iceoryx_root, leftover_files};
 use crate::topic::limits;
 use crate::{BusConfig, BusError};
 
-/// Mode of every regular file of a run after [`restrict_run_files`]: owner read/write only.
+/// Mode bits a regular file of a run keeps after [`restrict_run_files`]: the owner's only
+/// (0600 or 0400; the owner bits themselves are iceoryx2's and are left as they are).
 pub const FILE_MODE: u32 = 0o600;
 /// Mode of every directory of a run after [`restrict_run_files`]: owner only.
 pub const DIR_MODE: u32 = 0o700;
@@ -66,7 +67,8 @@ pub fn check_run_files(prefix: &str) -> Result<(), BusError> {
     Ok(())
 }
 
-/// Narrows every file of `prefix` (in `/dev/shm` and under iceoryx2's root) to [`FILE_MODE`],
+/// Narrows every file of `prefix` (in `/dev/shm` and under iceoryx2's root) to its owner's bits
+/// (mode & [`FILE_MODE`]),
 /// its directories to [`DIR_MODE`], and the per-node directories that hold them too; returns
 /// how many modes it changed.
 ///
@@ -103,7 +105,14 @@ fn restrict_one(path: &Path, me: u32) -> Result<usize, BusError> {
             user: me,
         });
     }
-    let want = if meta.is_dir() { DIR_MODE } else { FILE_MODE };
+    // only group/other bits go: iceoryx2 encodes a file's state in the owner bits (a static
+    // service config is 0600 while in creation and 0400 when done; making it 0600 again
+    // makes every later opener see "HangsInCreation")
+    let want = if meta.is_dir() {
+        DIR_MODE
+    } else {
+        meta.mode() & FILE_MODE
+    };
     if meta.mode() & 0o7777 == want {
         return Ok(0);
     }
