@@ -112,7 +112,9 @@ struct RawMap {
 #[serde(deny_unknown_fields)]
 struct RawGoal {
     name: Option<String>,
-    cell: Option<[u32; 2]>,
+    // a Vec, not [u32; 2]: serde reads the first two numbers of a longer array and drops the
+    // rest, so `cell = [1, 2, 3]` would pass as (1, 2); `cell_of` checks the length
+    cell: Option<Vec<u32>>,
     scen_index: Option<usize>,
 }
 
@@ -120,8 +122,8 @@ struct RawGoal {
 #[serde(deny_unknown_fields)]
 struct RawRobots {
     count: u32,
-    start: Option<[u32; 2]>,
-    starts: Option<Vec<[u32; 2]>>,
+    start: Option<Vec<u32>>,
+    starts: Option<Vec<Vec<u32>>>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -241,7 +243,19 @@ fn err(source: &str, path: impl Into<String>, reason: impl Into<String>) -> Mani
     }
 }
 
-fn cell_of(source: &str, path: &str, c: [u32; 2]) -> Result<Cell, ManifestError> {
+/// A cell from a manifest's `[x, y]`: exactly two numbers, each at most 65535.
+fn cell_of(source: &str, path: &str, c: &[u32]) -> Result<Cell, ManifestError> {
+    let &[x, y] = c else {
+        return Err(err(
+            source,
+            path,
+            format!(
+                "a cell is exactly two numbers [x, y], got {} ({c:?})",
+                c.len()
+            ),
+        ));
+    };
+    let c = [x, y];
     match (u16::try_from(c[0]), u16::try_from(c[1])) {
         (Ok(x), Ok(y)) => Ok(Cell::new(x, y)),
         _ => Err(err(
@@ -303,7 +317,7 @@ pub fn parse_manifest(source: &str, text: &str) -> Result<Manifest, ManifestErro
                 "give either robots.start (all robots) or robots.starts (one per robot), not both",
             ));
         }
-        (Some(c), None) => vec![Some(cell_of(s, "robots.start", *c)?); robots as usize],
+        (Some(c), None) => vec![Some(cell_of(s, "robots.start", c)?); robots as usize],
         (None, Some(v)) => {
             if v.len() != robots as usize {
                 return Err(err(
@@ -314,7 +328,7 @@ pub fn parse_manifest(source: &str, text: &str) -> Result<Manifest, ManifestErro
             }
             v.iter()
                 .enumerate()
-                .map(|(i, c)| cell_of(s, &format!("robots.starts[{i}]"), *c).map(Some))
+                .map(|(i, c)| cell_of(s, &format!("robots.starts[{i}]"), c).map(Some))
                 .collect::<Result<_, _>>()?
         }
         (None, None) => vec![None; robots as usize],
@@ -324,7 +338,7 @@ pub fn parse_manifest(source: &str, text: &str) -> Result<Manifest, ManifestErro
     }
     let mut goals = Vec::new();
     for (i, g) in raw.goals.iter().enumerate() {
-        let spec = match (g.cell, g.scen_index) {
+        let spec = match (&g.cell, g.scen_index) {
             (Some(_), Some(_)) => {
                 return Err(err(
                     s,
@@ -343,10 +357,17 @@ pub fn parse_manifest(source: &str, text: &str) -> Result<Manifest, ManifestErro
                 return Err(err(s, format!("goals[{i}]"), "needs cell or scen_index"));
             }
         };
-        goals.push(Goal {
-            name: g.name.clone().unwrap_or_else(|| format!("goal-{i}")),
-            spec,
-        });
+        let name = g.name.clone().unwrap_or_else(|| format!("goal-{i}"));
+        // results and tables are keyed by goal name: two goals of one name would be merged
+        // or shadowed in what the user reads
+        if let Some(j) = goals.iter().position(|o: &Goal| o.name == name) {
+            return Err(err(
+                s,
+                format!("goals[{i}].name"),
+                format!("duplicate goal name {name:?} (also goals[{j}].name)"),
+            ));
+        }
+        goals.push(Goal { name, spec });
     }
     if goals.is_empty() {
         goals.push(Goal {
@@ -523,10 +544,16 @@ pub fn parse_manifest(source: &str, text: &str) -> Result<Manifest, ManifestErro
     })
 }
 
-/// Reads and parses a manifest file.
+/// Largest manifest file read (the biggest example is under 2 KiB).
+pub const MAX_MANIFEST_BYTES: u64 = 1024 * 1024;
+
+/// Reads and parses a manifest file: a regular file of at most [`MAX_MANIFEST_BYTES`], never
+/// blocking on a FIFO ([`map::read_bounded`]).
 pub fn load_manifest(path: &Path) -> Result<Manifest, ManifestError> {
     let name = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|e| err(&name, "(file)", e.to_string()))?;
+    let bytes = map::read_bounded(path, MAX_MANIFEST_BYTES)
+        .map_err(|e| err(&name, "(file)", format!("cannot read: {e}")))?;
+    let text = String::from_utf8(bytes).map_err(|_| err(&name, "(file)", "not UTF-8 text"))?;
     parse_manifest(&name, &text)
 }
 
@@ -725,6 +752,48 @@ rotate = 1
         let p = m.resolve(Path::new(".")).unwrap();
         assert_eq!(p.assignment, vec![vec![0, 1, 0, 1], vec![1, 0, 1, 0]]);
         assert!(p.optimal[0][0] >= 18);
+    }
+
+    #[test]
+    fn a_cell_is_exactly_two_numbers_with_its_field_path() {
+        let x = e(&GOOD.replace("cell = [9, 9]", "cell = [1, 2, 3]"));
+        assert_eq!(x.path, "goals[0].cell", "{x}");
+        assert!(x.reason.contains("exactly two numbers"), "{x}");
+        let x = e(&GOOD.replace("cell = [0, 9]", "cell = [4]"));
+        assert_eq!(x.path, "goals[1].cell", "{x}");
+        let x = e(&GOOD.replace("start = [0, 0]", "start = [0, 0, 0]"));
+        assert_eq!(x.path, "robots.start", "{x}");
+        let x = e(&GOOD.replace(
+            "start = [0, 0]",
+            "starts = [[0, 0], [1, 0], [2, 0, 7], [3, 0]]",
+        ));
+        assert_eq!(x.path, "robots.starts[2]", "{x}");
+    }
+
+    #[test]
+    fn duplicate_goal_names_are_refused_with_both_paths() {
+        let dup = GOOD
+            .replace("cell = [9, 9]", "name = \"dock\"\ncell = [9, 9]")
+            .replace("cell = [0, 9]", "name = \"dock\"\ncell = [0, 9]");
+        let x = e(&dup);
+        assert_eq!(x.path, "goals[1].name", "{x}");
+        assert!(x.reason.contains("goals[0].name"), "{x}");
+        // a given name may not shadow a default one either
+        let x = e(&GOOD.replace("cell = [0, 9]", "name = \"goal-0\"\ncell = [0, 9]"));
+        assert_eq!(x.path, "goals[1].name", "{x}");
+    }
+
+    #[test]
+    fn manifest_files_are_read_bounded_and_never_block() {
+        let x = load_manifest(Path::new("/dev/zero")).unwrap_err();
+        assert!(x.reason.contains("not a regular file"), "{x}");
+        let dir = std::env::temp_dir().join(format!("qfleet-manifest-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let big = dir.join("big.toml");
+        std::fs::write(&big, vec![b'#'; MAX_MANIFEST_BYTES as usize + 1]).unwrap();
+        let x = load_manifest(&big).unwrap_err();
+        assert!(x.reason.contains("larger than the limit"), "{x}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

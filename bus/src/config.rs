@@ -9,6 +9,7 @@ use iceoryx2::prelude::*;
 
 use crate::BusError;
 use crate::clock::monotonic_ns;
+use crate::files;
 
 /// Largest fleet the bus supports: robot ids are `0..robots` with `robots ≤ 256`.
 ///
@@ -16,6 +17,10 @@ use crate::clock::monotonic_ns;
 /// service or port is created): at 256 robots the largest segments, the merged-hints and ack
 /// broadcasts, stay around 10 MB of shared memory each.
 pub const MAX_ROBOTS: u32 = 256;
+
+/// Ports and node slots every service keeps for outside readers (monitors, recorders, `iox2`,
+/// Python) on top of the fleet and its `spare_ports`; see [`crate::Observer`].
+pub const OBSERVER_SLOTS: u32 = 4;
 
 /// Largest per-connection subscriber buffer accepted in a [`BusConfig`].
 pub const MAX_BUFFER: usize = 4096;
@@ -37,8 +42,8 @@ pub struct BusConfig {
     /// Discoveries buffered per robot at the coordinator (lossless: a full buffer makes the
     /// robot wait, so deeper means fewer stalls).
     pub discovery_buffer: usize,
-    /// Extra ports and nodes per service beyond the fleet, for monitors (`iox2`, Python) and a
-    /// restarted process whose dead predecessor is not cleaned up yet.
+    /// Extra ports and nodes per service beyond the fleet, for a restarted process whose dead
+    /// predecessor is not cleaned up yet (outside readers have their own [`OBSERVER_SLOTS`]).
     pub spare_ports: u32,
     /// How long a lossless send keeps retrying into a full buffer before it reports
     /// [`BusError::DeliveryTimeout`] instead of blocking forever on a stuck peer.
@@ -126,6 +131,11 @@ impl BusConfig {
     }
 
     /// Creates this process's iceoryx2 node in the run (one per process).
+    ///
+    /// Refuses a prefix holding a file of another user and an unusable iceoryx2 root first, and
+    /// narrows the run's files to owner-only access after (see `files.rs`). A failure while
+    /// `/dev/shm` is full is reported as [`BusError::NoShmSpace`], not as iceoryx2's
+    /// `UnableToGenerateUniqueNodeId`.
     pub fn create_node(&self, name: &str) -> Result<Node<ipc::Service>, BusError> {
         let config = self.iceoryx_config()?;
         let node_err = |detail: String| BusError::Node {
@@ -134,17 +144,27 @@ impl BusConfig {
             detail,
         };
         let node_name = NodeName::new(name).map_err(|e| node_err(format!("bad node name: {e}")))?;
+        files::check_iceoryx_root()?;
+        files::check_run_files(&self.prefix())?;
         let mode = if self.handle_signals {
             SignalHandlingMode::HandleTerminationRequests
         } else {
             SignalHandlingMode::Disabled
         };
-        NodeBuilder::new()
+        let node = NodeBuilder::new()
             .name(&node_name)
             .config(&config)
             .signal_handling_mode(mode)
             .create::<ipc::Service>()
-            .map_err(|e| node_err(e.to_string()))
+            .map_err(|e| {
+                if files::shm_exhausted() {
+                    files::no_space(self)
+                } else {
+                    node_err(e.to_string())
+                }
+            })?;
+        files::restrict_run_files(&self.prefix())?;
+        Ok(node)
     }
 }
 
@@ -194,7 +214,9 @@ pub fn unique_run_id(tag: &str) -> String {
 /// Starts from iceoryx2's built-in defaults (never a config file, so a stray
 /// `~/.config/iceoryx2/iceoryx2.toml` cannot change a run), sets the prefix and keeps the
 /// automatic cleanup of dead nodes on node creation and service opening switched on.
+/// Silences iceoryx2's own log output unless asked for ([`quiet_library_logs`]).
 pub fn iceoryx_config_for_prefix(prefix: &str) -> Result<Config, BusError> {
+    quiet_library_logs();
     let mut config = Config::default();
     config.global.prefix =
         FileName::new(prefix.as_bytes()).map_err(|e| BusError::InvalidRunId {
@@ -205,4 +227,23 @@ pub fn iceoryx_config_for_prefix(prefix: &str) -> Result<Config, BusError> {
     config.global.node.cleanup_dead_nodes_on_destruction = true;
     config.global.service.cleanup_dead_nodes_on_open = true;
     Ok(config)
+}
+
+/// Sets iceoryx2's log level once per process: `IOX2_LOG_LEVEL` if set (trace, debug, info,
+/// warn, error, fatal), else `Warn` when `RUST_LOG` is set (the user asked for logs), else
+/// `Fatal`.
+///
+/// iceoryx2 logs to stderr by default, at `Info` and up; warnings such as "No config file was
+/// loaded" (printed whenever a default `Config` is looked up) are noise for a qfleet user,
+/// since every failure they stand for comes back as a [`BusError`] that says more.
+pub fn quiet_library_logs() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let default = if std::env::var_os("RUST_LOG").is_some() {
+            LogLevel::Warn
+        } else {
+            LogLevel::Fatal
+        };
+        set_log_level_from_env_or(default);
+    });
 }

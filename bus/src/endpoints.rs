@@ -14,6 +14,7 @@ use iceoryx2::port::listener::Listener;
 use iceoryx2::prelude::*;
 
 use crate::clock::monotonic_ns;
+use crate::files::{no_space, restrict_run_files, shm_exhausted};
 use crate::handshake::{Admission, Expected, check_register, control, reason, set_reason};
 use crate::liveness::{CleanReport, clean_stale};
 use crate::topic::{Inbox, Outbox, Role, Wakeups};
@@ -51,6 +52,9 @@ pub struct CoordinatorBus {
     /// Discoveries relayed to every robot (lossless).
     pub relay: Outbox<DiscoveryRelay>,
     control_seq: Cell<u64>,
+    /// When the last `Ack` to each robot id was sent (monotonic ns), to skip re-acks of stale
+    /// registration re-sends.
+    acked_ns: RefCell<BTreeMap<u32, u64>>,
     config: BusConfig,
     // Declared last so it is dropped after every port.
     node: Node<ipc::Service>,
@@ -64,6 +68,17 @@ impl CoordinatorBus {
     pub fn create(config: &BusConfig) -> Result<Self, BusError> {
         let node = config.create_node(bus_schema::COORDINATOR_NODE_NAME)?;
         let r = Role::Creator;
+        let bus = Self::create_ports(config, node, r).map_err(|e| explain_no_space(config, e))?;
+        // the services' files exist now: narrow them to this user before any robot starts
+        restrict_run_files(&config.prefix())?;
+        Ok(bus)
+    }
+
+    fn create_ports(
+        config: &BusConfig,
+        node: Node<ipc::Service>,
+        r: Role,
+    ) -> Result<Self, BusError> {
         Ok(Self {
             register: Inbox::create(&node, config, r)?,
             state: Inbox::create(&node, config, r)?,
@@ -75,6 +90,7 @@ impl CoordinatorBus {
             ack: Outbox::create(&node, config, r)?,
             relay: Outbox::create(&node, config, r)?,
             control_seq: Cell::new(0),
+            acked_ns: RefCell::new(BTreeMap::new()),
             config: config.clone(),
             node,
         })
@@ -140,6 +156,14 @@ impl CoordinatorBus {
     ///
     /// Before acknowledging it connects all subscribers, so the robot's lossless topics are
     /// connected by the time it can learn it was accepted.
+    ///
+    /// A repeated registration of an accepted robot (same id and pid) that the robot sent
+    /// *before* its last `Ack` went out is a re-send that crossed that `Ack`: the `Ack` is
+    /// already in the robot's (lossless, connected) buffer, so it is not acknowledged again
+    /// ([`Admission::Reaccepted`] all the same). On a loaded machine the coordinator drains
+    /// such re-sends in bulk, and re-acking each one broadcast up to 4 `Ack`s per robot
+    /// through every robot's control buffer (issue 10 #11). A registration sent after the
+    /// last `Ack` (the robot asks again) is answered.
     pub fn admit(
         &self,
         reg: &Register,
@@ -152,7 +176,15 @@ impl CoordinatorBus {
                 "robot id {} already taken by pid {}",
                 reg.robot_id, prev.pid
             )),
-            (Ok(()), Some(_)) => Ok(Admission::Reaccepted),
+            (Ok(()), Some(_)) => {
+                let last = self.acked_ns.borrow().get(&reg.robot_id).copied();
+                if last.is_some_and(|t| reg.send_time_ns < t) {
+                    // a re-send that crossed our Ack: that Ack answers it, send nothing
+                    return Ok(Admission::Reaccepted);
+                }
+                // asked again after our last Ack: answer again (below)
+                Ok(Admission::Reaccepted)
+            }
             (Ok(()), None) => Ok(Admission::Accepted),
         };
         match verdict {
@@ -166,8 +198,10 @@ impl CoordinatorBus {
             }
             Ok(admission) => {
                 self.connect_all()?;
-                match self.send_control(control(Command::Ack, reg.robot_id)) {
+                let ack = control(Command::Ack, reg.robot_id);
+                match self.send_control(ack) {
                     Ok(_) => {
+                        self.acked_ns.borrow_mut().insert(reg.robot_id, ack.time_ns);
                         accepted.insert(reg.robot_id, *reg);
                         Ok(admission)
                     }
@@ -325,7 +359,10 @@ impl RobotBus {
         let deadline = Instant::now() + wait;
         loop {
             match Self::open_ports(&node, config, robot_id) {
-                Ok(ports) => return Ok(ports.with_node(node)),
+                Ok(ports) => {
+                    restrict_run_files(&config.prefix())?;
+                    return Ok(ports.with_node(node));
+                }
                 Err(BusError::ServiceMissing { service }) => {
                     if Instant::now() >= deadline {
                         return Err(BusError::Timeout {
@@ -335,7 +372,7 @@ impl RobotBus {
                     }
                     std::thread::sleep(HANDSHAKE_TICK);
                 }
-                Err(e) => return Err(e),
+                Err(e) => return Err(explain_no_space(config, e)),
             }
         }
     }
@@ -572,5 +609,18 @@ impl RobotPorts {
             config: self.config,
             node,
         }
+    }
+}
+
+/// An iceoryx2 failure while creating services or ports with `/dev/shm` full is a lack of space
+/// ([`BusError::NoShmSpace`]), whatever iceoryx2 called it.
+fn explain_no_space(config: &BusConfig, e: BusError) -> BusError {
+    match e {
+        BusError::Service { .. } | BusError::Port { .. } | BusError::Loan { .. }
+            if shm_exhausted() =>
+        {
+            no_space(config)
+        }
+        other => other,
     }
 }

@@ -188,4 +188,70 @@ pub enum BusError {
         #[source]
         source: std::io::Error,
     },
+
+    /// A file under the run's prefix belongs to another user: iceoryx2 would open and trust it.
+    #[error(
+        "{path} belongs to uid {owner}, not to this user (uid {user}): another user created a \
+         file of this run; pick another run id (or have uid {owner} or root remove it)"
+    )]
+    ForeignFile {
+        /// The file.
+        path: String,
+        /// Its owner.
+        owner: u32,
+        /// This process's effective uid.
+        user: u32,
+    },
+
+    /// A file of the run could not be narrowed to owner-only access.
+    #[error("cannot restrict {path} to its owner: {source}")]
+    Permissions {
+        /// The file.
+        path: String,
+        /// The OS error.
+        #[source]
+        source: std::io::Error,
+    },
+
+    /// iceoryx2's root directory exists but this user cannot create files in it.
+    #[error(
+        "iceoryx2's directory {path} belongs to uid {owner} (mode {mode:o}) and this user (uid \
+         {user}) cannot create files in it, so no process of the run could start; remove it \
+         as its owner once no iceoryx2 process runs (e.g. `sudo rm -rf {path}`), or run as uid \
+         {owner}"
+    )]
+    UnusableRoot {
+        /// The directory.
+        path: String,
+        /// Its owner.
+        owner: u32,
+        /// Its mode bits.
+        mode: u32,
+        /// This process's effective uid.
+        user: u32,
+    },
+
+    /// `/dev/shm` has too little room for the run's shared memory.
+    #[error(
+        "no space in /dev/shm: need ~{need_mib} MiB, have {have_mib} MiB; free some (`qfleet \
+         clean`, `df -h /dev/shm`) or run fewer robots"
+    )]
+    NoShmSpace {
+        /// Estimated need of the run, MiB.
+        need_mib: f64,
+        /// Free space now, MiB.
+        have_mib: f64,
+    },
+
+    /// Every observer slot of the run is taken by live outside readers.
+    #[error(
+        "run {run_id} already has {slots} outside readers, all the slots it keeps for them; \
+         stop one (the remaining ports are kept for restarts of the fleet)"
+    )]
+    NoObserverSlot {
+        /// The run.
+        run_id: String,
+        /// Observer slots per run.
+        slots: u32,
+    },
 }

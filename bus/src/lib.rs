@@ -56,7 +56,7 @@
 //! | `robot/discovery` | `PseudoTargetDiscovery` | lossless | `discovery_buffer` (256) | 0 | rare and valuable: each must arrive exactly once (and is acked) |
 //! | `robot/hints` | `QHintBatch` | latest-wins | `hint_buffer` (8) | 0 | newer Q-values supersede older; a slow coordinator must not block robots |
 //! | `robot/report` | `FinalReport` | lossless | 4 | 0 | the results of the run |
-//! | `coord/control` | `Control` | lossless | 64 | 0 | Start/Stop/goals must never be missed |
+//! | `coord/control` | `Control` | lossless | 2·robots + 16 ([`control_buffer`]) | 0 | Start/Stop/goals must never be missed; the whole start burst (an Ack and a goal per robot) fits, so a robot that is not scheduled during it never blocks the coordinator |
 //! | `coord/merged` | `MergedHintBatch` | latest-wins | `merged_buffer` (4) | 1 | superseded by the next merge; one slow robot must not block the fleet |
 //! | `coord/ack` | `DiscoveryAck` | latest-wins | 2·robots + 8 | 0 | cumulative: a newer ack carries all older ones; room for a full round of acks |
 //! | `coord/discovery` | `DiscoveryRelay` | lossless | `discovery_buffer` (256) | 0 | each distinct discovery is relayed once and must reach every robot on its goal; rare (a few dozen per goal) |
@@ -64,18 +64,31 @@
 //! Lossless = safe overflow off + `RetryUntilDelivered` with a backpressure handler that gives
 //! up after `send_timeout` (5 s) and reports [`BusError::DeliveryTimeout`], and a send that
 //! reached no subscriber is [`BusError::NoSubscriber`] — a lossless send never drops silently
-//! and never hangs forever on a dead peer. Latest-wins = safe overflow on: a full buffer drops
-//! its oldest sample; sequence gaps show it.
+//! and never hangs forever on a dead peer. Lossless is lossless *to the fleet*: the handler
+//! retries only for the fleet's own subscribers (port name [`FLEET_PORT_NAME`]); a full buffer
+//! of an outside reader ([`Inbox::open`], [`Observer`]) drops that sample for it alone and the
+//! send goes on ([`Outbox::outsider_drops`] counts them), so a stalled monitor never blocks or
+//! aborts a run. The handler runs only when a buffer is full: a send into free buffers costs
+//! the same as before. Latest-wins = safe overflow on: a full buffer drops its oldest sample;
+//! sequence gaps show it.
 //!
-//! Limits, from `robots` = R and `spare_ports` = S (2; for monitors like `iox2` or Python, and
-//! for a restarted process whose dead predecessor is not cleaned yet): robot→coordinator topics
-//! admit R+S publishers and 1+S subscribers, coordinator→robot topics 1+S publishers and R+S
-//! subscribers, every service R+1+S nodes; each topic's wake event service admits as many
-//! notifiers/listeners as the topic has publishers/subscribers. See [`limits`]. Shared memory is
-//! allocated up front from these (measured at R = 256: merged hints 10.2 MB and the
-//! broadcast acks 9.7 MB — both grow with R², as every robot's buffer sees every message — control
-//! 2.8 MB, 24 MB for the coordinator in all, plus about 0.2 MB per robot).
+//! Limits, from `robots` = R, `spare_ports` = S (2: a restarted process whose dead
+//! predecessor is not cleaned yet) and [`OBSERVER_SLOTS`] = O (4: outside readers, see
+//! [`Observer`]): robot→coordinator topics admit R+S+O publishers and 1+S+O subscribers,
+//! coordinator→robot topics 1+S+O publishers and R+S+O subscribers, every service R+1+S+O
+//! nodes; each topic's wake event service admits as many notifiers/listeners as the topic has
+//! publishers/subscribers. See [`limits`]. Shared memory is allocated up front from these;
+//! [`shm_estimate`] computes the run's need from them and [`preflight`] compares it with the
+//! free space of `/dev/shm` before a run starts.
 //!
+//! ## Files and permissions
+//!
+//! Every file of a run (its shared memory in `/dev/shm`, its files under iceoryx2's root) is
+//! narrowed to 0600 (directories 0700) as soon as a process has created its node and ports —
+//! iceoryx2 itself leaves the per-prefix management segment 0666 — and a prefix holding a file
+//! of another user is refused ([`BusError::ForeignFile`]); see `files.rs` for what iceoryx2
+//! does and the one window that remains.
+
 //! ## The start handshake (lossless only after connecting)
 //!
 //! iceoryx2 keeps the lossless promise only once a subscriber has *connected* to a publisher;
@@ -144,8 +157,10 @@ mod clock;
 mod config;
 mod endpoints;
 mod error;
+mod files;
 mod handshake;
 mod liveness;
+mod observer;
 mod topic;
 
 pub use bus_schema;
@@ -153,15 +168,22 @@ pub use iceoryx2;
 
 pub use clock::monotonic_ns;
 pub use config::{
-    BusConfig, MAX_BUFFER, MAX_ROBOTS, iceoryx_config_for_prefix, unique_run_id, validate_run_id,
+    BusConfig, MAX_BUFFER, MAX_ROBOTS, OBSERVER_SLOTS, iceoryx_config_for_prefix,
+    quiet_library_logs, unique_run_id, validate_run_id,
 };
 pub use endpoints::{CoordinatorBus, RobotBus};
 pub use error::BusError;
+pub use files::{
+    DIR_MODE, FILE_MODE, check_iceoryx_root, check_run_files, check_shm_space, free_bytes,
+    preflight, restrict_run_files, shm_estimate,
+};
 pub use handshake::{Admission, Expected, check_register, control, reason, set_reason};
 pub use liveness::{
     CleanReport, Liveness, NodeInfo, NodeReport, check_nodes, clean_run, clean_stale,
     find_run_prefixes, iceoryx_root, leftover_files,
 };
+pub use observer::{OBSERVER_NODE_PREFIX, Observer};
 pub use topic::{
-    Batch, EVENT_DATA, EVENT_PEER_DEAD, Inbox, Message, Outbox, TopicLimits, Wakeups, limits,
+    Batch, EVENT_DATA, EVENT_PEER_DEAD, FLEET_PORT_NAME, Inbox, Message, OBSERVER_PORT_NAME,
+    Outbox, TopicLimits, Wakeups, control_buffer, limits,
 };

@@ -10,7 +10,7 @@ use crate::config::iceoryx_config_for_prefix;
 use crate::{BusConfig, BusError};
 
 /// Where POSIX shared memory lives on Linux.
-const SHM_DIR: &str = "/dev/shm";
+pub(crate) const SHM_DIR: &str = "/dev/shm";
 
 /// Liveness of one iceoryx2 node (one process) of a run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

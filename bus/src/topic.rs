@@ -4,6 +4,8 @@ use core::fmt::Debug;
 use core::mem::offset_of;
 use std::cell::RefCell;
 use std::collections::HashMap;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
 use bus_schema::names::{Delivery, Direction, Topic};
@@ -25,6 +27,7 @@ use iceoryx2::service::builder::publish_subscribe::{
 };
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 
+use crate::config::OBSERVER_SLOTS;
 use crate::{BusConfig, BusError};
 
 /// Event id a publisher's notifier sends after new data ("look at the topic").
@@ -163,9 +166,14 @@ pub struct TopicLimits {
 }
 
 /// The limits of `topic` for the fleet described by `cfg` (see the crate docs for the table).
+///
+/// Ports and nodes are the fleet's (R robots + 1 coordinator), plus `spare_ports` for a
+/// restarted process whose dead predecessor is not cleaned yet, plus [`OBSERVER_SLOTS`] for
+/// outside readers: an observer that follows [`crate::Observer`]'s admission never takes a slot
+/// a restart needs.
 pub fn limits(cfg: &BusConfig, topic: Topic) -> TopicLimits {
     let robots = cfg.robots as usize;
-    let spare = cfg.spare_ports as usize;
+    let spare = cfg.spare_ports as usize + OBSERVER_SLOTS as usize;
     let (max_publishers, max_subscribers, subscriber_borrowed) = match topic.direction() {
         Direction::RobotToCoordinator => (robots + spare, 1 + spare, 4),
         Direction::CoordinatorToRobot => (1 + spare, robots + spare, 2),
@@ -177,8 +185,12 @@ pub fn limits(cfg: &BusConfig, topic: Topic) -> TopicLimits {
         Topic::Discovery => (cfg.discovery_buffer, 0),
         Topic::Hints => (cfg.hint_buffer, 0),
         Topic::Report => (4, 0),
-        // broadcast: a burst of per-robot acks/goal assignments passes every robot's buffer
-        Topic::Control => (64, 0),
+        // broadcast: the start burst — one Ack per robot, one AssignGoal per robot, Start and a
+        // few Phase/Stop — passes through every robot's buffer. It must fit whole: on a loaded
+        // machine a robot that registered early may not run at all while the others register,
+        // and a lossless send into its full buffer would block the coordinator (issue 10 #11:
+        // 64 slots failed at 256 robots with "not delivered within 1s").
+        Topic::Control => (control_buffer(robots), 0),
         Topic::Merged => (cfg.merged_buffer, 1),
         // broadcast and cumulative: room for one ack per robot, twice, so a robot's own latest
         // ack is not pushed out by one round of acks to the others
@@ -198,6 +210,19 @@ pub fn limits(cfg: &BusConfig, topic: Topic) -> TopicLimits {
         safe_overflow: topic.delivery() == Delivery::LatestWins,
     }
 }
+
+/// Control samples buffered per robot: the whole start burst for `robots` (see [`limits`]).
+pub fn control_buffer(robots: usize) -> usize {
+    2 * robots + 16
+}
+
+/// Port name of the fleet's own subscribers (the coordinator's and the robots'); an outside
+/// reader's subscriber has another name, and a lossless publisher discards for it when its
+/// buffer is full instead of waiting (see [`Outbox`]).
+pub const FLEET_PORT_NAME: &str = "qfleet-fleet";
+
+/// Port name of an outside reader's subscriber ([`Inbox::open`]).
+pub const OBSERVER_PORT_NAME: &str = "qfleet-observer";
 
 /// Whether this process creates services (the coordinator) or only opens them (robots).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -368,6 +393,52 @@ pub struct Outbox<T: Message> {
     /// [`send_batch`](Self::send_batch): entries used by the message last written into each
     /// slot (by address), i.e. the only bytes of that slot that are not zero.
     dirty: RefCell<HashMap<usize, u32>>,
+    /// Samples dropped for outside readers whose buffer was full (see [`Self::outsider_drops`]).
+    outsider_drops: Arc<AtomicU64>,
+}
+
+/// Tells the fleet's subscribers from outside readers by port name, for the backpressure
+/// handler of a lossless [`Outbox`]; a verdict is cached per subscriber port id (ids are
+/// unique and never reused), so the service's port list is read once per subscriber that ever
+/// had a full buffer, not per retry.
+struct FleetPorts<T: Message> {
+    pubsub: Arc<publish_subscribe::PortFactory<ipc::Service, T, ()>>,
+    verdicts: RefCell<HashMap<u128, bool>>,
+}
+
+impl<T: Message> FleetPorts<T> {
+    /// Most cached verdicts (a bound, not a tuning knob: a run has a few hundred subscribers).
+    const MAX_CACHED: usize = 1 << 14;
+
+    fn new(pubsub: Arc<publish_subscribe::PortFactory<ipc::Service, T, ()>>) -> Self {
+        Self {
+            pubsub,
+            verdicts: RefCell::new(HashMap::new()),
+        }
+    }
+
+    /// Whether the subscriber port `id` belongs to the fleet. A port not found in the service's
+    /// list counts as the fleet's: when in doubt, keep the lossless promise.
+    fn is_fleet(&self, id: u128) -> bool {
+        if let Some(v) = self.verdicts.borrow().get(&id) {
+            return *v;
+        }
+        let mut fleet = true;
+        self.pubsub.dynamic_config().list_subscribers(|d| {
+            if d.subscriber_id.value() == id {
+                fleet = d.subscriber_name.as_str() == FLEET_PORT_NAME;
+                CallbackProgression::Stop
+            } else {
+                CallbackProgression::Continue
+            }
+        });
+        let mut verdicts = self.verdicts.borrow_mut();
+        if verdicts.len() >= Self::MAX_CACHED {
+            verdicts.clear();
+        }
+        verdicts.insert(id, fleet);
+        fleet
+    }
 }
 
 impl<T: Message> Outbox<T> {
@@ -384,7 +455,8 @@ impl<T: Message> Outbox<T> {
     ) -> Result<Self, BusError> {
         let topic = T::TOPIC;
         let service = topic.service_name(&cfg.run_id);
-        let pubsub = open_pubsub::<T>(node, cfg, topic, role)?;
+        // shared with the backpressure handler, which looks up who owns a full buffer
+        let pubsub = Arc::new(open_pubsub::<T>(node, cfg, topic, role)?);
         let wake = open_wake(node, cfg, topic, role)?;
         let l = limits(cfg, topic);
         let port_err = |port: &'static str, detail: String| BusError::Port {
@@ -392,6 +464,7 @@ impl<T: Message> Outbox<T> {
             service: service.clone(),
             detail,
         };
+        let outsider_drops = Arc::new(AtomicU64::new(0));
         let builder = pubsub
             .publisher_builder()
             .max_loaned_samples(l.publisher_loans);
@@ -401,11 +474,19 @@ impl<T: Message> Outbox<T> {
             }
             Delivery::Lossless => {
                 let timeout = cfg.send_timeout;
+                let owners = FleetPorts::new(Arc::clone(&pubsub));
+                let drops = Arc::clone(&outsider_drops);
                 builder
                     .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
-                    // retry while the subscriber drains; after the timeout fail loudly
+                    // Runs only when a subscriber's buffer is full, never on a plain send.
+                    // The fleet's own subscribers: retry while they drain, after the timeout
+                    // fail loudly. An outside reader's: drop this sample for it alone and go
+                    // on — a stalled monitor never blocks or aborts the run.
                     .set_backpressure_handler(move |info: &BackpressureInfo| {
-                        if info.elapsed_time < timeout {
+                        if !owners.is_fleet(info.receiver_port_id) {
+                            drops.fetch_add(1, Ordering::Relaxed);
+                            BackpressureAction::DiscardData
+                        } else if info.elapsed_time < timeout {
                             BackpressureAction::Retry
                         } else {
                             BackpressureAction::DiscardDataAndFail
@@ -427,7 +508,14 @@ impl<T: Message> Outbox<T> {
             publisher,
             notifier,
             dirty: RefCell::new(HashMap::new()),
+            outsider_drops,
         })
+    }
+
+    /// Samples of this (lossless) outbox that an outside reader's full buffer did not take:
+    /// dropped for that reader alone, delivered to the fleet. Always 0 on latest-wins topics.
+    pub fn outsider_drops(&self) -> u64 {
+        self.outsider_drops.load(Ordering::Relaxed)
     }
 
     /// The service name this outbox publishes on.
@@ -563,17 +651,28 @@ pub struct Inbox<T: Message> {
 }
 
 impl<T: Message> Inbox<T> {
-    /// Opens a subscriber on `T`'s topic of an existing run, for a monitor (`qfleet topic
-    /// echo`, a recorder); it takes one of the spare ports. On a lossless topic it must keep
-    /// up, or it stalls the publishers until their send timeout.
+    /// Opens a subscriber on `T`'s topic of an existing run for an outside reader (a monitor,
+    /// a recorder); it takes one of the [`OBSERVER_SLOTS`] ports. Its port is named
+    /// [`OBSERVER_PORT_NAME`]: if it does not keep up with a lossless topic, the publishers
+    /// drop samples for it alone (never for the fleet) instead of waiting for it.
     pub fn open(node: &Node<ipc::Service>, cfg: &BusConfig) -> Result<Self, BusError> {
-        Self::create(node, cfg, Role::Opener)
+        Self::build(node, cfg, Role::Opener, OBSERVER_PORT_NAME)
     }
 
+    /// A subscriber of the fleet itself (the coordinator's or a robot's).
     pub(crate) fn create(
         node: &Node<ipc::Service>,
         cfg: &BusConfig,
         role: Role,
+    ) -> Result<Self, BusError> {
+        Self::build(node, cfg, role, FLEET_PORT_NAME)
+    }
+
+    fn build(
+        node: &Node<ipc::Service>,
+        cfg: &BusConfig,
+        role: Role,
+        port_name: &str,
     ) -> Result<Self, BusError> {
         let topic = T::TOPIC;
         let service = topic.service_name(&cfg.run_id);
@@ -584,8 +683,11 @@ impl<T: Message> Inbox<T> {
             service: service.clone(),
             detail,
         };
+        let name = PortName::new(port_name)
+            .map_err(|e| port_err("subscriber", format!("bad port name: {e:?}")))?;
         let subscriber = pubsub
             .subscriber_builder()
+            .name(&name)
             .create()
             .map_err(|e| port_err("subscriber", format!("{e:?}")))?;
         let listener = wake

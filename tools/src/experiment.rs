@@ -152,6 +152,8 @@ pub fn run_once(
         RunIdError::InUse { .. } | RunIdError::Invalid { .. } => anyhow!(e).context(Exit::BadInput),
         e => anyhow!(e),
     })?;
+    // iceoryx2 root usable, no other user's file in the prefix, room in /dev/shm
+    bus::preflight(&bus::BusConfig::new(run_id, plan.manifest.robots)?)?;
     let robot_bin = sibling("robot-agent")?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     crate::catch_interrupts()?;

@@ -217,6 +217,9 @@ impl RunCmd {
         };
         launcher::run_id::validate(&run_id)?;
         bus::validate_run_id(&run_id)?;
+        // iceoryx2 root usable, no other user's file in the run's prefix, room in /dev/shm:
+        // an error here, before any process exists, not an opaque failure in every process
+        bus::preflight(&bus::BusConfig::new(run_id.clone(), self.robots)?)?;
         Ok((task, cfg, grace, time_limit, run_id))
     }
 

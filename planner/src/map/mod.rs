@@ -7,17 +7,17 @@
 mod ascii;
 mod builtin;
 mod error;
+mod file;
 mod movingai;
 mod text;
 
 pub use ascii::parse_ascii;
 pub use builtin::{BUILTIN_MAPS, PAPER_10, PAPER_20, PAPER_30, builtin, builtin_text};
 pub use error::{Location, MapError};
+pub use file::{MAX_MAP_BYTES, MAX_SCEN_BYTES, read_bounded};
 pub use movingai::{Scenario, parse_movingai_map, parse_scen};
 
 use crate::grid::{Cell, Grid};
-use std::fs;
-use std::io;
 use std::path::Path;
 
 /// A parsed map: the grid plus the start and goals the file marks, if any.
@@ -92,19 +92,13 @@ pub(crate) fn name_from_source(source: &str) -> String {
         .map_or_else(|| source.to_owned(), |s| s.to_string_lossy().into_owned())
 }
 
-/// Reads a whole file, turning a directory or any I/O failure into [`MapError::Io`].
-fn read_file(path: &Path) -> Result<Vec<u8>, MapError> {
-    let io_err = |source: io::Error| MapError::Io {
+/// Reads a whole map or scenario file of at most `limit` bytes ([`read_bounded`]: regular
+/// files only, never blocking on a FIFO), turning any failure into [`MapError::Io`].
+fn read_file(path: &Path, limit: u64) -> Result<Vec<u8>, MapError> {
+    read_bounded(path, limit).map_err(|source| MapError::Io {
         path: path.to_owned(),
         source,
-    };
-    if fs::metadata(path).map_err(io_err)?.is_dir() {
-        return Err(io_err(io::Error::new(
-            io::ErrorKind::IsADirectory,
-            "is a directory, not a file",
-        )));
-    }
-    fs::read(path).map_err(io_err)
+    })
 }
 
 /// Whether a file is in the MovingAI format: a `.map` extension or a first line `type ...`.
@@ -127,7 +121,7 @@ pub fn load_map(spec: &str) -> Result<GridMap, MapError> {
         });
     }
     let path = Path::new(spec);
-    let bytes = read_file(path)?;
+    let bytes = read_file(path, MAX_MAP_BYTES)?;
     if is_movingai(path, &bytes) {
         parse_movingai_map(spec, &bytes)
     } else {
@@ -137,13 +131,35 @@ pub fn load_map(spec: &str) -> Result<GridMap, MapError> {
 
 /// Loads a MovingAI `.scen` file.
 pub fn load_scen(path: &Path) -> Result<Vec<Scenario>, MapError> {
-    let bytes = read_file(path)?;
+    let bytes = read_file(path, MAX_SCEN_BYTES)?;
     parse_scen(&path.display().to_string(), &bytes)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::{fs, io};
+
+    #[test]
+    fn dev_zero_and_a_fifo_as_map_or_scenario_are_refused_at_once() {
+        for e in [
+            load_map("/dev/zero").unwrap_err(),
+            load_scen(Path::new("/dev/zero")).unwrap_err(),
+        ] {
+            assert!(e.to_string().contains("not a regular file"), "{e}");
+        }
+        #[cfg(unix)]
+        {
+            let dir = temp_dir("fifo");
+            let fifo = dir.join("map.txt");
+            let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+            // SAFETY: a valid NUL-terminated path.
+            assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+            let e = load_map(fifo.to_str().unwrap()).unwrap_err();
+            assert!(e.to_string().contains("FIFO"), "{e}");
+            fs::remove_dir_all(&dir).unwrap();
+        }
+    }
 
     fn temp_dir(tag: &str) -> std::path::PathBuf {
         let dir = std::env::temp_dir().join(format!("planner-map-{tag}-{}", std::process::id()));

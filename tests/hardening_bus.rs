@@ -1,0 +1,352 @@
+//! Issue 10, the bus and input items, with real processes: what another user, a stalled
+//! outside reader, a full `/dev/shm`, a fleet of 256 and hostile input files can do to a run.
+//!
+//! Tests that need root (another user via `setpriv`, private mount namespaces via `unshare`)
+//! print why they skip when they cannot run; everything else runs as any user.
+
+use std::os::unix::fs::MetadataExt;
+use std::os::unix::process::CommandExt;
+use std::path::Path;
+use std::process::{Child, Command, Output};
+use std::time::{Duration, Instant};
+
+use bus::bus_schema::{
+    Control, DiscoveryRelay, FinalReport, PseudoTargetDiscovery, Register, RobotState,
+};
+use bus::{BusConfig, DIR_MODE, FILE_MODE, Observer, leftover_files};
+use qfleet_suite::{
+    PROCESS_TIMEOUT, bin, describe, leftovers, run_bounded, run_id, scratch, spawn, wait_bounded,
+};
+use serde_json::Value;
+
+fn is_root() -> bool {
+    // SAFETY: geteuid has no preconditions.
+    unsafe { libc::geteuid() == 0 }
+}
+
+/// Whether `tool` runs here (util-linux may be missing, or namespaces forbidden).
+fn works(cmd: &mut Command) -> bool {
+    cmd.output().is_ok_and(|o| o.status.success())
+}
+
+fn launch(id: &str, out: &Path, extra: &[&str]) -> Child {
+    spawn(
+        Command::new(bin("qfleet"))
+            .args(["run", "--json", "--run-id", id, "--out"])
+            .arg(out)
+            .args(extra)
+            .process_group(0),
+    )
+}
+
+fn result(out: &Output) -> Value {
+    serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("no JSON result ({e}): {}", describe(out)))
+}
+
+fn assert_all_finished(r: &Value, robots: usize) {
+    let rs = r["robots"].as_array().expect("robots");
+    assert_eq!(rs.len(), robots, "{r}");
+    for x in rs {
+        assert_eq!(x["status"], "finished", "{x}");
+    }
+}
+
+fn assert_quiet(out: &Output) {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !err.contains("No config file was loaded") && !err.contains("[W]") && !err.contains("[E]"),
+        "library noise on stderr:\n{err}"
+    );
+}
+
+/// Items 7 & 18: every file of a live run is 0600/0700 and owned by the user; another user
+/// (`nobody`) can neither read nor overwrite any of them, and the run goes on.
+#[test]
+fn another_user_can_neither_read_nor_overwrite_any_file_of_a_run() {
+    if !is_root() {
+        eprintln!("SKIP: needs root to act as another user with setpriv");
+        return;
+    }
+    if !works(Command::new("setpriv").args([
+        "--reuid=nobody",
+        "--regid=nogroup",
+        "--clear-groups",
+        "true",
+    ])) {
+        eprintln!("SKIP: setpriv --reuid=nobody does not work here");
+        return;
+    }
+    let id = run_id("other-user");
+    let dir = scratch(&id);
+    let robots = 3u32;
+    let child = launch(
+        &id,
+        &dir,
+        &[
+            "--map",
+            "builtin:paper-20",
+            "--episodes",
+            "300000",
+            "--robots",
+            "3",
+        ],
+    );
+    let cfg = BusConfig::new(id.as_str(), robots).expect("config");
+    let observer = Observer::join(&cfg, "perm-test", PROCESS_TIMEOUT).expect("join the run");
+    let state = observer.inbox::<RobotState>().expect("state inbox");
+    // waits until every robot published a state with seq above `after[robot]`; returns the
+    // newest seq seen per robot
+    let learning = |after: [Option<u64>; 3]| {
+        let deadline = Instant::now() + PROCESS_TIMEOUT;
+        let mut newest = [None; 3];
+        while (0..3).any(|i| newest[i].is_none_or(|n| after[i].is_some_and(|a| n <= a))) {
+            while let Some(s) = state.receive().expect("receive") {
+                if let Some(x) = newest.get_mut(s.robot_id as usize) {
+                    *x = Some(x.map_or(s.seq, |v: u64| v.max(s.seq)));
+                }
+            }
+            assert!(Instant::now() < deadline, "robots stopped publishing state");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        newest
+    };
+    let before = learning([None; 3]);
+    let files = leftover_files(&cfg.prefix());
+    assert!(
+        files
+            .iter()
+            .any(|f| f.to_string_lossy().ends_with("global_mgmt")),
+        "{files:#?}"
+    );
+    for f in &files {
+        let Ok(m) = std::fs::symlink_metadata(f) else {
+            continue;
+        };
+        let want = if m.is_dir() {
+            DIR_MODE
+        } else {
+            m.mode() & FILE_MODE
+        };
+        assert_eq!(m.uid(), 0, "{}", f.display());
+        assert_eq!(m.mode() & 0o7777, want, "{} is {:o}", f.display(), m.mode());
+    }
+    // as nobody: read each file, append to it, list each directory; nothing may succeed
+    let script = r#"for f in "$@"; do
+        if [ -d "$f" ]; then ls "$f" >/dev/null 2>&1 && echo "LISTED $f";
+        else cat "$f" >/dev/null 2>&1 && echo "READ $f";
+             (printf x >> "$f") 2>/dev/null && echo "WROTE $f"; fi
+    done"#;
+    let out = Command::new("setpriv")
+        .args([
+            "--reuid=nobody",
+            "--regid=nogroup",
+            "--clear-groups",
+            "sh",
+            "-c",
+            script,
+            "sh",
+        ])
+        .args(&files)
+        .output()
+        .expect("setpriv");
+    let broke = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        broke.trim().is_empty(),
+        "nobody got into the run's files:\n{broke}"
+    );
+    eprintln!(
+        "nobody could not read, write or list any of the run's {} files",
+        files.len()
+    );
+    // the run is unaffected: every robot keeps learning, and it stops cleanly when asked
+    learning(before);
+    drop(state);
+    drop(observer);
+    // SAFETY: plain kill(2) on our own child's process group.
+    unsafe { libc::kill(-(child.id() as i32), libc::SIGTERM) };
+    let out = wait_bounded(child, PROCESS_TIMEOUT);
+    let r = result(&out);
+    assert_eq!(r["interrupted"], true, "{r}");
+    assert_eq!(r["robots"].as_array().map(Vec::len), Some(3), "{r}");
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Runs `qfleet ARGS` inside a private mount namespace after `setup` (shell) ran there.
+fn in_private_mounts(setup: &str, args: &[&str]) -> Output {
+    let qfleet = bin("qfleet");
+    let mut cmd = Command::new("unshare");
+    cmd.args(["-m", "--propagation", "private", "sh", "-c"])
+        .arg(format!("{setup} && exec \"$0\" \"$@\""))
+        .arg(qfleet)
+        .args(args);
+    run_bounded(&mut cmd)
+}
+
+fn namespaces_work() -> bool {
+    is_root()
+        && works(Command::new("unshare").args([
+            "-m",
+            "--propagation",
+            "private",
+            "sh",
+            "-c",
+            "mount -t tmpfs -o size=1m tmpfs /mnt",
+        ]))
+}
+
+/// Item 18: a root-owned iceoryx2 root directory is an error for an unprivileged user before
+/// any process starts, saying which directory and what to do.
+#[test]
+fn a_root_owned_iceoryx2_dir_is_an_error_before_any_process_starts() {
+    if !namespaces_work() {
+        eprintln!("SKIP: needs root and mount namespaces (unshare -m)");
+        return;
+    }
+    let id = run_id("root-dir");
+    let setup = "mkdir -p /tmp/iceoryx2 && mount -t tmpfs -o mode=0755 tmpfs /tmp/iceoryx2 \
+                 && exec setpriv --reuid=nobody --regid=nogroup --clear-groups \"$0\" \"$@\" && :";
+    let out = in_private_mounts(
+        setup,
+        &[
+            "run",
+            "--robots",
+            "2",
+            "--episodes",
+            "10",
+            "--run-id",
+            &id,
+            "--out",
+            "/nonexistent/never-created",
+        ],
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{}", describe(&out));
+    assert!(
+        err.contains("/tmp/iceoryx2") && err.contains("cannot create files in it"),
+        "{}",
+        describe(&out)
+    );
+    assert!(
+        !err.contains("qfleet-coordinator") && !err.contains("robot-agent"),
+        "no process may start: {err}"
+    );
+}
+
+/// Item 16: a nearly full `/dev/shm` is "no space in /dev/shm: need ~X MiB, have Y" before
+/// any process starts.
+#[test]
+fn a_nearly_full_dev_shm_is_a_clear_error_before_starting() {
+    if !namespaces_work() {
+        eprintln!("SKIP: needs root and mount namespaces (unshare -m)");
+        return;
+    }
+    let id = run_id("no-shm");
+    let out = in_private_mounts(
+        "mount -t tmpfs -o size=2m tmpfs /dev/shm",
+        &["run", "--robots", "64", "--episodes", "10", "--run-id", &id],
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{}", describe(&out));
+    assert!(
+        err.contains("no space in /dev/shm: need ~") && err.contains("MiB, have"),
+        "{}",
+        describe(&out)
+    );
+    assert!(!err.contains("UnableToGenerateUniqueNodeId"), "{err}");
+}
+
+/// Item 11: the documented maximum, 256 robots, completes on the 2-core machine.
+#[test]
+fn two_hundred_fifty_six_robots_the_documented_maximum_complete() {
+    let id = run_id("r256");
+    let dir = scratch(&id);
+    let child = launch(
+        &id,
+        &dir,
+        &[
+            "--map",
+            "builtin:paper-10",
+            "--episodes",
+            "20",
+            "--robots",
+            "256",
+        ],
+    );
+    let t0 = Instant::now();
+    let out = wait_bounded(child, Duration::from_secs(600));
+    eprintln!("256 robots: {:.1} s", t0.elapsed().as_secs_f64());
+    assert!(out.status.success(), "{}", describe(&out));
+    assert_all_finished(&result(&out), 256);
+    assert_quiet(&out);
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Item 12: an outside reader that never reads any lossless topic never aborts a 64-robot run;
+/// also the library stays quiet (no iceoryx2 warnings on stderr).
+#[test]
+fn a_stalled_outside_reader_never_aborts_a_64_robot_run() {
+    let id = run_id("stalled");
+    let dir = scratch(&id);
+    let child = launch(
+        &id,
+        &dir,
+        &[
+            "--map",
+            "builtin:paper-10",
+            "--episodes",
+            "300",
+            "--robots",
+            "64",
+        ],
+    );
+    let cfg = BusConfig::new(id.as_str(), 64).expect("config");
+    // joins once the services exist, before robots register; never reads anything
+    let observer = Observer::join(&cfg, "stalled", PROCESS_TIMEOUT).expect("join the run");
+    let control = observer.inbox::<Control>().expect("control");
+    let relay = observer.inbox::<DiscoveryRelay>().expect("relay");
+    let register = observer.inbox::<Register>().expect("register");
+    let discovery = observer
+        .inbox::<PseudoTargetDiscovery>()
+        .expect("discovery");
+    let report = observer.inbox::<FinalReport>().expect("report");
+    let out = wait_bounded(child, Duration::from_secs(300));
+    assert!(out.status.success(), "{}", describe(&out));
+    assert_all_finished(&result(&out), 64);
+    assert_quiet(&out);
+    drop((control, relay, register, discovery, report, observer));
+    let _ = bus::clean_stale(&cfg.prefix());
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Item 9: `--map /dev/zero` and a FIFO are refused at once, before any process starts.
+#[test]
+fn a_map_on_dev_zero_or_a_fifo_is_refused_at_once() {
+    let dir = scratch(&run_id("fifo"));
+    let fifo = dir.join("map.txt");
+    let c = std::ffi::CString::new(fifo.to_str().expect("utf-8 path")).expect("path");
+    // SAFETY: a valid NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    for (map, says) in [
+        (Path::new("/dev/zero"), "not a regular file"),
+        (fifo.as_path(), "FIFO"),
+    ] {
+        let t0 = Instant::now();
+        let out = run_bounded(
+            Command::new(bin("qfleet"))
+                .args(["run", "--robots", "2", "--map"])
+                .arg(map),
+        );
+        assert!(!out.status.success(), "{}", describe(&out));
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains(says),
+            "{}",
+            describe(&out)
+        );
+        eprintln!("--map {}: refused in {:?}", map.display(), t0.elapsed());
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
