@@ -119,7 +119,13 @@ impl LearnerConfig {
         }
     }
 
-    /// The improved learner with this crate's defaults (temperature schedule, log-scale softmax,
+    /// The paper's improved learner as replicated here: ε(k) as the exploration probability with
+    /// a softmax over raw Q, pseudo targets R = 3, δ = 0.5, removed after N/10.
+    pub fn paper_improved(episodes: u32, seed: u64) -> Self {
+        Self::improved(episodes, seed)
+    }
+
+    /// The improved learner with this crate's defaults (explore schedule, raw-scale softmax,
     /// pseudo targets R = 3, δ = 0.5, removed after N/10).
     pub fn improved(episodes: u32, seed: u64) -> Self {
         LearnerConfig {
