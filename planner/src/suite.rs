@@ -204,7 +204,10 @@ fn rooms(size: usize, rng: &mut LearnRng) -> Vec<bool> {
     let mut free = vec![true; size * size];
     // Rooms of about 5..8 cells a side.
     let room = 5 + below(rng, 4);
-    let walls_at: Vec<usize> = (1..).map(|k| k * room).take_while(|&w| w + 2 < size).collect();
+    let walls_at: Vec<usize> = (1..)
+        .map(|k| k * room)
+        .take_while(|&w| w + 2 < size)
+        .collect();
     for &w in &walls_at {
         for t in 0..size {
             free[w * size + t] = false; // horizontal wall at row w
@@ -306,7 +309,11 @@ fn walls(size: usize, rng: &mut LearnRng) -> Vec<bool> {
                 continue;
             }
             let u = if from_low { t } else { size - 1 - t };
-            let i = if horizontal { at * size + u } else { u * size + at };
+            let i = if horizontal {
+                at * size + u
+            } else {
+                u * size + at
+            };
             free[i] = false;
         }
     }
@@ -469,7 +476,10 @@ mod tests {
         let all = generated(&[10, 20, 30, 32, 64], 5, 1).unwrap();
         let tuning = all.iter().filter(|t| t.split == Split::Tuning).count();
         assert!(tuning > 30 && tuning < 70, "{tuning} of 100 in tuning");
-        assert!(generate(Family::Rooms, 3, 0, 1).is_err(), "too small is an error");
+        assert!(
+            generate(Family::Rooms, 3, 0, 1).is_err(),
+            "too small is an error"
+        );
         assert_eq!(Split::of("rooms-32-3"), Split::of("rooms-32-3"));
     }
 

@@ -22,7 +22,10 @@ fn record() -> String {
     for map in ["paper-10", "paper-20", "paper-30"] {
         let task = resolve_task(&builtin(map).expect("built-in map"), None, None).expect("task");
         for (name, of) in [
-            ("traditional", LearnerConfig::traditional as fn(u32, u64) -> LearnerConfig),
+            (
+                "traditional",
+                LearnerConfig::traditional as fn(u32, u64) -> LearnerConfig,
+            ),
             ("improved-2026-11", LearnerConfig::paper_improved),
         ] {
             for seed in [1u64, 2] {

@@ -2,6 +2,7 @@
 
 mod bench;
 mod clean;
+mod eval;
 mod experiment;
 mod learn;
 mod plots;
@@ -35,6 +36,8 @@ enum Command {
     Experiment(experiment::ExperimentCmd),
     /// Measure the value of sharing: N = 1, 2, 4, 8, 16 robots, with and without sharing.
     Sweep(sweep::SweepCmd),
+    /// Evaluate learner configurations on the map suite (tuning or held-out half), all cores.
+    Eval(eval::EvalCmd),
     /// Benchmark the update loop against raw iceoryx2, Unix sockets and crossbeam; fleet scale.
     Bench(bench::BenchCmd),
 }
@@ -49,6 +52,7 @@ fn main() {
         Command::Bench(c) => c.run(),
         Command::Experiment(c) => c.run(),
         Command::Sweep(c) => c.run(),
+        Command::Eval(c) => c.run(),
     };
     if let Err(e) = result {
         eprintln!("qfleet: error: {}", report(&e));
