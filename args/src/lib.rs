@@ -311,7 +311,16 @@ mod tests {
         assert_eq!(again.map.goal, Some(Cell::new(9, 8)));
         let t = again.map.task().unwrap();
         assert_eq!(t.goal, Cell::new(9, 8));
-        let cli = Cli::try_parse_from(["x", "--sweeps", "5", "--replay", "false", "--optimistic", "0.5"]).unwrap();
+        let cli = Cli::try_parse_from([
+            "x",
+            "--sweeps",
+            "5",
+            "--replay",
+            "false",
+            "--optimistic",
+            "0.5",
+        ])
+        .unwrap();
         let mut words = vec!["x".to_string()];
         words.extend(cli.learner.to_cli());
         let again = Cli::try_parse_from(words).unwrap();
@@ -329,7 +338,10 @@ mod tests {
         let cfg = cli.learner.config().unwrap();
         assert_eq!(cfg, LearnerConfig::planning(1000, 1));
         let cli = Cli::try_parse_from(["x", "--learner", "improved"]).unwrap();
-        assert_eq!(cli.learner.config().unwrap(), LearnerConfig::improved(1000, 1));
+        assert_eq!(
+            cli.learner.config().unwrap(),
+            LearnerConfig::improved(1000, 1)
+        );
     }
 
     #[test]

@@ -54,6 +54,10 @@ pub struct LearnResult {
     pub first_optimal_episode: Option<u32>,
     /// Actions taken in all.
     pub env_steps: u64,
+    /// Actions that hit an obstacle or the border, in all.
+    pub collisions: u64,
+    /// Collisions per episode (the paper's collision-avoidance claim is about this figure).
+    pub collisions_per_episode: f64,
     /// Wall time of the learning loop.
     pub elapsed_s: f64,
     /// Learning throughput.
@@ -145,6 +149,10 @@ impl LearnCmd {
                 result.avg_steps, result.max_steps
             );
             println!(
+                "  collisions        {:.2} per episode ({} in all)",
+                result.collisions_per_episode, result.collisions
+            );
+            println!(
                 "  first optimal     episode {}",
                 result
                     .first_optimal_episode
@@ -191,6 +199,12 @@ impl LearnResult {
             max_steps: s.max_steps,
             first_optimal_episode: s.first_optimal_episode,
             env_steps: s.env_steps,
+            collisions: s.collisions,
+            collisions_per_episode: if s.episodes > 0 {
+                s.collisions as f64 / s.episodes as f64
+            } else {
+                0.0
+            },
             elapsed_s,
             env_steps_per_s: if elapsed_s > 0.0 {
                 s.env_steps as f64 / elapsed_s
