@@ -621,7 +621,7 @@ impl Learner {
         }
         for k in 0..x.sweeps {
             let mut changed = false;
-            if k % 2 == 0 {
+            if k.is_multiple_of(2) {
                 for i in (0..self.seen.len()).rev() {
                     changed |= self.backup(self.seen[i]);
                 }

@@ -193,7 +193,7 @@ pub fn generated(
 }
 
 fn below(rng: &mut LearnRng, n: usize) -> usize {
-    ((rng.bits() >> 32) * n as u64 >> 32) as usize
+    (((rng.bits() >> 32) * n as u64) >> 32) as usize
 }
 
 fn random_obstacles(size: usize, density: f32, rng: &mut LearnRng) -> Vec<bool> {
@@ -299,7 +299,7 @@ fn walls(size: usize, rng: &mut LearnRng) -> Vec<bool> {
     let mut free = vec![true; size * size];
     let count = 2 + below(rng, 3);
     for k in 0..count {
-        let horizontal = k % 2 == 0;
+        let horizontal = k.is_multiple_of(2);
         let at = 1 + below(rng, size - 2);
         let len = size * 3 / 4;
         let from_low = below(rng, 2) == 0;

@@ -13,13 +13,13 @@ fn serpentine(w: usize, h: usize) -> Task {
             free[y * w + x] = true;
         }
         if y + 1 < h {
-            let x = if (y / 2) % 2 == 0 { w - 1 } else { 0 };
+            let x = if (y / 2).is_multiple_of(2) { w - 1 } else { 0 };
             free[(y + 1) * w + x] = true;
         }
     }
     let grid = Grid::new(w, h, free).expect("grid");
     let goal = Cell::new(
-        if ((h - 1) / 2) % 2 == 0 {
+        if ((h - 1) / 2).is_multiple_of(2) {
             w as u16 - 1
         } else {
             0
