@@ -103,9 +103,11 @@ impl MapArgs {
 /// Every learner parameter; unset ones take the chosen learner's defaults.
 #[derive(Debug, Clone, Args)]
 pub struct LearnerArgs {
-    /// Which learner: `planning` (the default: ε-greedy with optimism and Dyna sweeps, chosen
-    /// on the map suite), or the paper's `traditional` ε-greedy or `improved` dynamic softmax.
-    #[arg(long, default_value = "planning")]
+    /// Which learner: the paper's `traditional` ε-greedy or `improved` dynamic softmax, or
+    /// `planning` (ε-greedy with optimism and Dyna sweeps, chosen on the map suite). The
+    /// fleet's default stays `improved`: its discovery sharing relays pseudo targets, which
+    /// planning does not make; `qfleet learn` defaults to `planning`.
+    #[arg(long, default_value = "improved")]
     pub learner: LearnerKind,
     /// Number of episodes N (also the horizon of the dynamic schedule).
     #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..))]
@@ -313,6 +315,8 @@ mod tests {
         assert_eq!(t.goal, Cell::new(9, 8));
         let cli = Cli::try_parse_from([
             "x",
+            "--learner",
+            "planning",
             "--sweeps",
             "5",
             "--replay",
@@ -333,14 +337,14 @@ mod tests {
     }
 
     #[test]
-    fn the_default_learner_is_planning() {
+    fn the_fleet_default_stays_improved_and_planning_is_selectable() {
         let cli = Cli::try_parse_from(["x"]).unwrap();
         let cfg = cli.learner.config().unwrap();
-        assert_eq!(cfg, LearnerConfig::planning(1000, 1));
-        let cli = Cli::try_parse_from(["x", "--learner", "improved"]).unwrap();
+        assert_eq!(cfg, LearnerConfig::improved(1000, 1));
+        let cli = Cli::try_parse_from(["x", "--learner", "planning"]).unwrap();
         assert_eq!(
             cli.learner.config().unwrap(),
-            LearnerConfig::improved(1000, 1)
+            LearnerConfig::planning(1000, 1)
         );
     }
 

@@ -505,7 +505,7 @@ pub fn parse_manifest(source: &str, text: &str) -> Result<Manifest, ManifestErro
         Some(k) => k
             .parse::<LearnerKind>()
             .map_err(|e| err(s, "learner.kind", e))?,
-        None => LearnerKind::Planning,
+        None => LearnerKind::Improved,
     };
     let learner = LearnerArgs {
         learner: learner_kind,

@@ -25,7 +25,7 @@ pub enum LearnerKind {
     /// Dynamic softmax with multi-target search.
     Improved,
     /// Ours (issue 9): ε-greedy with optimistic untried actions and Dyna-style sweeps over the
-    /// transitions seen so far; the default, chosen on the map suite's tuning half.
+    /// transitions seen so far; `qfleet learn`'s default, chosen on the suite's tuning half.
     Planning,
 }
 
@@ -172,7 +172,7 @@ impl LearnerConfig {
         }
     }
 
-    /// The planning learner (the default): γ = 0.99 so values 1 000+ moves from the goal stay
+    /// The planning learner (`qfleet learn`'s default): γ = 0.99 so values 1 000+ moves from the goal stay
     /// far above f32's smallest normal, ε-greedy with ε = 0.05 as the random-action
     /// probability, untried actions worth the goal reward, three sweeps over the seen
     /// transitions and a backward replay after every episode, no pseudo targets. Chosen on the

@@ -120,6 +120,11 @@ pub fn named() -> Vec<Named> {
             cfg: |n| LearnerConfig::planning(n, 0),
         },
         Named {
+            name: "planning-pseudo",
+            what: "default with the paper's pseudo targets (R 3, δ 0.5, removed at N/10)",
+            cfg: |n| planning_with(n, |c| c.pseudo = Some(planner::PseudoConfig::default())),
+        },
+        Named {
             name: "planning-no-sweeps",
             what: "default without Dyna sweeps",
             cfg: |n| planning_with(n, |c| c.extras.sweeps = 0),
