@@ -574,8 +574,9 @@ impl Learner {
 
     /// Remembers that action `a` was tried in `s` (model of sweeps and replay). Pushes stay
     /// within the capacity reserved at construction, except the episode trail, which grows
-    /// geometrically and is then reused: no allocation in steady state.
-    #[inline(always)]
+    /// geometrically and is then reused: no allocation in steady state. Kept out of line: the
+    /// paper's learners never call it and their step stays small.
+    #[inline(never)]
     fn record(&mut self, s: u32, a: usize) {
         let bit = 1u8 << a;
         let t = &mut self.tried[s as usize];

@@ -355,7 +355,7 @@ pub fn far_pair(grid: &Grid, rng: &mut LearnRng) -> (Cell, Cell, u32) {
 }
 
 /// The MovingAI maps of a directory as suite tasks: for a map with a `.scen` file beside it
-/// (`NAME-*.scen`), scenario lines 0 and the last (the longest bucket) ; otherwise the far pair
+/// (`NAME-*.scen`), scenario lines 0 and the last; otherwise the far pair
 /// of [`far_pair`] with a seed from the map's name. Unreadable files are returned as errors
 /// with their path, readable ones as tasks; a missing directory gives an empty list.
 pub fn movingai(dir: &Path) -> (Vec<SuiteTask>, Vec<String>) {
