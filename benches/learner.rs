@@ -1,6 +1,9 @@
-//! Learner throughput: environment steps per second on paper-30, both learners.
+//! Learner throughput: environment steps per second on paper-30, the paper's two learners and
+//! the planning default.
 //!
-//! `cargo bench --bench learner`. One iteration runs a fixed number of steps of an already
+//! `cargo bench --bench learner`. Group `learner-step` times steps alone; group
+//! `learner-episode` times whole episodes (`run_episode`: steps, then the planning learner's
+//! replay and sweeps at the episode's end), the figure that counts for planning. One iteration runs a fixed number of steps of an already
 //! warmed-up learner (episodes restart as they end), so the figure is the steady-state step
 //! cost: the policy draw, the move and the Q update. N is set very large so the dynamic
 //! schedule stays at its start (ε(k) ≈ 0.51: half the steps explore through the softmax), the
@@ -38,6 +41,7 @@ fn bench(c: &mut Criterion) {
     for (name, cfg) in [
         ("traditional", LearnerConfig::traditional(1 << 30, 1)),
         ("improved", LearnerConfig::improved(1 << 30, 1)),
+        ("planning", LearnerConfig::planning(1 << 30, 1)),
     ] {
         // Warm up: learn for 100 episodes so Q-values and episode lengths are realistic.
         let mut l = Learner::new(&task, cfg).expect("config");
@@ -45,6 +49,29 @@ fn bench(c: &mut Criterion) {
             l.run_episode();
         }
         g.bench_function(name, |b| b.iter(|| steps(&mut l, STEPS)));
+    }
+    g.finish();
+
+    // Whole episodes: the planning learner's per-episode replay and sweeps count here. A fresh
+    // learner per iteration (its first 20 episodes: exploration, most sweeps), steps counted.
+    let mut g = c.benchmark_group("learner-episode/paper-30");
+    g.sample_size(10);
+    for (name, cfg) in [
+        ("traditional", LearnerConfig::traditional(1000, 1)),
+        ("improved", LearnerConfig::improved(1000, 1)),
+        ("planning", LearnerConfig::planning(1000, 1)),
+    ] {
+        let mut probe = Learner::new(&task, cfg).expect("config");
+        let per_iter: u64 = (0..20).map(|_| probe.run_episode().steps as u64).sum();
+        g.throughput(Throughput::Elements(per_iter));
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                let mut l = Learner::new(&task, cfg).expect("config");
+                for _ in 0..20 {
+                    black_box(l.run_episode());
+                }
+            })
+        });
     }
     g.finish();
 }

@@ -105,7 +105,10 @@ impl MapArgs {
 /// Every learner parameter; unset ones take the chosen learner's defaults.
 #[derive(Debug, Clone, Args)]
 pub struct LearnerArgs {
-    /// Which learner: the paper's traditional ε-greedy or the improved one.
+    /// Which learner: the paper's `traditional` ε-greedy or `improved` dynamic softmax, or
+    /// `planning` (ε-greedy with optimism and Dyna sweeps, chosen on the map suite). The
+    /// fleet's default stays `improved`: its discovery sharing relays pseudo targets, which
+    /// planning does not make; `qfleet learn` defaults to `planning`.
     #[arg(long, default_value = "improved")]
     pub learner: LearnerKind,
     /// Number of episodes N (also the horizon of the dynamic schedule).
@@ -117,13 +120,14 @@ pub struct LearnerArgs {
     /// Learning rate α in (0, 1].
     #[arg(long, default_value_t = 0.1, allow_negative_numbers = true)]
     pub alpha: f32,
-    /// Discount γ in [0, 1).
-    #[arg(long, default_value_t = 0.6, allow_negative_numbers = true)]
-    pub gamma: f32,
-    /// Traditional learner: ε (default 0.8).
+    /// Discount γ in [0, 1) (default: 0.6 for the paper's learners, 0.99 for planning).
+    #[arg(long, allow_negative_numbers = true)]
+    pub gamma: Option<f32>,
+    /// ε-greedy learners (traditional, planning): ε (defaults 0.8 and 0.05).
     #[arg(long, allow_negative_numbers = true)]
     pub epsilon: Option<f32>,
-    /// Traditional learner: whether ε is the greedy (default) or the random-action probability.
+    /// ε-greedy learners: whether ε is the greedy or the random-action probability (defaults:
+    /// greedy for traditional, random for planning).
     #[arg(long)]
     pub epsilon_reading: Option<EpsilonReading>,
     /// Improved learner: how ε(k) enters the softmax: literal (β = ε), temperature (β = 1/ε) or explore.
@@ -147,6 +151,15 @@ pub struct LearnerArgs {
     /// Pseudo targets: removed after this fraction of the episodes, in [0, 1].
     #[arg(long)]
     pub remove_at: Option<f32>,
+    /// Initial value of untried actions (optimism; planning default 1, the others 0).
+    #[arg(long, allow_negative_numbers = true)]
+    pub optimistic: Option<f32>,
+    /// Sweeps over every transition seen, after each episode (planning default 3, others 0).
+    #[arg(long)]
+    pub sweeps: Option<u32>,
+    /// Backward replay of each episode: `true` or `false` (planning default true, others false).
+    #[arg(long)]
+    pub replay: Option<bool>,
     /// Step cap per episode (0 = 50 × free cells, at least 10 000).
     #[arg(long, default_value_t = 0)]
     pub max_steps: u32,
@@ -166,7 +179,16 @@ impl LearnerArgs {
     pub fn config(&self) -> Result<LearnerConfig, ArgsError> {
         let mut cfg = LearnerConfig::of_kind(self.learner, self.episodes, self.seed);
         cfg.alpha = self.alpha;
-        cfg.gamma = self.gamma;
+        cfg.gamma = self.gamma.unwrap_or(cfg.gamma);
+        if let Some(v) = self.optimistic {
+            cfg.extras.optimistic = Some(v);
+        }
+        if let Some(k) = self.sweeps {
+            cfg.extras.sweeps = k;
+        }
+        if let Some(r) = self.replay {
+            cfg.extras.replay = r;
+        }
         cfg.max_steps = self.max_steps;
         cfg.rewards = Rewards {
             goal: self.reward_goal,
@@ -212,8 +234,6 @@ impl LearnerArgs {
             self.episodes.to_string(),
             "--alpha".into(),
             self.alpha.to_string(),
-            "--gamma".into(),
-            self.gamma.to_string(),
             "--max-steps".into(),
             self.max_steps.to_string(),
             "--reward-goal".into(),
@@ -229,6 +249,10 @@ impl LearnerArgs {
                 v.push(val);
             }
         };
+        opt("--gamma", self.gamma.map(|x| x.to_string()));
+        opt("--optimistic", self.optimistic.map(|x| x.to_string()));
+        opt("--sweeps", self.sweeps.map(|x| x.to_string()));
+        opt("--replay", self.replay.map(|x| x.to_string()));
         opt("--epsilon", self.epsilon.map(|x| x.to_string()));
         opt(
             "--epsilon-reading",
@@ -276,6 +300,8 @@ mod tests {
             "2",
             "--alpha",
             "0.5",
+            "--gamma",
+            "0.7",
         ])
         .unwrap();
         let mut words = vec!["x".to_string()];
@@ -289,6 +315,39 @@ mod tests {
         assert_eq!(again.map.goal, Some(Cell::new(9, 8)));
         let t = again.map.task().unwrap();
         assert_eq!(t.goal, Cell::new(9, 8));
+        let cli = Cli::try_parse_from([
+            "x",
+            "--learner",
+            "planning",
+            "--sweeps",
+            "5",
+            "--replay",
+            "false",
+            "--optimistic",
+            "0.5",
+        ])
+        .unwrap();
+        let mut words = vec!["x".to_string()];
+        words.extend(cli.learner.to_cli());
+        let again = Cli::try_parse_from(words).unwrap();
+        let cfg = again.learner.config().unwrap();
+        assert_eq!(cfg, cli.learner.config().unwrap());
+        assert_eq!(cfg.extras.sweeps, 5);
+        assert!(!cfg.extras.replay);
+        assert_eq!(cfg.extras.optimistic, Some(0.5));
+        assert_eq!(cfg.gamma, 0.99, "planning's own gamma when none is given");
+    }
+
+    #[test]
+    fn the_fleet_default_stays_improved_and_planning_is_selectable() {
+        let cli = Cli::try_parse_from(["x"]).unwrap();
+        let cfg = cli.learner.config().unwrap();
+        assert_eq!(cfg, LearnerConfig::improved(1000, 1));
+        let cli = Cli::try_parse_from(["x", "--learner", "planning"]).unwrap();
+        assert_eq!(
+            cli.learner.config().unwrap(),
+            LearnerConfig::planning(1000, 1)
+        );
     }
 
     #[test]

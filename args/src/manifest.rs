@@ -496,7 +496,10 @@ pub fn parse_manifest(source: &str, text: &str) -> Result<Manifest, ManifestErro
         episodes: phases[0].episodes,
         seed: seeds[0],
         alpha: l.alpha.unwrap_or(0.1),
-        gamma: l.gamma.unwrap_or(0.6),
+        gamma: l.gamma,
+        optimistic: None,
+        sweeps: None,
+        replay: None,
         epsilon: l.epsilon,
         epsilon_reading: parse_word::<EpsilonReading>(
             s,

@@ -24,6 +24,9 @@ pub enum LearnerKind {
     Traditional,
     /// Dynamic softmax with multi-target search.
     Improved,
+    /// Ours (issue 9): ε-greedy with optimistic untried actions and Dyna-style sweeps over the
+    /// transitions seen so far; `qfleet learn`'s default, chosen on the suite's tuning half.
+    Planning,
 }
 
 impl std::str::FromStr for LearnerKind {
@@ -32,8 +35,9 @@ impl std::str::FromStr for LearnerKind {
         match s {
             "traditional" => Ok(LearnerKind::Traditional),
             "improved" => Ok(LearnerKind::Improved),
+            "planning" => Ok(LearnerKind::Planning),
             _ => Err(format!(
-                "unknown learner '{s}' (expected traditional or improved)"
+                "unknown learner '{s}' (expected traditional, improved or planning)"
             )),
         }
     }
@@ -44,7 +48,33 @@ impl std::fmt::Display for LearnerKind {
         f.write_str(match self {
             LearnerKind::Traditional => "traditional",
             LearnerKind::Improved => "improved",
+            LearnerKind::Planning => "planning",
         })
+    }
+}
+
+/// What the paper's learners do not have: each is off (zero, `None`, false) in them, and each is
+/// a named option with an ablation row in `qfleet eval`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct Extras {
+    /// Initial value of every action not tried yet (`None`: 0). Above every reachable value it
+    /// makes the greedy policy try each action once, and, through the sweeps, walk to the
+    /// nearest untried action: directed exploration without a random walk.
+    pub optimistic: Option<f32>,
+    /// Sweeps over every (state, action) seen so far after each episode, each a full backup
+    /// Q(s,a) = r + γ·max Q(s') on the (deterministic) transition seen: Dyna-style planning.
+    /// Sweeps alternate direction and stop early when one changes nothing.
+    pub sweeps: u32,
+    /// Replays the episode backwards after it ends (full backups along the moves taken), so the
+    /// goal's value reaches the start in one episode however long the path.
+    pub replay: bool,
+}
+
+impl Extras {
+    /// Whether the learner must remember which transitions it has seen.
+    pub fn needs_model(&self) -> bool {
+        self.sweeps > 0 || self.replay
     }
 }
 
@@ -67,6 +97,9 @@ pub struct LearnerConfig {
     pub pseudo: Option<PseudoConfig>,
     /// Seed of the learner's random source.
     pub seed: u64,
+    /// Optimism, planning sweeps and replay (all off in the paper's learners).
+    #[serde(default)]
+    pub extras: Extras,
 }
 
 /// A learner parameter out of range.
@@ -102,6 +135,9 @@ pub enum ConfigError {
     /// Rewards must be finite.
     #[error("rewards must be finite numbers")]
     Rewards,
+    /// The optimistic initial value must be finite.
+    #[error("the optimistic initial value must be a finite number, got {0}")]
+    Optimistic(f32),
 }
 
 impl LearnerConfig {
@@ -116,10 +152,17 @@ impl LearnerConfig {
             policy: PolicyConfig::TRADITIONAL,
             pseudo: None,
             seed,
+            extras: Extras::default(),
         }
     }
 
-    /// The improved learner with this crate's defaults (temperature schedule, log-scale softmax,
+    /// The paper's improved learner as replicated here: ε(k) as the exploration probability with
+    /// a softmax over raw Q, pseudo targets R = 3, δ = 0.5, removed after N/10.
+    pub fn paper_improved(episodes: u32, seed: u64) -> Self {
+        Self::improved(episodes, seed)
+    }
+
+    /// The improved learner with this crate's defaults (explore schedule, raw-scale softmax,
     /// pseudo targets R = 3, δ = 0.5, removed after N/10).
     pub fn improved(episodes: u32, seed: u64) -> Self {
         LearnerConfig {
@@ -129,11 +172,33 @@ impl LearnerConfig {
         }
     }
 
+    /// The planning learner (`qfleet learn`'s default): γ = 0.99 so values 1 000+ moves from the goal stay
+    /// far above f32's smallest normal, ε-greedy with ε = 0.05 as the random-action
+    /// probability, untried actions worth the goal reward, three sweeps over the seen
+    /// transitions and a backward replay after every episode, no pseudo targets. Chosen on the
+    /// suite's tuning half (README "Map suite and held-out evaluation").
+    pub fn planning(episodes: u32, seed: u64) -> Self {
+        LearnerConfig {
+            gamma: 0.99,
+            policy: PolicyConfig::EpsilonGreedy {
+                epsilon: 0.05,
+                reading: EpsilonReading::Random,
+            },
+            extras: Extras {
+                optimistic: Some(1.0),
+                sweeps: 3,
+                replay: true,
+            },
+            ..Self::traditional(episodes, seed)
+        }
+    }
+
     /// The default configuration of a learner kind.
     pub fn of_kind(kind: LearnerKind, episodes: u32, seed: u64) -> Self {
         match kind {
             LearnerKind::Traditional => Self::traditional(episodes, seed),
             LearnerKind::Improved => Self::improved(episodes, seed),
+            LearnerKind::Planning => Self::planning(episodes, seed),
         }
     }
 
@@ -161,6 +226,11 @@ impl LearnerConfig {
             }
             _ => {}
         }
+        if let Some(v) = self.extras.optimistic
+            && !v.is_finite()
+        {
+            return Err(ConfigError::Optimistic(v));
+        }
         if let Some(p) = self.pseudo
             && (p.radius == 0
                 || !(p.delta > 0.0 && p.delta <= 1.0)
@@ -177,6 +247,26 @@ impl LearnerConfig {
 
     /// A short human-readable name of the policy, e.g. for tables.
     pub fn policy_label(&self) -> String {
+        let base = self.policy_base_label();
+        let x = self.extras;
+        let mut extra = Vec::new();
+        if let Some(v) = x.optimistic {
+            extra.push(format!("optimistic {v}"));
+        }
+        if x.sweeps > 0 {
+            extra.push(format!("{} sweeps", x.sweeps));
+        }
+        if x.replay {
+            extra.push("replay".to_string());
+        }
+        if extra.is_empty() {
+            base
+        } else {
+            format!("{base} + {}", extra.join(" + "))
+        }
+    }
+
+    fn policy_base_label(&self) -> String {
         match self.policy {
             PolicyConfig::EpsilonGreedy { epsilon, reading } => {
                 let r = if reading == EpsilonReading::Greedy {
@@ -235,6 +325,12 @@ pub struct Learner {
     // Scratch for greedy path extraction.
     stamp: Vec<u32>,
     stamp_gen: u32,
+    // The model of sweeps and replay: per cell a bit per action tried, the (state·4 + action)
+    // pairs in the order first tried, this episode's pairs, whether anything new was tried.
+    tried: Vec<u8>,
+    seen: Vec<u32>,
+    trail: Vec<u32>,
+    model_dirty: bool,
 }
 
 impl Learner {
@@ -249,10 +345,32 @@ impl Learner {
             (free * 50).clamp(10_000, u32::MAX as u64) as u32
         };
         let n = task.grid.len();
+        let mut q = QTable::new(&task.grid);
+        if let Some(v) = cfg.extras.optimistic {
+            let free = task.grid.free_flags();
+            for (idx, row) in q.rows_mut().iter_mut().enumerate() {
+                if free[idx] {
+                    *row = [v; 4];
+                }
+            }
+        }
+        let model = cfg.extras.needs_model();
         Ok(Learner {
             policy: Policy::new(cfg.policy, cfg.gamma),
             rng: LearnRng::new(cfg.seed),
-            q: QTable::new(&task.grid),
+            q,
+            tried: if model { vec![0; n] } else { Vec::new() },
+            seen: if model {
+                Vec::with_capacity(task.grid.free_count() * 4)
+            } else {
+                Vec::new()
+            },
+            trail: if cfg.extras.replay {
+                Vec::with_capacity((max_steps as usize).min(1 << 16))
+            } else {
+                Vec::new()
+            },
+            model_dirty: false,
             optimal_len: task.optimal_len,
             max_steps,
             episode: 0,
@@ -365,6 +483,7 @@ impl Learner {
         self.steps = 0;
         self.collisions = 0;
         self.ret = 0.0;
+        self.trail.clear();
     }
 
     /// Takes one step of the current episode: choose, move, update Q.
@@ -389,6 +508,9 @@ impl Learner {
         if !self.goal_found && !self.visited.is_empty() {
             self.visited[next as usize] = true;
         }
+        if !self.tried.is_empty() {
+            self.record(s, a);
+        }
         StepInfo {
             state: s,
             action: a as u8,
@@ -410,6 +532,7 @@ impl Learner {
             self.goal_found = true;
             self.discover_pseudo_targets();
         }
+        self.plan();
         let rec = EpisodeRecord {
             episode: self.episode,
             steps: self.steps,
@@ -447,6 +570,72 @@ impl Learner {
         }
         let summary = Summary::from_records(&records, self.optimal_len, self.greedy_path_len());
         (records, summary)
+    }
+
+    /// Remembers that action `a` was tried in `s` (model of sweeps and replay). Pushes stay
+    /// within the capacity reserved at construction, except the episode trail, which grows
+    /// geometrically and is then reused: no allocation in steady state. Kept out of line: the
+    /// paper's learners never call it and their step stays small.
+    #[inline(never)]
+    fn record(&mut self, s: u32, a: usize) {
+        let bit = 1u8 << a;
+        let t = &mut self.tried[s as usize];
+        if *t & bit == 0 {
+            *t |= bit;
+            self.seen.push(s * 4 + a as u32);
+            self.model_dirty = true;
+        }
+        if self.cfg.extras.replay {
+            self.trail.push(s * 4 + a as u32);
+        }
+    }
+
+    /// Full backup of one seen pair: Q(s,a) = r + γ·max Q(s'); returns whether it changed.
+    #[inline(always)]
+    fn backup(&mut self, sa: u32) -> bool {
+        let (s, a) = ((sa >> 2) as usize, (sa & 3) as usize);
+        let (next, r, t) = self.env.step(s as u32, a);
+        let v = if matches!(t, Transition::Goal | Transition::Pseudo) {
+            r
+        } else {
+            r + self.cfg.gamma * max4(self.q.row(next as usize))
+        };
+        let row = self.q.row_mut(s);
+        let changed = row[a] != v;
+        row[a] = v;
+        changed
+    }
+
+    /// After an episode: the backward replay of its moves, then up to `sweeps` sweeps over every
+    /// pair seen, alternating direction, stopping once a sweep changes nothing. Skipped when the
+    /// model has not changed since a sweep that changed nothing.
+    fn plan(&mut self) {
+        let x = self.cfg.extras;
+        if x.replay {
+            for i in (0..self.trail.len()).rev() {
+                let sa = self.trail[i];
+                self.backup(sa);
+            }
+        }
+        if x.sweeps == 0 || !self.model_dirty {
+            return;
+        }
+        for k in 0..x.sweeps {
+            let mut changed = false;
+            if k.is_multiple_of(2) {
+                for i in (0..self.seen.len()).rev() {
+                    changed |= self.backup(self.seen[i]);
+                }
+            } else {
+                for i in 0..self.seen.len() {
+                    changed |= self.backup(self.seen[i]);
+                }
+            }
+            if !changed {
+                self.model_dirty = false;
+                return;
+            }
+        }
     }
 
     fn discover_pseudo_targets(&mut self) {

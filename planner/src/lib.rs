@@ -19,11 +19,12 @@ pub mod policy;
 pub mod pseudo;
 pub mod qtable;
 pub mod rng;
+pub mod suite;
 pub mod task;
 
 pub use env::{Env, Rewards, Transition};
 pub use grid::{Action, Cell, Grid, GridError};
-pub use learner::{ConfigError, Learner, LearnerConfig, LearnerKind, StepInfo};
+pub use learner::{ConfigError, Extras, Learner, LearnerConfig, LearnerKind, StepInfo};
 pub use metrics::{EpisodeRecord, Outcome, Summary};
 pub use policy::{EpsilonReading, PolicyConfig, QScale, Schedule};
 pub use pseudo::PseudoConfig;

@@ -67,6 +67,11 @@ impl QTable {
     pub fn rows(&self) -> &[[f32; 4]] {
         &self.values
     }
+
+    /// All rows, mutable (e.g. to start from optimistic values).
+    pub fn rows_mut(&mut self) -> &mut [[f32; 4]] {
+        &mut self.values
+    }
 }
 
 /// Larger of two values, NaN-unaware: one `maxss`, where `f32::max` spends three more

@@ -10,8 +10,10 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Options of `qfleet learn`.
+/// Options of `qfleet learn`; the learner defaults to `planning`, the winner on the map
+/// suite's held-out half (README "Map suite and held-out evaluation").
 #[derive(Debug, Args)]
+#[command(mut_arg("learner", |a| a.default_value("planning")))]
 pub struct LearnCmd {
     #[command(flatten)]
     map: MapArgs,
@@ -54,6 +56,10 @@ pub struct LearnResult {
     pub first_optimal_episode: Option<u32>,
     /// Actions taken in all.
     pub env_steps: u64,
+    /// Actions that hit an obstacle or the border, in all.
+    pub collisions: u64,
+    /// Collisions per episode (the paper's collision-avoidance claim is about this figure).
+    pub collisions_per_episode: f64,
     /// Wall time of the learning loop.
     pub elapsed_s: f64,
     /// Learning throughput.
@@ -145,6 +151,10 @@ impl LearnCmd {
                 result.avg_steps, result.max_steps
             );
             println!(
+                "  collisions        {:.2} per episode ({} in all)",
+                result.collisions_per_episode, result.collisions
+            );
+            println!(
                 "  first optimal     episode {}",
                 result
                     .first_optimal_episode
@@ -191,6 +201,12 @@ impl LearnResult {
             max_steps: s.max_steps,
             first_optimal_episode: s.first_optimal_episode,
             env_steps: s.env_steps,
+            collisions: s.collisions,
+            collisions_per_episode: if s.episodes > 0 {
+                s.collisions as f64 / s.episodes as f64
+            } else {
+                0.0
+            },
             elapsed_s,
             env_steps_per_s: if elapsed_s > 0.0 {
                 s.env_steps as f64 / elapsed_s
@@ -215,4 +231,30 @@ pub fn write_episodes_csv(path: &Path, records: &[EpisodeRecord]) -> Result<()> 
         .and_then(|()| w.flush())
         .with_context(|| format!("writing {}", path.display()))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        learn: LearnCmd,
+    }
+
+    #[test]
+    fn learn_defaults_to_the_planning_learner() {
+        let cli = Cli::try_parse_from(["x"]).unwrap();
+        assert_eq!(
+            cli.learn.learner.config().unwrap(),
+            LearnerConfig::planning(1000, 1)
+        );
+        let cli = Cli::try_parse_from(["x", "--learner", "traditional"]).unwrap();
+        assert_eq!(
+            cli.learn.learner.config().unwrap(),
+            LearnerConfig::traditional(1000, 1)
+        );
+    }
 }

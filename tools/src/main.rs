@@ -2,6 +2,7 @@
 
 mod bench;
 mod clean;
+mod eval;
 mod experiment;
 mod learn;
 mod plots;
@@ -38,6 +39,8 @@ enum Command {
     Experiment(experiment::ExperimentCmd),
     /// Measure the value of sharing: N = 1, 2, 4, 8, 16 robots, with and without sharing.
     Sweep(sweep::SweepCmd),
+    /// Evaluate learner configurations on the map suite (tuning or held-out half), all cores.
+    Eval(eval::EvalCmd),
     /// Benchmark the update loop against raw iceoryx2, Unix sockets and crossbeam; fleet scale.
     Bench(bench::BenchCmd),
 }
@@ -73,6 +76,7 @@ fn main() {
         Command::Bench(c) => c.run(),
         Command::Experiment(c) => c.run(),
         Command::Sweep(c) => c.run(),
+        Command::Eval(c) => c.run(),
     };
     let code = match result {
         Ok(()) => Exit::Ok,

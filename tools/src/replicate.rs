@@ -73,8 +73,13 @@ fn variants(ablation: bool) -> Vec<Variant> {
         },
         Variant {
             name: "improved",
-            what: "our default improved learner",
-            cfg: |n| LearnerConfig::improved(n, 0),
+            what: "the paper's improved learner as replicated",
+            cfg: |n| LearnerConfig::paper_improved(n, 0),
+        },
+        Variant {
+            name: "planning",
+            what: "the default learner (not the paper's): optimism + Dyna sweeps + replay",
+            cfg: |n| LearnerConfig::planning(n, 0),
         },
     ];
     if ablation {
@@ -245,6 +250,8 @@ pub struct VariantResult {
     pub final_loops: usize,
     /// Mean steps per episode.
     pub avg_steps: Stat,
+    /// Collisions per episode.
+    pub collisions: Stat,
     /// First episode with an optimal greedy path, over the seeds that reach it.
     pub first_optimal_episode: Stat,
     /// Learning throughput over the whole variant.
@@ -427,6 +434,11 @@ impl ReplicateCmd {
                         .filter(|d| d.summary.final_path_len.is_none())
                         .count(),
                     avg_steps: Stat::of(runs.iter().map(|d| d.summary.avg_steps)),
+                    collisions: Stat::of(
+                        runs.iter().map(|d| {
+                            d.summary.collisions as f64 / d.summary.episodes.max(1) as f64
+                        }),
+                    ),
                     first_optimal_episode: Stat::of(
                         runs.iter()
                             .filter_map(|d| d.summary.first_optimal_episode.map(f64::from)),
@@ -526,13 +538,19 @@ fn render_table(maps: &[MapResult], seeds: u32, episodes: u32) -> String {
             continue;
         };
         let paper = m.paper.unwrap_or(([f64::NAN; 3], [f64::NAN; 3]));
-        let rows: [(&str, Stat, Stat, usize); 3] = [
+        let rows: [(&str, Stat, Stat, usize); 4] = [
             ("max steps", tr.max_steps, im.max_steps, 0),
             ("final path", tr.final_path, im.final_path, 1),
             ("avg steps", tr.avg_steps, im.avg_steps, 2),
+            ("collisions / episode", tr.collisions, im.collisions, 3),
         ];
         for (name, a, b, i) in rows {
-            let pd = (paper.0[i] - paper.1[i]) / paper.0[i] * 100.0;
+            // The paper gives no collision figures: index 3 shows "-".
+            let (p0, p1) = (
+                paper.0.get(i).copied().unwrap_or(f64::NAN),
+                paper.1.get(i).copied().unwrap_or(f64::NAN),
+            );
+            let pd = (p0 - p1) / p0 * 100.0;
             let od = (a.mean - b.mean) / a.mean * 100.0;
             let show = |x: f64| {
                 if x.is_nan() {
@@ -546,9 +564,9 @@ fn render_table(maps: &[MapResult], seeds: u32, episodes: u32) -> String {
                 "| {} | {} | {} | {} | {} | {} | {} | {:+.1}% |",
                 m.map,
                 name,
-                show(paper.0[i]),
+                show(p0),
                 a.show(1),
-                show(paper.1[i]),
+                show(p1),
                 b.show(1),
                 if pd.is_nan() {
                     "-".into()
@@ -570,17 +588,18 @@ fn render_table(maps: &[MapResult], seeds: u32, episodes: u32) -> String {
     );
     let _ = writeln!(
         s,
-        "| map | variant | avg steps | max steps | final path | optimal | loops | first optimal episode | M steps/s | what |"
+        "| map | variant | avg steps | collisions / episode | max steps | final path | optimal | loops | first optimal episode | M steps/s | what |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
     for m in maps {
         for v in &m.variants {
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {} | {} | {}/{} | {} | {} | {:.1} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {}/{} | {} | {} | {:.1} | {} |",
                 m.map,
                 v.name,
                 v.avg_steps.show(1),
+                v.collisions.show(2),
                 v.max_steps.show(0),
                 v.final_path.show(1),
                 v.final_optimal,

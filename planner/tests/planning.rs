@@ -1,0 +1,101 @@
+//! The planning learner (the default): long paths without underflow, the optimum on small
+//! generated maps of every family, determinism.
+
+use planner::suite::{Family, generate};
+use planner::task::Task;
+use planner::{Cell, Grid, Learner, LearnerConfig};
+
+/// A serpentine corridor `w` wide: free rows at even y joined at alternating ends.
+fn serpentine(w: usize, h: usize) -> Task {
+    let mut free = vec![false; w * h];
+    for y in (0..h).step_by(2) {
+        for x in 0..w {
+            free[y * w + x] = true;
+        }
+        if y + 1 < h {
+            let x = if (y / 2).is_multiple_of(2) { w - 1 } else { 0 };
+            free[(y + 1) * w + x] = true;
+        }
+    }
+    let grid = Grid::new(w, h, free).expect("grid");
+    let goal = Cell::new(
+        if ((h - 1) / 2).is_multiple_of(2) {
+            w as u16 - 1
+        } else {
+            0
+        },
+        h as u16 - 1,
+    );
+    let optimal_len = planner::path::shortest_moves(&grid, Cell::new(0, 0), goal).expect("path");
+    Task {
+        map_name: "serpentine".into(),
+        grid,
+        start: Cell::new(0, 0),
+        goal,
+        optimal_len,
+    }
+}
+
+#[test]
+fn a_path_of_over_1000_moves_is_learned_exactly() {
+    let task = serpentine(51, 41);
+    assert!(task.optimal_len >= 1000, "{}", task.optimal_len);
+    let mut l = Learner::new(&task, LearnerConfig::planning(100, 1)).expect("config");
+    let (_, summary) = l.run(|_| {});
+    assert_eq!(summary.final_path_len, Some(task.optimal_len));
+    // The start's value is γ^(moves-1) of the goal reward: far from zero in f32.
+    let v = l.q().max(task.grid.index(task.start));
+    assert!(v.is_normal() && v > 1e-6, "Q(start) = {v}");
+}
+
+#[test]
+fn the_paper_gamma_underflows_where_the_default_does_not() {
+    // Why the default's γ is 0.99: with γ = 0.6 the value 1 000 moves out is below f32's range.
+    let task = serpentine(51, 41);
+    let cfg = LearnerConfig {
+        gamma: 0.6,
+        ..LearnerConfig::planning(100, 1)
+    };
+    let mut l = Learner::new(&task, cfg).expect("config");
+    let (_, summary) = l.run(|_| {});
+    assert_ne!(summary.final_path_len, Some(task.optimal_len));
+}
+
+#[test]
+fn default_learner_ends_optimal_on_small_generated_maps() {
+    let (mut runs, mut optimal) = (0, 0);
+    let mut misses = Vec::new();
+    for size in [10, 20] {
+        for family in Family::GENERATED {
+            for i in 0..5 {
+                let t = generate(family, size, i, 11).expect("map");
+                for seed in 0..2 {
+                    let mut l =
+                        Learner::new(&t.task, LearnerConfig::planning(300, seed)).expect("config");
+                    let (_, s) = l.run(|_| {});
+                    runs += 1;
+                    if s.final_path_len == Some(t.task.optimal_len) {
+                        optimal += 1;
+                    } else {
+                        misses.push((t.id.clone(), seed, s.final_path_len, t.task.optimal_len));
+                    }
+                }
+            }
+        }
+    }
+    assert!(
+        optimal * 100 >= runs * 95,
+        "{optimal}/{runs} optimal; misses {misses:?}"
+    );
+}
+
+#[test]
+fn same_seed_same_episodes() {
+    let t = generate(Family::Rooms, 20, 0, 3).expect("map");
+    let run = |seed| {
+        let mut l = Learner::new(&t.task, LearnerConfig::planning(50, seed)).expect("config");
+        l.run(|_| {}).0
+    };
+    assert_eq!(run(4), run(4));
+    assert_ne!(run(4), run(5));
+}
