@@ -27,10 +27,10 @@ pub fn run_services_exist(run_id: &str) -> Result<bool, ObserveError> {
     let config = cfg.iceoryx_config()?;
     for t in Topic::ALL {
         let name = t.service_name(run_id);
-        let sn = ServiceName::new(&name).map_err(|e| ObserveError::Bus(format!("{name}: {e:?}")))?;
-        let exists =
-            ipc::Service::does_exist(&sn, &config, MessagingPattern::PublishSubscribe)
-                .map_err(|e| ObserveError::Bus(format!("{name}: {e:?}")))?;
+        let sn =
+            ServiceName::new(&name).map_err(|e| ObserveError::Bus(format!("{name}: {e:?}")))?;
+        let exists = ipc::Service::does_exist(&sn, &config, MessagingPattern::PublishSubscribe)
+            .map_err(|e| ObserveError::Bus(format!("{name}: {e:?}")))?;
         if !exists {
             return Ok(false);
         }
@@ -123,15 +123,33 @@ impl Observer {
     pub fn poll(&self, mut f: impl FnMut(u64, Msg<'_>)) -> Result<usize, ObserveError> {
         let mut n = 0;
         // lossless topics first: their publishers wait for us
-        n += self.control.drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Control(m)))?;
-        n += self.register.drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Register(m)))?;
-        n += self.discovery.drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Discovery(m)))?;
-        n += self.relay.drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Relay(m)))?;
-        n += self.report.drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Report(m)))?;
-        n += self.state.drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::State(m)))?;
-        n += self.hints.drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Hints(m)))?;
-        n += self.merged.drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Merged(m)))?;
-        n += self.ack.drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Ack(m)))?;
+        n += self
+            .control
+            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Control(m)))?;
+        n += self
+            .register
+            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Register(m)))?;
+        n += self
+            .discovery
+            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Discovery(m)))?;
+        n += self
+            .relay
+            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Relay(m)))?;
+        n += self
+            .report
+            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Report(m)))?;
+        n += self
+            .state
+            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::State(m)))?;
+        n += self
+            .hints
+            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Hints(m)))?;
+        n += self
+            .merged
+            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Merged(m)))?;
+        n += self
+            .ack
+            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Ack(m)))?;
         Ok(n)
     }
 

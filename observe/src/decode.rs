@@ -322,8 +322,14 @@ fn ty_schema(ty: Ty) -> Value {
         Ty::Str => json!({"type": "string"}),
         Ty::Entries | Ty::MergedEntries => {
             let mut e = vec![
-                ("cell", json!({"type": "integer", "description": "row-major y * width + x"})),
-                ("action", json!({"type": "integer", "description": "0 up, 1 right, 2 down, 3 left"})),
+                (
+                    "cell",
+                    json!({"type": "integer", "description": "row-major y * width + x"}),
+                ),
+                (
+                    "action",
+                    json!({"type": "integer", "description": "0 up, 1 right, 2 down, 3 left"}),
+                ),
                 ("visits", int.clone()),
                 ("q", num),
             ];
@@ -334,8 +340,10 @@ fn ty_schema(ty: Ty) -> Value {
             json!({"type": "array", "items": object_schema(&e)})
         }
         Ty::Latency => object_schema(
-            &["count", "min_ns", "mean_ns", "p50_ns", "p90_ns", "p99_ns", "p999_ns", "max_ns"]
-                .map(|k| (k, json!({"type": "integer"}))),
+            &[
+                "count", "min_ns", "mean_ns", "p50_ns", "p90_ns", "p99_ns", "p999_ns", "max_ns",
+            ]
+            .map(|k| (k, json!({"type": "integer"}))),
         ),
     }
 }
@@ -436,10 +444,11 @@ mod tests {
             check_against_schema(m.topic(), &v);
             for key in ["entries"] {
                 if let Some(a) = v.get(key).and_then(|a| a.as_array()) {
-                    let item_props = json_schema(m.topic())["properties"][key]["items"]["properties"]
-                        .as_object()
-                        .unwrap()
-                        .len();
+                    let item_props =
+                        json_schema(m.topic())["properties"][key]["items"]["properties"]
+                            .as_object()
+                            .unwrap()
+                            .len();
                     for e in a {
                         assert_eq!(e.as_object().unwrap().len(), item_props);
                     }
@@ -447,9 +456,18 @@ mod tests {
             }
         }
         // only the valid entries travel; NaN becomes null; text is cut at reason_len
-        assert_eq!(Msg::Hints(&hints).to_json()["entries"].as_array().unwrap().len(), 2);
+        assert_eq!(
+            Msg::Hints(&hints).to_json()["entries"]
+                .as_array()
+                .unwrap()
+                .len(),
+            2
+        );
         assert_eq!(Msg::Hints(&hints).to_json()["entries"][1]["cell"], 7);
-        assert_eq!(Msg::Merged(&merged).to_json()["entries"][0]["origin_robot"], 3);
+        assert_eq!(
+            Msg::Merged(&merged).to_json()["entries"][0]["origin_robot"],
+            3
+        );
         assert!(Msg::Report(&report).to_json()["avg_steps"].is_null());
         assert_eq!(Msg::Control(&control).to_json()["reason"], "no");
         assert_eq!(Msg::Control(&control).to_json()["command_name"], "refuse");
@@ -461,7 +479,10 @@ mod tests {
             count: u32::MAX,
             ..QHintBatch::ZEROED
         };
-        let n = Msg::Hints(&hints).to_json()["entries"].as_array().unwrap().len();
+        let n = Msg::Hints(&hints).to_json()["entries"]
+            .as_array()
+            .unwrap()
+            .len();
         assert_eq!(n, HINT_BATCH_CAP);
         let c = Control {
             reason_len: u32::MAX,
@@ -473,7 +494,10 @@ mod tests {
     #[test]
     fn topics_are_found_by_path_or_service_name() {
         assert_eq!(topic_by_name("robot/state"), Some(Topic::RobotState));
-        assert_eq!(topic_by_name("qfleet/r1/coord/discovery"), Some(Topic::Relay));
+        assert_eq!(
+            topic_by_name("qfleet/r1/coord/discovery"),
+            Some(Topic::Relay)
+        );
         assert_eq!(topic_by_name("robot/nothing"), None);
         for t in Topic::ALL {
             assert_eq!(json_schema(t)["title"], t.type_name());

@@ -156,7 +156,9 @@ impl<W: Write + Seek> Recorder<W> {
         let i = topic_index(msg.topic());
         self.buf.clear();
         serde_json::to_writer(&mut self.buf, &msg.to_json())?;
-        let t = self.wall0.saturating_add(recv_ns.saturating_sub(self.mono0));
+        let t = self
+            .wall0
+            .saturating_add(recv_ns.saturating_sub(self.mono0));
         self.writer
             .write_to_known_channel(
                 &MessageHeader {

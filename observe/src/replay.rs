@@ -560,7 +560,11 @@ mod tests {
         assert_eq!(s.messages, 11);
         let state = &s.topics[index_of(Topic::RobotState)];
         assert_eq!(state.count, 2);
-        assert!((state.rate_per_s - 1.0 / 0.019).abs() < 1.0, "{}", state.rate_per_s);
+        assert!(
+            (state.rate_per_s - 1.0 / 0.019).abs() < 1.0,
+            "{}",
+            state.rate_per_s
+        );
         assert_eq!(s.topics[index_of(Topic::Relay)].count, 2);
         // log times map back to the monotonic clock the messages were received on
         let mut first = None;

@@ -203,7 +203,10 @@ mod tests {
             l.add(i);
         }
         let p = l.percentiles();
-        assert_eq!((p.count, p.p50, p.p90, p.p99, p.max), (100, 150, 190, 199, 200));
+        assert_eq!(
+            (p.count, p.p50, p.p90, p.p99, p.max),
+            (100, 150, 190, 199, 200)
+        );
         assert_eq!(l.total(), 200);
     }
 

@@ -217,9 +217,13 @@ fn draw_map(f: &mut Frame<'_>, vm: &ViewModel, area: Rect) {
                     .map(|(c, who)| {
                         let style = match (c, who) {
                             (WALL, _) => Style::new().fg(Color::DarkGray),
-                            (GOAL | START, _) => Style::new().fg(Color::White).add_modifier(Modifier::BOLD),
+                            (GOAL | START, _) => {
+                                Style::new().fg(Color::White).add_modifier(Modifier::BOLD)
+                            }
                             (DISCOVERY, _) => Style::new().fg(Color::Red),
-                            (PATH, Some(id)) => Style::new().fg(PALETTE[id as usize % PALETTE.len()]),
+                            (PATH, Some(id)) => {
+                                Style::new().fg(PALETTE[id as usize % PALETTE.len()])
+                            }
                             (_, Some(id)) => Style::new()
                                 .fg(Color::Black)
                                 .bg(PALETTE[id as usize % PALETTE.len()]),
@@ -389,7 +393,11 @@ pub fn run(
             if banner.ended && (!hold_at_end || quit) {
                 return Ok(if quit { Exit::Quit } else { Exit::Ended });
             }
-            let wait = if banner.ended { frame } else { Duration::from_millis(2) };
+            let wait = if banner.ended {
+                frame
+            } else {
+                Duration::from_millis(2)
+            };
             if event::poll(wait).map_err(ObserveError::Terminal)?
                 && let Event::Key(k) = event::read().map_err(ObserveError::Terminal)?
                 && k.kind == KeyEventKind::Press
@@ -463,8 +471,18 @@ mod tests {
             count: 2,
             ..QHintBatch::ZEROED
         };
-        h.entries[0] = QHint { cell: 0, action: 1, q: 0.1, ..QHint::ZEROED };
-        h.entries[1] = QHint { cell: 1, action: 1, q: 0.1, ..QHint::ZEROED };
+        h.entries[0] = QHint {
+            cell: 0,
+            action: 1,
+            q: 0.1,
+            ..QHint::ZEROED
+        };
+        h.entries[1] = QHint {
+            cell: 1,
+            action: 1,
+            q: 0.1,
+            ..QHint::ZEROED
+        };
         vm.apply(2, Msg::Hints(&h));
         let g = map_glyphs(&vm, 80, 40);
         assert_eq!(g.len(), 4);

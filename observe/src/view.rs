@@ -116,9 +116,7 @@ impl ViewModel {
 
     fn cell_ok(&self, x: u16, y: u16) -> Option<Cell> {
         let c = Cell::new(x, y);
-        self.grid
-            .contains(i64::from(x), i64::from(y))
-            .then_some(c)
+        self.grid.contains(i64::from(x), i64::from(y)).then_some(c)
     }
 
     fn robot(&mut self, id: u32) -> Option<&mut RobotView> {
@@ -389,13 +387,16 @@ mod tests {
         assert_eq!(r.episode_steps, (30, 2));
         assert_eq!(r.avg_steps, Some(15.0));
         // a cell off the map and a robot id beyond the fleet limit are ignored
-        let bad = RobotState {
-            cell_x: 99,
-            ..s2
-        };
+        let bad = RobotState { cell_x: 99, ..s2 };
         v.apply(40, Msg::State(&bad));
         assert_eq!(v.robots[2].cell, Some(Cell::new(1, 2)));
-        v.apply(41, Msg::State(&RobotState { robot_id: u32::MAX, ..s2 }));
+        v.apply(
+            41,
+            Msg::State(&RobotState {
+                robot_id: u32::MAX,
+                ..s2
+            }),
+        );
         assert_eq!(v.robots.len(), 3);
     }
 
@@ -409,8 +410,18 @@ mod tests {
             count: 2,
             ..QHintBatch::ZEROED
         };
-        h.entries[0] = QHint { cell: 0, action: 1, q: 0.5, ..QHint::ZEROED };
-        h.entries[1] = QHint { cell: 1, action: 1, q: 0.9, ..QHint::ZEROED };
+        h.entries[0] = QHint {
+            cell: 0,
+            action: 1,
+            q: 0.5,
+            ..QHint::ZEROED
+        };
+        h.entries[1] = QHint {
+            cell: 1,
+            action: 1,
+            q: 0.9,
+            ..QHint::ZEROED
+        };
         v.apply(1, Msg::Hints(&h));
         assert_eq!(
             v.greedy_path(0),
@@ -422,13 +433,39 @@ mod tests {
             count: 4,
             ..MergedHintBatch::ZEROED
         };
-        m.entries[0] = QHint { cell: 0, action: 2, q: 0.1, ..QHint::ZEROED };
-        m.entries[1] = QHint { cell: 3, action: 1, q: 0.2, ..QHint::ZEROED };
-        m.entries[2] = QHint { cell: 4, action: 1, q: 0.3, ..QHint::ZEROED };
-        m.entries[3] = QHint { cell: 5, action: 0, q: 0.4, ..QHint::ZEROED };
+        m.entries[0] = QHint {
+            cell: 0,
+            action: 2,
+            q: 0.1,
+            ..QHint::ZEROED
+        };
+        m.entries[1] = QHint {
+            cell: 3,
+            action: 1,
+            q: 0.2,
+            ..QHint::ZEROED
+        };
+        m.entries[2] = QHint {
+            cell: 4,
+            action: 1,
+            q: 0.3,
+            ..QHint::ZEROED
+        };
+        m.entries[3] = QHint {
+            cell: 5,
+            action: 0,
+            q: 0.4,
+            ..QHint::ZEROED
+        };
         m.origin_ns[0] = 5;
         m.origin_robot[1] = u32::MAX;
-        v.apply(100, Msg::State(&RobotState { robot_id: 1, ..RobotState::ZEROED }));
+        v.apply(
+            100,
+            Msg::State(&RobotState {
+                robot_id: 1,
+                ..RobotState::ZEROED
+            }),
+        );
         v.apply(105, Msg::Merged(&m));
         assert_eq!(v.greedy_path(1).len(), 5);
         assert_eq!(v.path_optimal(1), Some(false));

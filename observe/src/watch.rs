@@ -115,7 +115,12 @@ pub fn start(
     let done = Arc::new(AtomicBool::new(false));
     let d = Arc::clone(&done);
     let run_id = run_id.to_string();
-    let (grid, start, goal, name) = (task.grid.clone(), task.start, task.goal, task.map_name.clone());
+    let (grid, start, goal, name) = (
+        task.grid.clone(),
+        task.start,
+        task.goal,
+        task.map_name.clone(),
+    );
     let handle = std::thread::Builder::new()
         .name("qfleet-watch".into())
         .spawn(move || {

@@ -4,12 +4,16 @@ mod bench;
 mod clean;
 mod experiment;
 mod learn;
+mod live;
 mod plots;
+mod replay;
 mod replicate;
 mod run;
 mod runplots;
 mod supervise;
 mod sweep;
+mod table;
+mod topic;
 
 use clap::{Parser, Subcommand};
 
@@ -37,6 +41,10 @@ enum Command {
     Sweep(sweep::SweepCmd),
     /// Benchmark the update loop against raw iceoryx2, Unix sockets and crossbeam; fleet scale.
     Bench(bench::BenchCmd),
+    /// Look at a live run from outside: its topics, every message as JSON, message rates.
+    Topic(topic::TopicCmd),
+    /// Read a recording (`run --record FILE.mcap`) back: per-topic summary, or the live view.
+    Replay(replay::ReplayCmd),
 }
 
 fn main() {
@@ -49,6 +57,8 @@ fn main() {
         Command::Bench(c) => c.run(),
         Command::Experiment(c) => c.run(),
         Command::Sweep(c) => c.run(),
+        Command::Topic(c) => c.run(),
+        Command::Replay(c) => c.run(),
     };
     if let Err(e) = result {
         eprintln!("qfleet: error: {}", report(&e));

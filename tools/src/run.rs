@@ -71,6 +71,12 @@ pub struct RunCmd {
     /// A running robot silent this many ms is reported hung (and restarted with the policy).
     #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..))]
     hang_ms: u64,
+    /// Show the live terminal view (`q` stops the run gracefully, `space` pauses the view).
+    #[arg(long)]
+    live: bool,
+    /// Record every message of every topic into this MCAP file (Foxglove opens it).
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
 }
 
 fn sibling(name: &str) -> Result<PathBuf> {
@@ -151,6 +157,25 @@ impl RunCmd {
             .context("installing the Ctrl-C handler")?;
         }
 
+        let i = Arc::clone(&interrupts);
+        let config = vec![
+            ("robots".into(), self.robots.to_string()),
+            ("map_args".into(), self.map.to_cli().join(" ")),
+            ("learner_args".into(), self.learner.to_cli().join(" ")),
+            ("share_args".into(), self.share.to_cli().join(" ")),
+            ("merge".into(), self.merge.to_string()),
+            ("wait".into(), self.wait.to_string()),
+        ];
+        let watch = crate::live::start(
+            &run_id,
+            &task,
+            config,
+            self.live,
+            self.record.clone(),
+            Box::new(move || {
+                i.fetch_add(1, Ordering::SeqCst);
+            }),
+        );
         let outcome = self.supervise(
             &run_id,
             &out,
@@ -162,6 +187,7 @@ impl RunCmd {
             &task,
             cfg.episodes,
         );
+        let watched = crate::live::finish(watch); // before the clean-up: the observer must be gone
         // whatever happened: no file of the run may stay behind
         let cleaned = bus::clean_stale(&bus_schema::names::iceoryx_prefix(&run_id));
         let leftovers = bus::leftover_files(&bus_schema::names::iceoryx_prefix(&run_id));
@@ -175,7 +201,11 @@ impl RunCmd {
         {
             eprintln!("qfleet: warning: plotting the run: {e:#}");
         }
-        let failures = outcome?;
+        let mut failures = outcome?;
+        if watched? {
+            // `q` in the live view is a user stop: clean when only the stop itself is "wrong"
+            failures.retain(|f| !f.starts_with("interrupted"));
+        }
         if let Err(e) = cleaned {
             eprintln!("qfleet: warning: cleaning up run {run_id}: {e}");
         }
@@ -262,6 +292,9 @@ impl RunCmd {
         };
         let total = u64::from(self.robots) * u64::from(episodes);
         let bar = ProgressBar::new(total);
+        if self.live {
+            bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+        }
         bar.set_style(
             ProgressStyle::with_template(
                 "{spinner} {pos}/{len} episodes [{bar:30}] {msg} ({elapsed})",
