@@ -59,6 +59,12 @@ pub struct ExperimentCmd {
     /// How robots apply merged hints and how the coordinator merges them.
     #[command(flatten)]
     rules: Rules,
+    /// Show the live terminal view (`q` stops like Ctrl-C, `space` pauses the view).
+    #[arg(long)]
+    live: bool,
+    /// Record every message into this MCAP file (`NAME-seed-S.mcap` with several seeds).
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
 }
 
 /// The two rules of Q-hint sharing: how the coordinator merges robots' values into the fleet
@@ -290,7 +296,28 @@ impl ExperimentCmd {
         for &seed in &plan.manifest.seeds.clone() {
             let id = make_run_id(self.run_id.as_deref(), &format!("s{seed}"));
             let dir = out.join(format!("seed-{seed}"));
-            let r = match run_once(&plan, seed, self.rules, &id, &dir, sup) {
+            let rec = self
+                .record
+                .as_ref()
+                .map(|p| match plan.manifest.seeds.len() {
+                    1 => p.clone(),
+                    _ => p.with_extension(format!("seed-{seed}.mcap")),
+                });
+            let cfg = vec![
+                ("manifest".into(), self.file.display().to_string()),
+                ("seed".into(), seed.to_string()),
+            ];
+            let watch = crate::live::start(
+                &id,
+                &crate::live::experiment_task(&plan),
+                cfg,
+                self.live,
+                rec,
+                Box::new(crate::request_stop),
+            );
+            let r = run_once(&plan, seed, self.rules, &id, &dir, sup);
+            crate::live::finish(watch)?;
+            let r = match r {
                 Ok(r) => r,
                 Err(e) => {
                     let kept = out_dir.keep();
@@ -313,7 +340,7 @@ impl ExperimentCmd {
                 );
             }
             if !self.json {
-                print_human(&r)?;
+                out!("{}", crate::table::experiment_table(&r))?;
             }
             results.push(r);
         }
@@ -324,46 +351,4 @@ impl ExperimentCmd {
         }
         Ok(())
     }
-}
-
-fn opt<T: std::fmt::Display>(v: Option<T>) -> String {
-    v.map_or("-".into(), |v| v.to_string())
-}
-
-fn print_human(r: &ExperimentResult) -> Result<()> {
-    out!(
-        "experiment {:?}, seed {}: {} robots on {}, sharing {}, {:.2} s",
-        r.name,
-        r.seed,
-        r.robots,
-        r.map,
-        r.sharing,
-        r.wall_s
-    )?;
-    for p in &r.phases {
-        out!(
-            "  phase {} ({}), {} episodes, {:.2} s",
-            p.phase,
-            p.name,
-            p.episodes,
-            p.wall_s
-        )?;
-        for g in &p.goals {
-            out!(
-                "    goal {} {:>8} at {:>7}: robots {:?}  merged path {:?} (optimal {:?}) at {} s / {} steps per robot; own optimum after {} steps (mean); avg steps/episode {:.1}; relayed {}",
-                g.goal,
-                g.name,
-                g.cell,
-                g.robots,
-                g.merged_path_len,
-                g.optimal_path_len,
-                opt(g.merged_time_to_optimal_s.map(|t| format!("{t:.3}"))),
-                opt(g.merged_steps_per_robot.map(|s| format!("{s:.0}"))),
-                opt(g.robot_steps_to_optimal.map(|s| format!("{s:.0}"))),
-                g.avg_steps,
-                g.relayed
-            )?;
-        }
-    }
-    Ok(())
 }

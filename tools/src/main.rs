@@ -5,12 +5,16 @@ mod clean;
 mod eval;
 mod experiment;
 mod learn;
+mod live;
 mod plots;
+mod replay;
 mod replicate;
 mod run;
 mod runplots;
 mod sweep;
+mod table;
 mod term;
+mod topic;
 
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
@@ -43,6 +47,10 @@ enum Command {
     Eval(eval::EvalCmd),
     /// Benchmark the update loop against raw iceoryx2, Unix sockets and crossbeam; fleet scale.
     Bench(bench::BenchCmd),
+    /// Look at a live run from outside: its topics, every message as JSON, message rates.
+    Topic(topic::TopicCmd),
+    /// Read a recording (`run --record FILE.mcap`) back: per-topic summary, or the live view.
+    Replay(replay::ReplayCmd),
 }
 
 /// SIGINT/SIGTERM received so far (the first stops a run gracefully, the second kills it).
@@ -51,15 +59,18 @@ pub static INTERRUPTS: AtomicU32 = AtomicU32::new(0);
 /// coordinator).
 pub static STOP: AtomicBool = AtomicBool::new(false);
 
+/// Asks the run to stop gracefully, as SIGINT/SIGTERM do (the live view's `q` calls it too).
+pub fn request_stop() {
+    INTERRUPTS.fetch_add(1, Ordering::SeqCst);
+    STOP.store(true, Ordering::SeqCst);
+}
+
 /// Installs the SIGINT/SIGTERM handler once for the whole process (runs, experiments, sweeps).
 pub fn catch_interrupts() -> anyhow::Result<()> {
     static INSTALLED: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
     INSTALLED
         .get_or_init(|| {
-            ctrlc::set_handler(|| {
-                INTERRUPTS.fetch_add(1, Ordering::SeqCst);
-                STOP.store(true, Ordering::SeqCst);
-            })
+            ctrlc::set_handler(request_stop)
             .map_err(|e| e.to_string())
         })
         .clone()
@@ -76,7 +87,11 @@ fn main() {
         Command::Bench(c) => c.run(),
         Command::Experiment(c) => c.run(),
         Command::Sweep(c) => c.run(),
-        Command::Eval(c) => c.run(),
+mod table;
+mod term;
+mod topic;
+
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
     };
     let code = match result {
         Ok(()) => Exit::Ok,

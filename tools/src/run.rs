@@ -78,6 +78,12 @@ pub struct RunCmd {
     /// A running robot silent this many ms is reported hung (and restarted with the policy).
     #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..))]
     hang_ms: u64,
+    /// Show the live terminal view (`q` stops the run gracefully, `space` pauses the view).
+    #[arg(long)]
+    live: bool,
+    /// Record every message of every topic into this MCAP file (Foxglove opens it).
+    #[arg(long, value_name = "FILE.mcap")]
+    record: Option<PathBuf>,
 }
 
 impl RunCmd {
@@ -122,8 +128,24 @@ impl RunCmd {
             let _ = std::fs::remove_file(out.join("result.json"));
         }
         crate::catch_interrupts()?;
-        // observers of the run (e.g. a live view or a recorder) start here, with the run id,
-        // its iceoryx2 prefix and crate::STOP, and are joined after `supervise` returns
+        // observers of the run (the live view, the recorder) start before its processes and are
+        // joined after they exited, before the run's files are removed
+        let config = vec![
+            ("robots".into(), self.robots.to_string()),
+            ("map_args".into(), self.map.to_cli().join(" ")),
+            ("learner_args".into(), self.learner.to_cli().join(" ")),
+            ("share_args".into(), self.share.to_cli().join(" ")),
+            ("merge".into(), self.merge.to_string()),
+            ("wait".into(), self.wait.to_string()),
+        ];
+        let watch = crate::live::start(
+            &run_id,
+            &task,
+            config,
+            self.live,
+            self.record.clone(),
+            Box::new(crate::request_stop),
+        );
 
         let outcome = self.supervise(
             &run_id,
@@ -135,6 +157,7 @@ impl RunCmd {
             &task,
             cfg.episodes,
         );
+        let quit = crate::live::finish(watch);
         // whatever happened: no file of the run may stay behind
         let cleaned = bus::clean_stale(&bus_schema::names::iceoryx_prefix(&run_id));
         let leftovers = bus::leftover_files(&bus_schema::names::iceoryx_prefix(&run_id));
@@ -163,6 +186,20 @@ impl RunCmd {
         }
         let mut failures = done.failures;
         let mut exit = done.exit;
+        match quit {
+            // `q` in the live view is a user stop: a clean one is a success
+            Ok(true) => {
+                failures.retain(|f| !f.starts_with("interrupted"));
+                if failures.is_empty() {
+                    exit = Exit::Ok;
+                }
+            }
+            Ok(false) => {}
+            Err(e) => {
+                failures.push(format!("{e:#}"));
+                exit = exit.worst(Exit::Failure);
+            }
+        }
         if result.is_none() {
             failures.push("the coordinator wrote no result".into());
             exit = exit.worst(Exit::Failure);
@@ -284,6 +321,9 @@ impl RunCmd {
         };
         let total = u64::from(self.robots) * u64::from(episodes);
         let bar = ProgressBar::new(total);
+        if self.live {
+            bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+        }
         bar.set_style(
             ProgressStyle::with_template(
                 "{spinner} {pos}/{len} episodes [{bar:30}] {msg} ({elapsed})",

@@ -1,0 +1,66 @@
+//! # observe — watching and recording a qfleet run from outside
+//!
+//! An outside reader of a run: it attaches once the run's services exist
+//! ([`attach::Observer`]), decodes every topic to JSON with a JSON schema per type
+//! ([`decode`]), counts messages and rates ([`stats`]), records everything into an MCAP file
+//! that Foxglove opens ([`record`]), reads recordings back ([`replay`]), and keeps an IO-free
+//! model of the run ([`view::ViewModel`]) that the terminal live view ([`tui`]) draws.
+//! [`watch`] ties them together for `qfleet run/experiment --live/--record`.
+//!
+//! Not here: starting or stopping a run's processes (the launcher in `tools/`; the live view
+//! only calls the stop callback it is given), publishing anything on a run's topics (an
+//! observer only subscribes), the wire contract (`bus-schema`) and iceoryx2 plumbing (`bus`).
+
+#![deny(missing_docs)]
+
+pub mod attach;
+pub mod decode;
+pub mod record;
+pub mod replay;
+pub mod stats;
+pub mod tui;
+pub mod view;
+pub mod watch;
+
+/// Why observing, recording or replaying failed.
+#[derive(Debug, thiserror::Error)]
+pub enum ObserveError {
+    /// The bus refused (bad run id, node or port creation, a receive).
+    #[error(transparent)]
+    BusError(#[from] bus::BusError),
+    /// Another iceoryx2 failure, with what was being done.
+    #[error("iceoryx2: {0}")]
+    Bus(String),
+    /// The run's services did not appear in time.
+    #[error("run {run_id} did not appear within {waited:?} (is it running? is the run id right?)")]
+    Timeout {
+        /// The run id waited for.
+        run_id: String,
+        /// How long.
+        waited: std::time::Duration,
+    },
+    /// The run ended (or never started) before the observer could join.
+    #[error("run {0} is not running")]
+    NotRunning(String),
+    /// Reading or writing an MCAP file.
+    #[error("mcap: {0}")]
+    Mcap(String),
+    /// JSON encoding.
+    #[error("json: {0}")]
+    Json(#[from] serde_json::Error),
+    /// File IO.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The cause.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The terminal (raw mode, drawing, reading keys).
+    #[error("terminal: {0}")]
+    Terminal(#[source] std::io::Error),
+    /// A map in a recording that cannot be read.
+    #[error("the recording's map: {0}")]
+    Map(String),
+}

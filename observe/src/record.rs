@@ -1,0 +1,193 @@
+//! MCAP recording of a run: one channel per topic (the service name as the MCAP topic), JSON
+//! messages with a JSON schema per type (what Foxglove decodes without plug-ins), the run's
+//! configuration as metadata and the map as an attachment.
+//!
+//! Times: a message's MCAP `log_time` (and `publish_time`) is its receive time in the observer
+//! as wall-clock ns since the Unix epoch; the metadata record `qfleet.run` holds the pair
+//! (`clock_wall_ns`, `clock_mono_ns`) taken at the start, so a reader can map log times back to
+//! the `CLOCK_MONOTONIC` ns the messages themselves carry (see [`crate::replay`]). Chunks are
+//! not compressed (the `mcap` crate's zstd/lz4 would pull in C libraries); Foxglove and the
+//! `mcap` CLI read uncompressed chunks.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufWriter, Seek, Write};
+use std::path::Path;
+
+use bus_schema::names::Topic;
+use mcap::records::{MessageHeader, Metadata};
+use mcap::{Attachment, WriteOptions, Writer};
+
+use crate::ObserveError;
+use crate::decode::{Msg, json_schema};
+use crate::stats::topic_index;
+
+/// Name of the metadata record with the run's configuration.
+pub const RUN_METADATA: &str = "qfleet.run";
+/// Name of the attachment holding the map as a MovingAI `.map` file.
+pub const MAP_ATTACHMENT: &str = "map.map";
+/// Name of the attachment holding the run's configuration as JSON.
+pub const CONFIG_ATTACHMENT: &str = "config.json";
+
+/// What a recording says about its run besides the messages.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct RunInfo {
+    /// Run id.
+    pub run_id: String,
+    /// Map name.
+    pub map_name: String,
+    /// The map as a MovingAI `.map` file.
+    pub map_text: String,
+    /// Start cell (x, y) of the task.
+    pub start: (u16, u16),
+    /// Goal cell (x, y) of the task.
+    pub goal: (u16, u16),
+    /// Further settings (robots, learner, sharing …) as key → value, stored as metadata.
+    pub config: BTreeMap<String, String>,
+}
+
+/// Writes one run into an MCAP file.
+pub struct Recorder<W: Write + Seek> {
+    writer: Writer<W>,
+    channels: [u16; 9],
+    seq: [u32; 9],
+    wall0: u64,
+    mono0: u64,
+    buf: Vec<u8>,
+    written: u64,
+}
+
+fn mcap_err(e: mcap::McapError) -> ObserveError {
+    ObserveError::Mcap(e.to_string())
+}
+
+/// Wall-clock ns since the Unix epoch (0 if the clock is before it).
+pub fn wall_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
+impl Recorder<BufWriter<File>> {
+    /// Creates (or truncates) `path` and writes the header, schemas, channels, metadata and
+    /// attachments.
+    pub fn create(path: &Path, info: &RunInfo) -> Result<Self, ObserveError> {
+        let file = File::create(path).map_err(|e| ObserveError::Io {
+            path: path.display().to_string(),
+            source: e,
+        })?;
+        Self::new(BufWriter::new(file), info)
+    }
+}
+
+impl<W: Write + Seek> Recorder<W> {
+    /// Starts a recording into `w`.
+    pub fn new(w: W, info: &RunInfo) -> Result<Self, ObserveError> {
+        let mut writer = WriteOptions::new()
+            .compression(None)
+            .profile("")
+            .library(concat!("qfleet-observe ", env!("CARGO_PKG_VERSION")))
+            .create(w)
+            .map_err(mcap_err)?;
+        let mut channels = [0u16; 9];
+        for t in Topic::ALL {
+            let schema = serde_json::to_vec(&json_schema(t))?;
+            let sid = writer
+                .add_schema(t.type_name(), "jsonschema", &schema)
+                .map_err(mcap_err)?;
+            let meta = BTreeMap::from([
+                ("delivery".to_string(), format!("{:?}", t.delivery())),
+                ("direction".to_string(), format!("{:?}", t.direction())),
+            ]);
+            channels[topic_index(t)] = writer
+                .add_channel(sid, &t.service_name(&info.run_id), "json", &meta)
+                .map_err(mcap_err)?;
+        }
+        let wall0 = wall_ns();
+        let mono0 = bus::monotonic_ns();
+        let mut meta = info.config.clone();
+        meta.insert("run_id".into(), info.run_id.clone());
+        meta.insert("map".into(), info.map_name.clone());
+        meta.insert("start".into(), format!("{},{}", info.start.0, info.start.1));
+        meta.insert("goal".into(), format!("{},{}", info.goal.0, info.goal.1));
+        meta.insert(
+            "schema_version".into(),
+            bus_schema::SCHEMA_VERSION.to_string(),
+        );
+        meta.insert("clock_wall_ns".into(), wall0.to_string());
+        meta.insert("clock_mono_ns".into(), mono0.to_string());
+        writer
+            .write_metadata(&Metadata {
+                name: RUN_METADATA.into(),
+                metadata: meta.clone(),
+            })
+            .map_err(mcap_err)?;
+        writer
+            .attach(&Attachment {
+                log_time: wall0,
+                create_time: wall0,
+                name: MAP_ATTACHMENT.into(),
+                media_type: "text/plain".into(),
+                data: info.map_text.as_bytes().into(),
+            })
+            .map_err(mcap_err)?;
+        writer
+            .attach(&Attachment {
+                log_time: wall0,
+                create_time: wall0,
+                name: CONFIG_ATTACHMENT.into(),
+                media_type: "application/json".into(),
+                data: serde_json::to_vec_pretty(&meta)?.into(),
+            })
+            .map_err(mcap_err)?;
+        Ok(Self {
+            writer,
+            channels,
+            seq: [0; 9],
+            wall0,
+            mono0,
+            buf: Vec::with_capacity(16 * 1024),
+            written: 0,
+        })
+    }
+
+    /// Writes one message received at monotonic time `recv_ns`.
+    pub fn record(&mut self, recv_ns: u64, msg: Msg<'_>) -> Result<(), ObserveError> {
+        let i = topic_index(msg.topic());
+        self.buf.clear();
+        serde_json::to_writer(&mut self.buf, &msg.to_json())?;
+        let t = self
+            .wall0
+            .saturating_add(recv_ns.saturating_sub(self.mono0));
+        self.writer
+            .write_to_known_channel(
+                &MessageHeader {
+                    channel_id: self.channels[i],
+                    sequence: self.seq[i],
+                    log_time: t,
+                    publish_time: t,
+                },
+                &self.buf,
+            )
+            .map_err(mcap_err)?;
+        self.seq[i] = self.seq[i].wrapping_add(1);
+        self.written += 1;
+        Ok(())
+    }
+
+    /// Messages written so far.
+    pub fn written(&self) -> u64 {
+        self.written
+    }
+
+    /// Writes the summary section, flushes, and hands back the sink.
+    pub fn finish(mut self) -> Result<W, ObserveError> {
+        self.writer.finish().map_err(mcap_err)?;
+        let mut w = self.writer.into_inner();
+        w.flush().map_err(|e| ObserveError::Io {
+            path: "the recording".into(),
+            source: e,
+        })?;
+        Ok(w)
+    }
+}

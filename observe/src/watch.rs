@@ -1,0 +1,214 @@
+//! `--live` and `--record` for a launcher: one thread that joins the run as an outside reader
+//! once its services exist, feeds every message to the live view and/or the MCAP recorder, and
+//! leaves when the launcher says the run is over ([`Watch::finish`]).
+//!
+//! The launcher calls [`start`] before starting the run's processes (the thread only reads
+//! iceoryx2's bookkeeping until the services exist, so the run id stays free) and
+//! [`Watch::finish`] after they all exited and **before** it removes the run's files: the
+//! observer's node must be gone by then.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use planner::grid::Cell;
+use planner::task::Task;
+
+use crate::ObserveError;
+use crate::attach::Observer;
+use crate::record::{Recorder, RunInfo};
+use crate::stats::TopicCounts;
+use crate::tui::{self, Exit, Feed};
+use crate::view::ViewModel;
+
+/// What to do while a run goes on.
+#[derive(Debug, Clone, Default)]
+pub struct WatchOptions {
+    /// Show the terminal live view.
+    pub live: bool,
+    /// Record every message into this MCAP file.
+    pub record: Option<PathBuf>,
+}
+
+impl WatchOptions {
+    /// Whether anything is asked for at all.
+    pub fn any(&self) -> bool {
+        self.live || self.record.is_some()
+    }
+}
+
+/// What the watch thread saw.
+#[derive(Debug, Clone, Default)]
+pub struct WatchReport {
+    /// The user pressed `q` in the live view.
+    pub quit: bool,
+    /// Messages seen per topic.
+    pub counts: TopicCounts,
+    /// Messages written into the recording.
+    pub recorded: u64,
+}
+
+/// A running watch thread.
+pub struct Watch {
+    done: Arc<AtomicBool>,
+    handle: Option<JoinHandle<Result<WatchReport, ObserveError>>>,
+}
+
+impl Watch {
+    /// Tells the thread the run is over, waits for it to drain, close the recording and
+    /// leave the run, and returns what it saw.
+    pub fn finish(mut self) -> Result<WatchReport, ObserveError> {
+        self.done.store(true, Ordering::SeqCst);
+        match self.handle.take().map(JoinHandle::join) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => Err(ObserveError::Bus("the watch thread panicked".into())),
+            None => Ok(WatchReport::default()),
+        }
+    }
+}
+
+impl Drop for Watch {
+    fn drop(&mut self) {
+        self.done.store(true, Ordering::SeqCst);
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+/// The recording's description of a run on `task` (the map as a MovingAI file), plus `config`.
+pub fn run_info(
+    run_id: &str,
+    task: &Task,
+    config: impl IntoIterator<Item = (String, String)>,
+) -> RunInfo {
+    let map = planner::map::GridMap {
+        name: task.map_name.clone(),
+        grid: task.grid.clone(),
+        start: Some(task.start),
+        goals: vec![task.goal],
+    };
+    RunInfo {
+        run_id: run_id.to_string(),
+        map_name: task.map_name.clone(),
+        map_text: map.to_movingai(),
+        start: (task.start.x, task.start.y),
+        goal: (task.goal.x, task.goal.y),
+        config: config.into_iter().collect(),
+    }
+}
+
+/// How long the thread waits for the run's services before it gives up.
+const ATTACH_TIMEOUT: Duration = Duration::from_secs(120);
+
+/// Starts watching run `run_id` (of `task`) as `opts` asks; `on_quit` is called once when the
+/// user presses `q` in the live view (the launcher's graceful stop, as Ctrl-C).
+pub fn start(
+    run_id: &str,
+    task: &Task,
+    info: RunInfo,
+    opts: WatchOptions,
+    on_quit: Box<dyn Fn() + Send>,
+) -> Watch {
+    let done = Arc::new(AtomicBool::new(false));
+    let d = Arc::clone(&done);
+    let run_id = run_id.to_string();
+    let (grid, start, goal, name) = (
+        task.grid.clone(),
+        task.start,
+        task.goal,
+        task.map_name.clone(),
+    );
+    let handle = std::thread::Builder::new()
+        .name("qfleet-watch".into())
+        .spawn(move || {
+            let vm = ViewModel::new(&name, grid, start, goal);
+            watch_thread(&run_id, vm, &info, &opts, &d, &*on_quit)
+        })
+        .ok();
+    Watch { done, handle }
+}
+
+fn watch_thread(
+    run_id: &str,
+    mut vm: ViewModel,
+    info: &RunInfo,
+    opts: &WatchOptions,
+    done: &AtomicBool,
+    on_quit: &dyn Fn(),
+) -> Result<WatchReport, ObserveError> {
+    // the file first: a bad path is reported even if the run never starts
+    let mut rec = match &opts.record {
+        Some(p) => Some(Recorder::create(p, info)?),
+        None => None,
+    };
+    let observer = match Observer::attach(run_id, ATTACH_TIMEOUT, &|| done.load(Ordering::SeqCst)) {
+        Ok(o) => o,
+        Err(e) => {
+            if let Some(r) = rec.take() {
+                r.finish()?;
+            }
+            return Err(e);
+        }
+    };
+    let mut rec_err: Option<ObserveError> = None;
+    let mut feed = |vm: &mut ViewModel| -> Result<Feed, ObserveError> {
+        let over = done.load(Ordering::SeqCst);
+        let n = observer.poll(|t, m| {
+            vm.apply(t, m);
+            if let Some(r) = rec.as_mut()
+                && rec_err.is_none()
+                && let Err(e) = r.record(t, m)
+            {
+                rec_err = Some(e);
+            }
+        })?;
+        if over {
+            return Ok(Feed::Ended);
+        }
+        if n == 0 {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        Ok(Feed::More)
+    };
+    let mut quit = false;
+    if opts.live {
+        let src = format!("run {run_id}");
+        quit = tui::run(&mut vm, &src, &mut feed, on_quit, false, false)? == Exit::Quit;
+    }
+    while feed(&mut vm)? == Feed::More {}
+    drop(feed);
+    drop(observer);
+    // the launcher may have cleaned up while we were still attached: finish its job
+    crate::attach::leave(run_id)?;
+    let mut report = WatchReport {
+        quit,
+        counts: vm.counts.clone(),
+        recorded: 0,
+    };
+    if let Some(e) = rec_err {
+        return Err(e);
+    }
+    if let Some(r) = rec {
+        report.recorded = r.written();
+        r.finish()?;
+    }
+    Ok(report)
+}
+
+/// A [`ViewModel`] for a recording: its map attachment and start/goal metadata.
+pub fn view_of_recording(r: &crate::replay::Recording) -> Result<ViewModel, ObserveError> {
+    let text = r
+        .map_text
+        .as_deref()
+        .ok_or_else(|| ObserveError::Map("the recording has no map attachment".into()))?;
+    let map = planner::map::parse_movingai_map("map.map", text.as_bytes())
+        .map_err(|e| ObserveError::Map(e.to_string()))?;
+    let cell = |k: &str| r.cell(k).map(|(x, y)| Cell::new(x, y));
+    let start = cell("start").unwrap_or(Cell::new(0, 0));
+    let goal = cell("goal").unwrap_or(start);
+    let name = r.meta.get("map").cloned().unwrap_or(map.name);
+    Ok(ViewModel::new(&name, map.grid, start, goal))
+}

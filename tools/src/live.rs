@@ -1,0 +1,75 @@
+//! The launcher side of `--live` and `--record FILE.mcap` (`qfleet run`, `qfleet experiment`):
+//! start an `observe::watch` thread before the run's processes, finish it after they exited
+//! and before the run's files are removed. Everything else lives in the `observe` crate.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use observe::watch::{Watch, WatchOptions, run_info, start as start_watch};
+use planner::task::Task;
+
+/// A watch thread, if `--live` or `--record` asked for one.
+pub struct Hook {
+    watch: Option<Watch>,
+    record: Option<PathBuf>,
+}
+
+/// Starts watching run `run_id` on `task` when `live` or `record` is set; `config` goes into
+/// the recording's metadata; `on_quit` is the launcher's graceful stop (what Ctrl-C does).
+pub fn start(
+    run_id: &str,
+    task: &Task,
+    config: Vec<(String, String)>,
+    live: bool,
+    record: Option<PathBuf>,
+    on_quit: Box<dyn Fn() + Send>,
+) -> Hook {
+    let opts = WatchOptions {
+        live,
+        record: record.clone(),
+    };
+    let watch = opts
+        .any()
+        .then(|| start_watch(run_id, task, run_info(run_id, task, config), opts, on_quit));
+    Hook { watch, record }
+}
+
+/// Ends the watch: returns whether the user pressed `q` in the live view, and says on stderr
+/// where the recording went.
+pub fn finish(hook: Hook) -> Result<bool> {
+    let Some(w) = hook.watch else {
+        return Ok(false);
+    };
+    let r = w.finish().context("watching the run")?;
+    if let Some(p) = &hook.record {
+        eprintln!(
+            "qfleet: recorded {} messages to {}",
+            r.recorded,
+            p.display()
+        );
+    }
+    Ok(r.quit)
+}
+
+/// A task for the live view of an experiment: its map, the first robot's start and the first
+/// goal (the robots' own starts and goals arrive on the bus).
+pub fn experiment_task(plan: &qfleet_args::Plan) -> Task {
+    let start = plan
+        .starts
+        .first()
+        .copied()
+        .unwrap_or(planner::grid::Cell::new(0, 0));
+    let goal = plan.goal_cells.first().copied().unwrap_or(start);
+    Task {
+        map_name: plan.map.name.clone(),
+        grid: plan.map.grid.clone(),
+        start,
+        goal,
+        optimal_len: plan
+            .optimal
+            .first()
+            .and_then(|o| o.first())
+            .copied()
+            .unwrap_or(1),
+    }
+}
