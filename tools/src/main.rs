@@ -87,11 +87,9 @@ fn main() {
         Command::Bench(c) => c.run(),
         Command::Experiment(c) => c.run(),
         Command::Sweep(c) => c.run(),
-mod table;
-mod term;
-mod topic;
-
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+        Command::Eval(c) => c.run(),
+        Command::Topic(c) => c.run(),
+        Command::Replay(c) => c.run(),
     };
     let code = match result {
         Ok(()) => Exit::Ok,
