@@ -69,10 +69,7 @@ pub fn request_stop() {
 pub fn catch_interrupts() -> anyhow::Result<()> {
     static INSTALLED: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
     INSTALLED
-        .get_or_init(|| {
-            ctrlc::set_handler(request_stop)
-            .map_err(|e| e.to_string())
-        })
+        .get_or_init(|| ctrlc::set_handler(request_stop).map_err(|e| e.to_string()))
         .clone()
         .map_err(|e| anyhow::anyhow!("installing the Ctrl-C handler: {e}"))
 }
