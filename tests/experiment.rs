@@ -1,4 +1,4 @@
-//! End-to-end: `qfleet experiment` with real `robot-agent --experiment` processes and the
+//! End-to-end: `qfleet experiment` with real `robot-agent` processes and the
 //! in-process experiment coordinator, over iceoryx2 shared memory. Unique run ids, bounded in
 //! time, no shared-memory files left behind.
 

@@ -5,8 +5,9 @@
 //! - `event <kind> <robot id> <ns since start>`, kind `hung` (silent past `--hang-ms`: the
 //!   launcher kills it to restart it under the policy), or any other (lost, joined, …).
 //!
-//! Launcher → coordinator (its stdin): `exited <robot id> <code or -signal>` when the launcher
-//! reaped a robot process, so the coordinator can mark a robot that never registered lost at
+//! Launcher → coordinator (the file `robot-<id>.exited` in the run directory, see
+//! `coordinator::exited_file`): `exited <robot id> <code or -signal>` when the launcher reaped a
+//! robot process for good, so the coordinator can mark a robot that never registered lost at
 //! once instead of waiting for it (see [`exited_line`]).
 
 /// One line the coordinator prints on stdout.

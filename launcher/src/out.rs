@@ -137,19 +137,9 @@ impl OutDir {
     }
 }
 
-/// Writes `bytes` to `path` atomically: a temporary file beside it, synced, renamed over it.
-/// On error the temporary file is removed and `path` is as it was.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let mut tmp = tempfile::Builder::new().prefix(".tmp-").tempfile_in(dir)?;
-    tmp.write_all(bytes)?;
-    tmp.as_file().sync_all()?;
-    tmp.persist(path).map_err(|e| e.error)?;
-    Ok(())
-}
+/// Writes `bytes` to `path` atomically (temp file beside it, synced, renamed over it): the one
+/// writer of the workspace, `report::write_atomic`, re-exported for the launcher's callers.
+pub use report::write_atomic;
 
 /// What a directory holds, for an error message: `N files (a, b, c …)` or `nothing`.
 pub fn inventory(dir: &Path) -> String {

@@ -394,16 +394,16 @@ pub fn supervise(
             } else if let Kind::Robot(id) = p.kind
                 && !status.success()
             {
-                exited_robots.push(exited_line(id, status.code(), status.signal()));
+                exited_robots.push((id, exited_line(id, status.code(), status.signal())));
             }
         }
-        // tell the coordinator process at once about robots that are gone for good
-        if has_coord {
-            for line in exited_robots {
-                if let Some(stdin) = procs[0].stdin.as_mut() {
-                    // non-blocking: a full pipe or a dead coordinator loses only the hint
-                    let _ = stdin.write_all(line.as_bytes());
-                }
+        // tell the coordinator (a process or in-process) at once about robots that are gone
+        // for good: it reads `robot-<id>.exited` in the run directory (one file, written once)
+        for (id, line) in exited_robots {
+            let file = fleet.logs.join(format!("robot-{id}.exited"));
+            if let Err(e) = crate::out::write_atomic(&file, line.as_bytes()) {
+                // only the hint is lost: the coordinator still sees the robot's node vanish
+                warn(&format!("telling the coordinator robot {id} exited: {e}"));
             }
         }
         if all_done {
