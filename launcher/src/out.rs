@@ -10,7 +10,6 @@
 //!   synced, then renamed), so a reader never sees half a file and a full disk leaves the old
 //!   file (if any) intact; [`inventory`] names what a failed run kept.
 
-use std::io::Write;
 use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
 

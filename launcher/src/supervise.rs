@@ -20,11 +20,10 @@
 //! coordinator process is told at once, see [`crate::events`]) and the run goes on without it;
 //! a dead coordinator ends the run.
 
-use std::io::{BufRead, BufReader, Write};
-use std::os::fd::AsRawFd;
+use std::io::{BufRead, BufReader};
 use std::os::unix::process::ExitStatusExt;
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
+use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
@@ -74,8 +73,8 @@ pub enum SuperviseError {
 
 /// What the fleet is made of and how it is supervised.
 pub struct Fleet<'a> {
-    /// The coordinator's command, if it is a process of its own (`qfleet run`); stdout and
-    /// stdin are piped by the supervisor. `None`: the coordinator runs in the launcher
+    /// The coordinator's command, if it is a process of its own (`qfleet run`); its stdout
+    /// is piped to the supervisor. `None`: the coordinator runs in the launcher
     /// (`qfleet experiment`), and `finished` says when it is done.
     pub coordinator: Option<&'a (dyn Fn() -> Command + Sync)>,
     /// Robot `id`'s command.
@@ -133,7 +132,6 @@ impl Kind {
 struct Proc {
     kind: Kind,
     child: Child,
-    stdin: Option<ChildStdin>,
     log: PathBuf,
     status: Option<ExitStatus>,
     restarts: u32,
@@ -215,7 +213,7 @@ fn start(
     let (log, f) = log_file(fleet.logs, &kind.log(), append)?;
     cmd.stderr(f);
     match kind {
-        Kind::Coordinator => cmd.stdin(Stdio::piped()).stdout(Stdio::piped()),
+        Kind::Coordinator => cmd.stdin(Stdio::null()).stdout(Stdio::piped()),
         Kind::Robot(_) => cmd.stdin(Stdio::null()).stdout(Stdio::null()),
     };
     let mut child = bind_to_launcher(&mut cmd)
@@ -236,20 +234,9 @@ fn start(
             }
         });
     }
-    let stdin = child.stdin.take();
-    if let Some(s) = &stdin {
-        // a coordinator that does not read its stdin must never block the supervisor
-        // SAFETY: fcntl(2) on a descriptor we own.
-        unsafe {
-            let fd = s.as_raw_fd();
-            let flags = libc::fcntl(fd, libc::F_GETFL);
-            libc::fcntl(fd, libc::F_SETFL, flags | libc::O_NONBLOCK);
-        }
-    }
     Ok(Proc {
         kind,
         child,
-        stdin,
         log,
         status: None,
         restarts: 0,

@@ -487,8 +487,8 @@ mod tests {
         let g = map_glyphs(&vm, 80, 40);
         assert_eq!(g.len(), 4);
         assert_eq!(g[0].len(), 6);
-        for y in 0..3 {
-            assert_eq!(g[y][3].0, WALL, "row {y}");
+        for (y, row) in g.iter().take(3).enumerate() {
+            assert_eq!(row[3].0, WALL, "row {y}");
         }
         assert_eq!(g[3][3].0, FREE);
         assert_eq!(g[3][2], ('1', Some(1)));

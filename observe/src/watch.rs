@@ -179,7 +179,6 @@ fn watch_thread(
         quit = tui::run(&mut vm, &src, &mut feed, on_quit, false, false)? == Exit::Quit;
     }
     while feed(&mut vm)? == Feed::More {}
-    drop(feed);
     drop(observer);
     // the launcher may have cleaned up while we were still attached: finish its job
     crate::attach::leave(run_id)?;
