@@ -208,7 +208,7 @@ episodes = 200
 "#;
 
 #[test]
-#[ignore = "needs the one coordinator engine (H-coord): the in-process experiment coordinator drops a late Register, so a restarted robot is never admitted"]
+#[ignore = "open (issue 11): the restart path is wired (qfleet experiment passes its policy to run_experiment_with), but this test does not find robot 1's process within the timeout (line 225) on the merged tree"]
 fn an_experiment_robot_killed_mid_phase_is_restarted_and_warm_started() {
     let dir = scratch("exp-restart");
     let file = dir.join("m.toml");

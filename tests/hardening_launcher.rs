@@ -450,7 +450,6 @@ fn run_ids_that_are_not_plain_names_are_refused_before_anything_starts() {
 }
 
 #[test]
-#[ignore = "needs the coordinator to read the launcher's `exited <id> <code>` lines on its stdin (H-coord's engine); without them it waits for the robot's registration"]
 fn a_robot_killed_before_it_registers_is_reported_lost_and_the_run_completes() {
     let id = run_id("prereg");
     let dir = scratch("hl-prereg");

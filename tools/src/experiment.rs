@@ -11,7 +11,7 @@ use std::time::Duration;
 use anyhow::{Context, Result, anyhow, bail};
 use clap::{Args, ValueEnum};
 use coordinator::MergeRule;
-use coordinator::experiment::{ExperimentOptions, ExperimentResult, run_experiment};
+use coordinator::experiment::{ExperimentOptions, ExperimentResult, run_experiment_with};
 use launcher::out::{OutDir, OutError, inventory, write_atomic};
 use launcher::run_id::{RunClaim, RunIdError};
 use launcher::spawn::sibling;
@@ -223,13 +223,22 @@ pub fn run_once(
                 std::thread::sleep(Duration::from_millis(20));
             }
         });
-        let result = run_experiment(
+        // the coordinator waits for a lost robot while the launcher may still restart it
+        let restarts = match sup.policy {
+            RestartPolicy::Never => 0,
+            RestartPolicy::OnFailure => sup.max_restarts,
+        };
+        let result = run_experiment_with(
             plan,
             &ExperimentOptions {
                 run_id: run_id.to_string(),
                 seed,
                 out: out.to_path_buf(),
                 merge: rules.merge,
+            },
+            coordinator::experiment::Supervision {
+                restarts,
+                ..Default::default()
             },
             &stop,
         );
