@@ -252,7 +252,7 @@ fn an_experiment_robot_killed_mid_phase_is_restarted_and_warm_started() {
 }
 
 #[test]
-#[ignore = "needs the one coordinator engine (H-coord): the experiment coordinator runs inside the qfleet process, so it cannot be killed apart from its launcher yet"]
+#[ignore = "open (issue 11): the experiment coordinator runs inside the qfleet process, so it cannot be killed apart from its launcher yet"]
 fn an_experiment_survives_a_coordinator_kill() {
     // With a coordinator process of its own, this test kills it mid-phase (as
     // tests/reliability.rs does for runs) and expects the restarted coordinator to finish every
