@@ -735,8 +735,11 @@ impl Robot<'_> {
     fn poll(&mut self, mut phase: Option<&mut Phase>) -> Result<(), AgentError> {
         self.link.tick(&self.bus)?;
         let share = self.args.share.share.hints();
-        // merged hints: applied in place, straight from shared memory
-        while let Some(sample) = self.bus.merged.receive_sample()? {
+        // merged hints: applied in place, straight from shared memory; before the first phase
+        // they stay buffered for it (the warm start from the fleet table)
+        while phase.is_some()
+            && let Some(sample) = self.bus.merged.receive_sample()?
+        {
             let m = sample.payload();
             let now = monotonic_ns();
             if m.send_time_ns != 0 && m.send_time_ns <= now {
