@@ -172,7 +172,6 @@ fn killed_robot_is_detected_lost_and_the_run_goes_on() {
 }
 
 #[test]
-#[ignore = "regression (issue 11/10 merge): with the launcher crate over the one-engine coordinator the restarted robot is warm-started with 0 table entries; passes on the engine without the launcher (coord + harden)"]
 fn killed_robot_is_restarted_and_warm_started_from_the_fleet_table() {
     let id = run_id("restart-robot");
     let dir = scratch(&id);
@@ -201,7 +200,7 @@ fn killed_robot_is_restarted_and_warm_started_from_the_fleet_table() {
 }
 
 #[test]
-#[ignore = "regression (issue 11/10 merge): with the launcher crate over the one-engine coordinator the restarted coordinator counts 23 discoveries received for 10 sent and no restart; passes on the engine without the launcher (coord + harden)"]
+#[ignore = "open regression of the one-engine processes (issue 11): after a coordinator restart the result counts more discoveries received than sent (23 vs 10) and no restart; suspects: DiscoveryLog replay, or the control gate dropping the new coordinator's acks before its re-Ack"]
 fn coordinator_crash_robots_learn_alone_rejoin_and_lose_no_discovery() {
     let id = run_id("kill-coord");
     let dir = scratch(&id);
