@@ -29,19 +29,6 @@ use crate::{BusConfig, BusError};
 /// Node name prefix of outside readers.
 pub const OBSERVER_NODE_PREFIX: &str = "qfleet-observer-";
 
-/// Every topic of a run, in the order the coordinator creates their services.
-const TOPICS: [Topic; 9] = [
-    Topic::Register,
-    Topic::RobotState,
-    Topic::Discovery,
-    Topic::Hints,
-    Topic::Report,
-    Topic::Control,
-    Topic::Merged,
-    Topic::Ack,
-    Topic::Relay,
-];
-
 /// An outside reader's node in a live run (see the module docs for the rules it follows).
 pub struct Observer {
     config: BusConfig,
@@ -56,7 +43,7 @@ impl Observer {
     pub fn join(cfg: &BusConfig, name: &str, wait: Duration) -> Result<Self, BusError> {
         let config = cfg.iceoryx_config()?;
         let deadline = Instant::now() + wait;
-        for topic in TOPICS {
+        for topic in Topic::ALL {
             let service = topic.service_name(&cfg.run_id);
             let sname = ServiceName::new(&service).map_err(|e| BusError::Service {
                 service: service.clone(),

@@ -4,7 +4,7 @@
 //! Robots here are lightweight: no learner. They make Q updates with [`super::Updates`], batch
 //! them with the robot-agent's own `HintBatcher`, send them with the `bus` crate exactly as
 //! `robot-agent` does (`send_batch` + `fill`, then `notify`), and apply merged hints with the
-//! robot-agent's own `apply_merged` into a `planner::QTable`, which records the end-to-end
+//! robot-agent's own `MergedApplier::apply` into a `planner::QTable`, which records the end-to-end
 //! latency (origin time of the update → applied) in the histogram this harness reports.
 
 use std::sync::Arc;
