@@ -23,9 +23,11 @@
 //! # Surviving the coordinator
 //! In every phase and between phases the robot watches its coordinator ([`crate::reconnect`]):
 //! without one it keeps learning alone and holds its discoveries; with a restarted one it
-//! re-registers and replays every discovery it ever made. A robot that joins (or re-joins)
-//! finds the coordinator's fleet table of its goal waiting in its merged-hint buffer and
-//! applies it before its first episode (a warm start).
+//! re-registers and replays every discovery it ever made; the restarted coordinator's plan for
+//! the phase the robot is already in is ignored ([`Effect::Repeated`]), so the phase goes on
+//! where it was. A robot process that joins a running fleet (a restarted robot) finds the
+//! coordinator's fleet table of its goal waiting in its merged-hint buffer and applies it
+//! before its first episode (a warm start).
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -796,8 +798,12 @@ impl Robot<'_> {
                 self.c.rejected += 1; // not from our coordinator: a forged or stale control
                 continue;
             }
-            if self.plan.on(&ctl) == Effect::Rejected {
-                self.c.rejected += 1;
+            match self.plan.on(&ctl) {
+                Effect::Rejected => self.c.rejected += 1,
+                // a restarted coordinator's plan for the phase we are in (or finished): that
+                // phase goes on, with its discovery log and sequence numbers
+                Effect::Repeated => self.link.counters.plan_repeats += 1,
+                _ => {}
             }
         }
         if self.stop.load(Ordering::Relaxed) {
