@@ -124,6 +124,9 @@ pub fn run_experiment_with(
         cfg.merged_buffer,
         opts.out.clone(),
     );
+    // this coordinator runs inside `qfleet experiment`, whose stdout is the result: its
+    // liveness events go to the result only
+    engine.events_on_stdout = false;
     let out = drive(plan, opts, &mut engine, &bus, stop, timeout, t_begin);
     if let Err(e) = bus.close() {
         eprintln!("qfleet experiment: warning: cleanup: {e}");
