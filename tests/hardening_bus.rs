@@ -63,7 +63,6 @@ fn assert_quiet(out: &Output) {
 /// Items 7 & 18: every file of a live run is 0600/0700 and owned by the user; another user
 /// (`nobody`) can neither read nor overwrite any of them, and the run goes on.
 #[test]
-#[ignore = "open (issue 10): the file checks pass, but the SIGTERM stop at the end does not reach the coordinator since children got their own process groups; the coordinator is killed after the grace period and writes no result"]
 fn another_user_can_neither_read_nor_overwrite_any_file_of_a_run() {
     if !is_root() {
         eprintln!("SKIP: needs root to act as another user with setpriv");

@@ -490,3 +490,33 @@ fn a_robot_killed_before_it_registers_is_reported_lost_and_the_run_completes() {
     assert_eq!(lost, Some(Value::from("lost")), "{r}");
     assert_clean(&id);
 }
+
+/// Item 20 (last part): a time limit that passes while the fleet is still starting stops every
+/// robot with SIGTERM — also when the coordinator ends before it could stop them — so nothing
+/// has to be killed after the grace period.
+#[test]
+fn a_tiny_time_limit_still_stops_every_robot_with_sigterm() {
+    for limit in ["0.001", "0.2"] {
+        let id = run_id("tinylimit");
+        let dir = scratch(&format!("hl-tinylimit-{limit}"));
+        // a grace far longer than a stop takes: a robot left to it would be killed and say so
+        let out = run_bounded(
+            qfleet_run(&id, &ENDLESS)
+                .args(["--time-limit", limit, "--grace", "60"])
+                .arg("--out")
+                .arg(dir.join("out")),
+        );
+        let err = stderr(&out);
+        assert_eq!(code(&out), Some(1), "{}", describe(&out));
+        assert!(err.contains("time limit of"), "{}", describe(&out));
+        assert!(
+            !err.contains("did not stop within the grace period") && !err.contains("signal 9"),
+            "--time-limit {limit}: a process was not stopped by SIGTERM: {}",
+            describe(&out)
+        );
+        assert!(!err.contains("panicked"), "{}", describe(&out));
+        assert!(pids_of_run(&id).is_empty(), "{:?}", pids_of_run(&id));
+        assert_clean(&id);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}

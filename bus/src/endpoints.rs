@@ -2,6 +2,7 @@
 
 use std::cell::{Cell, RefCell};
 use std::collections::{BTreeMap, VecDeque};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use bus_schema::names::Topic;
@@ -349,6 +350,18 @@ impl RobotBus {
     /// Subscribers are opened before publishers and nothing is published, so the coordinator
     /// can connect to this robot before it sends anything (the start handshake).
     pub fn open(config: &BusConfig, robot_id: u32, wait: Duration) -> Result<Self, BusError> {
+        Self::open_until(config, robot_id, wait, &AtomicBool::new(false))
+    }
+
+    /// [`RobotBus::open`] that gives up with [`BusError::Interrupted`] when `stop` is set
+    /// (SIGINT/SIGTERM while the coordinator's services do not exist yet, or while a stopping
+    /// coordinator removes them).
+    pub fn open_until(
+        config: &BusConfig,
+        robot_id: u32,
+        wait: Duration,
+        stop: &AtomicBool,
+    ) -> Result<Self, BusError> {
         if robot_id >= config.robots {
             return Err(BusError::InvalidConfig(format!(
                 "robot id {robot_id} outside 0..{}",
@@ -363,6 +376,7 @@ impl RobotBus {
                     restrict_run_files(&config.prefix())?;
                     return Ok(ports.with_node(node));
                 }
+                Err(_) if stop.load(Ordering::Relaxed) => return Err(BusError::Interrupted),
                 Err(BusError::ServiceMissing { service }) => {
                     if Instant::now() >= deadline {
                         return Err(BusError::Timeout {

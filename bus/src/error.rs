@@ -166,7 +166,8 @@ pub enum BusError {
         timeout: Duration,
     },
 
-    /// The wait was interrupted by SIGINT/SIGTERM (only with `handle_signals`).
+    /// The wait was interrupted by SIGINT/SIGTERM (with `handle_signals`, or the stop flag of
+    /// [`crate::RobotBus::open_until`]).
     #[error("interrupted by a termination signal")]
     Interrupted,
 

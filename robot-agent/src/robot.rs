@@ -83,7 +83,7 @@ pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, Agent
         });
     }
     let bus_cfg = BusConfig::new(args.run_id.clone(), args.robots)?;
-    let bus = RobotBus::open(&bus_cfg, args.robot_id, timeout)?;
+    let bus = RobotBus::open_until(&bus_cfg, args.robot_id, timeout, &stop)?;
     let reg = Register {
         schema_version: args.schema_version_override.unwrap_or(SCHEMA_VERSION),
         robot_id: args.robot_id,
