@@ -26,6 +26,11 @@
 //! reported after `Stop`, so that its report carries the greedy path after the fleet sync.
 //! `Stop` may come at any time: the robot ends the phase it is in, reports it, and exits.
 //!
+//! **A restarted coordinator** repeats the assignment and start command of the phase under
+//! way. A robot ignores an `AssignGoal` for a phase it is in or has finished, and the start
+//! command that follows it; if it already reported that phase, it sends the report again (the
+//! new coordinator never got it).
+//!
 //! # Q-tables per goal
 //! The robot keeps one Q-table per goal. A phase starts a fresh learner (its schedule and
 //! pseudo-target removal run over the phase's episodes) whose table is the robot's table for that
@@ -72,6 +77,12 @@ pub enum Effect {
     Assigned,
     /// `Start` / `Phase`: go on to the assigned phase.
     Go,
+    /// The `AssignGoal` of a phase the robot is in or has finished (a restarted coordinator
+    /// repeats it), or the start command after it: ignored.
+    Repeated {
+        /// The phase it named.
+        phase: u32,
+    },
     /// Handshake traffic (`Ack`, `Refuse`): the link's business, nothing for the plan.
     Handshake,
     /// An unknown command byte: dropped, count it as rejected.
@@ -85,6 +96,10 @@ pub struct Plan {
     go: bool,
     stopped: bool,
     started: bool,
+    /// The phase last taken by [`take_next`](Self::take_next).
+    current: Option<u32>,
+    /// The last `AssignGoal` was a repeat: its start command is one too.
+    repeat: bool,
 }
 
 impl Plan {
@@ -96,6 +111,11 @@ impl Plan {
                 Effect::Stop
             }
             Ok(Command::AssignGoal) => {
+                if self.current.is_some_and(|c| ctl.phase <= c) {
+                    self.repeat = true;
+                    return Effect::Repeated { phase: ctl.phase };
+                }
+                self.repeat = false;
                 self.assigned = Some(Assignment {
                     goal_id: ctl.goal_id,
                     goal: Some(Cell::new(ctl.goal_x, ctl.goal_y)),
@@ -106,6 +126,9 @@ impl Plan {
                 Effect::Assigned
             }
             Ok(Command::Start | Command::Phase) => {
+                if std::mem::take(&mut self.repeat) {
+                    return Effect::Repeated { phase: ctl.phase };
+                }
                 if !self.started && self.assigned.is_none() {
                     self.assigned = Some(Assignment::IMPLICIT);
                 }
@@ -135,6 +158,7 @@ impl Plan {
         }
         let a = self.assigned.take()?;
         self.go = false;
+        self.current = Some(a.phase);
         Some(a)
     }
 
@@ -239,6 +263,38 @@ mod tests {
         assert_eq!(p.on(&ctl(Command::Ack)), Effect::Handshake);
         assert_eq!(p.take_next(), None);
         assert!(!p.stopped());
+    }
+
+    #[test]
+    fn a_repeated_assignment_of_the_current_or_an_earlier_phase_is_ignored_with_its_start() {
+        let mut p = Plan::default();
+        p.on(&assign(0, 1, 0, 10));
+        p.on(&ctl(Command::Start));
+        assert_eq!(p.take_next().map(|a| a.phase), Some(0));
+        // a restarted coordinator repeats phase 0: nothing to learn again
+        assert_eq!(p.on(&assign(0, 1, 0, 10)), Effect::Repeated { phase: 0 });
+        assert_eq!(p.on(&ctl(Command::Start)), Effect::Repeated { phase: 0 });
+        assert_eq!(p.take_next(), None);
+        // the next phase is taken as usual
+        assert_eq!(p.on(&assign(1, 2, 1, 10)), Effect::Assigned);
+        assert_eq!(p.on(&ctl(Command::Phase)), Effect::Go);
+        assert_eq!(p.take_next().map(|a| a.phase), Some(1));
+        assert_eq!(p.on(&assign(0, 1, 0, 10)), Effect::Repeated { phase: 0 });
+        assert_eq!(p.on(&ctl(Command::Phase)), Effect::Repeated { phase: 0 });
+        assert_eq!(p.take_next(), None);
+    }
+
+    #[test]
+    fn an_assignment_that_came_without_its_start_is_replaced_by_the_repeat() {
+        let mut p = Plan::default();
+        p.on(&assign(0, 1, 0, 10));
+        p.on(&ctl(Command::Start));
+        p.take_next().unwrap();
+        // the coordinator died between phase 1's AssignGoal and its Phase; the next one repeats
+        p.on(&assign(1, 2, 1, 10));
+        assert_eq!(p.on(&assign(1, 2, 1, 10)), Effect::Assigned);
+        p.on(&ctl(Command::Phase));
+        assert_eq!(p.take_next().map(|a| a.phase), Some(1));
     }
 
     #[test]
