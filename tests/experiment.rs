@@ -241,8 +241,68 @@ count = 3
 episodes = 200
 "#;
 
+/// The pid of robot `robot`'s live process in the experiment started with `--run-id prefix`,
+/// and its run id. `qfleet experiment --run-id` takes a prefix: each seed runs under
+/// `<prefix>-s<seed>-<pid>-<time>`, so the robots' command lines never hold the prefix alone.
+fn experiment_robot(prefix: &str, robot: u32) -> Option<(i32, String)> {
+    let robot_arg = format!("--robot-id\0{robot}\0");
+    for e in std::fs::read_dir("/proc").ok()?.flatten() {
+        let Some(pid) = e.file_name().to_str().and_then(|n| n.parse::<i32>().ok()) else {
+            continue;
+        };
+        let Ok(cmd) = std::fs::read(format!("/proc/{pid}/cmdline")) else {
+            continue;
+        };
+        let args: Vec<&[u8]> = cmd.split(|&b| b == 0).collect();
+        let run_id = args
+            .windows(2)
+            .find(|w| w[0] == b"--run-id")
+            .map(|w| String::from_utf8_lossy(w[1]).into_owned());
+        let zombie = std::fs::read_to_string(format!("/proc/{pid}/stat"))
+            .map(|s| {
+                s.rsplit_once(')')
+                    .is_none_or(|(_, rest)| rest.trim_start().starts_with('Z'))
+            })
+            .unwrap_or(true);
+        if let Some(id) = run_id
+            && id.starts_with(&format!("{prefix}-"))
+            && String::from_utf8_lossy(&cmd).contains(&robot_arg)
+            && !zombie
+        {
+            return Some((pid, id));
+        }
+    }
+    None
+}
+
+/// Waits (bounded) until robot `robot` of run `id` published a state: it is past the start
+/// handshake and learning.
+fn wait_learning(id: &str, robots: u32, robot: u32) {
+    use bus::bus_schema::RobotState;
+    let cfg = bus::BusConfig::new(id, robots).expect("config");
+    let mut seen = false;
+    let mut probe = None;
+    assert!(
+        qfleet_suite::wait_until(qfleet_suite::PROCESS_TIMEOUT, || {
+            // the services exist once the coordinator is up: retry opening them
+            if probe.is_none()
+                && let Ok(node) = cfg.create_node("qfleet-test-probe")
+                && let Ok(inbox) = bus::Inbox::<RobotState>::open(&node, &cfg)
+            {
+                probe = Some((node, inbox));
+            }
+            if let Some((_, inbox)) = &probe {
+                while let Ok(Some(s)) = inbox.receive() {
+                    seen |= s.robot_id == robot;
+                }
+            }
+            seen
+        }),
+        "robot {robot} of run {id} never started learning"
+    );
+}
+
 #[test]
-#[ignore = "open (issue 11): the restart path is wired (qfleet experiment passes its policy to run_experiment_with), but this test does not find robot 1's process within the timeout (line 225) on the merged tree"]
 fn an_experiment_robot_killed_mid_phase_is_restarted_and_warm_started() {
     let dir = scratch("exp-restart");
     let file = dir.join("m.toml");
@@ -256,17 +316,20 @@ fn an_experiment_robot_killed_mid_phase_is_restarted_and_warm_started() {
             .arg(&file),
     );
     let mut robot = None;
-    assert!(qfleet_suite::wait_until(
-        qfleet_suite::PROCESS_TIMEOUT,
-        || {
-            robot = child_with_arg(&id, "--robot-id", "1");
+    assert!(
+        qfleet_suite::wait_until(qfleet_suite::PROCESS_TIMEOUT, || {
+            robot = experiment_robot(&id, 1);
             robot.is_some()
-        }
-    ));
-    std::thread::sleep(std::time::Duration::from_millis(1500));
+        }),
+        "robot 1 of experiment {id} never started"
+    );
+    let (pid, run) = robot.unwrap();
+    // mid-phase: learning, with hints merged into the fleet table it is warm-started from
+    wait_learning(&run, 3, 1);
+    std::thread::sleep(std::time::Duration::from_millis(500));
     // SAFETY: kill(2) on a robot this test started through qfleet experiment.
     unsafe {
-        libc::kill(robot.unwrap(), libc::SIGKILL);
+        libc::kill(pid, libc::SIGKILL);
     }
     let out = qfleet_suite::wait_bounded(child, qfleet_suite::PROCESS_TIMEOUT);
     assert!(out.status.success(), "{}", describe(&out));
@@ -282,7 +345,24 @@ fn an_experiment_robot_killed_mid_phase_is_restarted_and_warm_started() {
             assert_eq!(x["status"], "finished", "{x}");
         }
     }
+    let live = &v[0]["liveness"];
+    assert_eq!(live["restarts"], 1, "{live}");
+    let restarted: Vec<&Value> = live["events"]
+        .as_array()
+        .expect("events")
+        .iter()
+        .filter(|e| e["kind"] == "restarted" && e["robot_id"] == 1)
+        .collect();
+    assert_eq!(restarted.len(), 1, "{live}");
+    // the new process started from its goal's fleet table
+    let seed = v[0]["seed"].as_u64().expect("seed");
+    let own: report::RobotResult =
+        report::OutDir::new(dir.join("out").join(format!("seed-{seed}")))
+            .read_json(report::OutFile::Robot(1))
+            .expect("robot-1.json");
+    assert!(own.counters.warm_start_entries > 0, "{:?}", own.counters);
     assert!(leftovers(&id).is_empty());
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

@@ -199,8 +199,20 @@ fn killed_robot_is_restarted_and_warm_started_from_the_fleet_table() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Waits (bounded) for the coordinator's checkpoint in `dir` (written right after `Start`).
+fn checkpoint(dir: &Path) -> report::CoordinatorCheckpoint {
+    let dir = report::OutDir::new(dir);
+    let deadline = Instant::now() + PROCESS_TIMEOUT;
+    loop {
+        if let Ok(cp) = dir.read_json(report::OutFile::CoordinatorCheckpoint) {
+            return cp;
+        }
+        assert!(Instant::now() < deadline, "no coordinator checkpoint");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 #[test]
-#[ignore = "open regression of the one-engine processes (issue 11): after a coordinator restart the result counts more discoveries received than sent (23 vs 10) and no restart; suspects: DiscoveryLog replay, or the control gate dropping the new coordinator's acks before its re-Ack"]
 fn coordinator_crash_robots_learn_alone_rejoin_and_lose_no_discovery() {
     let id = run_id("kill-coord");
     let dir = scratch(&id);
@@ -218,6 +230,8 @@ fn coordinator_crash_robots_learn_alone_rejoin_and_lose_no_discovery() {
         ],
     );
     wait_learning(&id, 3, &[0, 1, 2]);
+    let before = checkpoint(&dir);
+    assert!(!before.complete);
     signal(pids["qfleet-coordinator"], libc::SIGKILL);
     let (r, out) = finish(child);
     let r = r.unwrap_or_else(|| panic!("no result: {}", describe(&out)));
@@ -227,6 +241,20 @@ fn coordinator_crash_robots_learn_alone_rejoin_and_lose_no_discovery() {
         stderr.contains("coordinator was killed by signal 9"),
         "{stderr}"
     );
+    // the result says the coordinator restarted, and counts what the dead one had counted
+    assert_eq!(r["liveness"]["coordinator_restarts"], 1, "{r}");
+    let all = u64::from(bus::bus_schema::ROBOT_ID_ALL);
+    assert_eq!(events(&r, "coordinatorrestarted", all).len(), 1, "{r}");
+    assert_eq!(r["liveness"]["restarts"], 0, "no robot was restarted: {r}");
+    let t = &r["throughput"];
+    assert!(t["messages"].as_u64() >= Some(before.messages), "{t}");
+    assert!(
+        t["q_updates_merged"].as_u64() >= Some(before.q_updates_merged),
+        "{t}"
+    );
+    let after = checkpoint(&dir);
+    assert!(after.complete, "the end of the run is checkpointed");
+    assert_eq!(after.coordinator_restarts, 1);
     let mut alone = 0;
     for i in 0..3 {
         let x = robot(&r, u64::from(i));
@@ -234,6 +262,8 @@ fn coordinator_crash_robots_learn_alone_rejoin_and_lose_no_discovery() {
         let c = counters(&dir, i);
         assert_eq!(c["link"]["coordinator_losses"], 1, "{c}");
         assert_eq!(c["link"]["rejoins"], 1, "{c}");
+        // the restarted coordinator's AssignGoal + Start did not start phase 0 again
+        assert!(c["link"]["plan_repeats"].as_u64() > Some(0), "{c}");
         alone += c["link"]["discoveries_while_alone"].as_u64().unwrap();
     }
     eprintln!("discoveries made while the coordinator was down: {alone}");
@@ -241,6 +271,7 @@ fn coordinator_crash_robots_learn_alone_rejoin_and_lose_no_discovery() {
     // the robots replayed them after re-registering
     assert!(r["discoveries_sent"].as_u64() > Some(0));
     assert_eq!(r["discoveries_received"], r["discoveries_sent"], "{r}");
+    assert_eq!(r["discoveries_from_lost"], 0, "{r}");
     assert_no_discovery_lost(&r);
     assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
     let _ = std::fs::remove_dir_all(&dir);

@@ -1,14 +1,16 @@
-//! Command-line options that several qfleet processes share: which map and task, and every
-//! learner parameter. `qfleet learn`, `qfleet run`, the robot-agent and the coordinator all
-//! parse them the same way, and the launcher forwards them to the processes it starts with
-//! [`MapArgs::to_cli`] and [`LearnerArgs::to_cli`].
+//! Command-line options that several qfleet processes share: which map and task, every
+//! learner parameter, and the robots' `--pace` ([`pace`]). `qfleet learn`, `qfleet run`, the
+//! robot-agent and the coordinator all parse them the same way, and the launcher forwards them
+//! to the processes it starts with [`MapArgs::to_cli`] and [`LearnerArgs::to_cli`].
 //!
 //! Not here: anything about the bus or the fleet.
 
 pub mod manifest;
+pub mod pace;
 pub mod share_mode;
 
 pub use manifest::{Manifest, ManifestError, Plan, load_manifest, parse_manifest};
+pub use pace::{pace_cli, parse_pace};
 pub use share_mode::ShareMode;
 
 use clap::Args;

@@ -129,6 +129,7 @@ pub(crate) fn liveness(e: &Engine) -> LivenessReport {
         alive_at_end: ids(&|r| r.alive),
         hung: e.life.hung(),
         restarts: (0..e.robots.len()).map(|i| e.life.restarts(i).0).sum(),
+        coordinator_restarts: e.coordinator_restarts,
         discoveries_from_dead: e.disc.from_dead(),
         events: e.life.events().to_vec(),
     }
@@ -205,7 +206,7 @@ pub(crate) fn run_result(
             q_updates_merged_per_s: per_s(e.q_merged),
             messages: e.messages,
             q_updates_merged: e.q_merged,
-            fleet_changes: e.tables.iter().map(|t| t.changes).sum(),
+            fleet_changes: e.fleet_changes(),
             merged_batches_sent: e.merged_sent,
             active_s,
         },

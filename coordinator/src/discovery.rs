@@ -111,6 +111,20 @@ impl Discoveries {
         }
     }
 
+    /// The distinct (goal id, cell index) pairs relayed so far (for a checkpoint).
+    pub fn relayed_pairs(&self) -> Vec<(u32, u32)> {
+        self.relayed.iter().copied().collect()
+    }
+
+    /// Takes over from a coordinator that died: its duplicate and dead-process counts, and
+    /// the pairs it relayed (not relayed again when the robots replay their discoveries).
+    /// The streams start empty: every live robot replays its whole log to the new coordinator.
+    pub fn resume(&mut self, duplicates: u64, from_dead: u64, relayed: &[(u32, u32)]) {
+        self.duplicates = duplicates;
+        self.from_dead = from_dead;
+        self.relayed.extend(relayed.iter().copied());
+    }
+
     /// Distinct discoveries received from the current processes.
     pub fn received(&self) -> u64 {
         self.streams.iter().map(|s| s.received).sum()
@@ -218,6 +232,33 @@ mod tests {
         assert_eq!((d.received(), d.from_dead()), (0, 2));
         assert_eq!(d.on(&disc(0, 0, 0, 5), 5), Seen::New { relayed: true });
         assert_eq!(d.received_from(0), 1);
+    }
+
+    #[test]
+    fn a_resumed_coordinator_counts_replays_as_new_but_does_not_relay_them_again() {
+        let mut before = Discoveries::new(2);
+        before.on(&disc(0, 0, 0, 1), 1);
+        before.on(&disc(0, 0, 0, 1), 1);
+        before.on(&disc(1, 0, 0, 4), 4);
+        before.take_relays();
+        let mut after = Discoveries::new(2);
+        after.resume(
+            before.duplicates(),
+            before.from_dead(),
+            &before.relayed_pairs(),
+        );
+        // robot 0 re-joined and replays its log from seq 0; then finds one more
+        assert_eq!(after.on(&disc(0, 0, 0, 1), 1), Seen::New { relayed: false });
+        assert_eq!(after.on(&disc(0, 1, 0, 9), 9), Seen::New { relayed: true });
+        assert_eq!(after.received(), 2);
+        assert_eq!(
+            after.duplicates(),
+            1,
+            "the dead coordinator's count is kept"
+        );
+        assert_eq!(after.relayed(), 3);
+        assert_eq!(after.take_relays().len(), 1);
+        assert_eq!(after.take_acks().collect::<Vec<_>>(), vec![(0, 1)]);
     }
 
     #[test]

@@ -24,6 +24,7 @@ use bus::{
 use hdrhistogram::Histogram;
 use planner::Cell;
 use report::hist::{new_hist, record};
+use report::{CoordinatorCheckpoint, RobotCheckpoint};
 
 use crate::admission::{Roster, Sender, Verdict};
 use crate::discovery::{Discoveries, Seen};
@@ -103,6 +104,15 @@ pub(crate) struct Engine {
     pub(crate) relays_sent: u64,
     pub(crate) rejected: u64,
     pub(crate) checks: u64,
+    /// Coordinator processes that took over this run from a checkpoint before (and including)
+    /// this one.
+    pub(crate) coordinator_restarts: u32,
+    /// CLOCK_MONOTONIC ns when the run's first coordinator started.
+    pub(crate) began_ns: u64,
+    /// CLOCK_MONOTONIC ns of the run's `Start` (a resumed run: the first coordinator's).
+    pub(crate) started_ns: Option<u64>,
+    /// Fleet-table changes counted by the coordinators before this one.
+    changes_before: u64,
     merged_buffer: usize,
     /// Where the launcher leaves `robot-<id>.exited` for a robot process that ended.
     out: PathBuf,
@@ -192,11 +202,98 @@ impl Engine {
             relays_sent: 0,
             rejected: 0,
             checks: 0,
+            coordinator_restarts: 0,
+            began_ns: monotonic_ns(),
+            started_ns: None,
+            changes_before: 0,
             merged_buffer,
             out,
             began: SystemTime::now(),
             cleaner: None,
         }
+    }
+
+    /// Fleet-table entries changed by merging, over the run (coordinators before this one
+    /// included).
+    pub(crate) fn fleet_changes(&self) -> u64 {
+        self.changes_before + self.tables.iter().map(|t| t.changes).sum::<u64>()
+    }
+
+    /// What a coordinator taking over this run needs (see [`report::checkpoint`]).
+    pub(crate) fn checkpoint(&self, run_id: &str, complete: bool) -> CoordinatorCheckpoint {
+        CoordinatorCheckpoint {
+            run_id: run_id.to_string(),
+            robots: self.robots.len() as u32,
+            launcher_pid: std::os::unix::process::parent_id(),
+            complete,
+            coordinator_restarts: self.coordinator_restarts,
+            began_ns: self.began_ns,
+            started_ns: self.started_ns.unwrap_or(0),
+            written_ns: monotonic_ns(),
+            messages: self.messages,
+            q_updates_merged: self.q_merged,
+            fleet_changes: self.fleet_changes(),
+            merged_batches_sent: self.merged_sent,
+            merged_seq: self.merged_seq,
+            relays_sent: self.relays_sent,
+            rejected: self.rejected,
+            checks: self.checks,
+            discovery_duplicates: self.disc.duplicates(),
+            discoveries_from_dead: self.disc.from_dead(),
+            relayed: self.disc.relayed_pairs(),
+            fleet: self
+                .robots
+                .iter()
+                .enumerate()
+                .map(|(id, r)| {
+                    let (restarts, warm_started) = self.life.restarts(id);
+                    RobotCheckpoint {
+                        robot_id: id as u32,
+                        lost: r.lost && r.report.is_none(),
+                        restarts,
+                        warm_started,
+                        discoveries_from_lost: r.disc_from_lost,
+                    }
+                })
+                .collect(),
+            events: self.life.events().to_vec(),
+        }
+    }
+
+    /// Takes over from the checkpoint of a coordinator of this run that died (the caller
+    /// checked [`CoordinatorCheckpoint::resumable`]): its counters, its liveness record, the
+    /// robots it had lost (not waited for again), the pairs it relayed; raises the
+    /// `coordinatorrestarted` event. What it does not carry comes back from the robots: they
+    /// re-register and replay their discovery logs, and their hints fill the fleet tables.
+    pub(crate) fn resume(&mut self, cp: CoordinatorCheckpoint) {
+        self.coordinator_restarts = cp.coordinator_restarts + 1;
+        self.began_ns = cp.began_ns;
+        self.started_ns = (cp.started_ns != 0).then_some(cp.started_ns);
+        self.messages = cp.messages;
+        self.q_merged = cp.q_updates_merged;
+        self.changes_before = cp.fleet_changes;
+        self.merged_sent = cp.merged_batches_sent;
+        self.merged_seq = cp.merged_seq;
+        self.relays_sent = cp.relays_sent;
+        self.rejected = cp.rejected;
+        self.checks = cp.checks;
+        self.disc.resume(
+            cp.discovery_duplicates,
+            cp.discoveries_from_dead,
+            &cp.relayed,
+        );
+        for r in &cp.fleet {
+            if let Some(slot) = self.robots.get_mut(r.robot_id as usize) {
+                slot.disc_from_lost = r.discoveries_from_lost;
+                if r.lost {
+                    slot.accepted = true;
+                    slot.lost = true;
+                }
+            }
+        }
+        let silent_ms = monotonic_ns().saturating_sub(cp.written_ns) / 1_000_000;
+        self.life.resume(cp.events, &cp.fleet, silent_ms);
+        self.announce();
     }
 
     /// Prints the liveness events raised since the last call as `event <kind> <id> <ns>`.
@@ -242,11 +339,13 @@ impl Engine {
                 }
                 Ok(())
             })?;
+            // not waited for: robots that died before they registered, or that a coordinator
+            // this one took over from had lost
             let waiting: Vec<u32> = self
                 .roster
                 .missing()
                 .into_iter()
-                .filter(|&id| !self.robots[id as usize].never_registered)
+                .filter(|&id| !self.robots[id as usize].lost)
                 .collect();
             if waiting.is_empty() {
                 break;

@@ -12,9 +12,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use bus::bus_schema::ROBOT_ID_ALL;
 use bus::{BusConfig, BusError, NodeReport, check_nodes, monotonic_ns};
 use crossbeam::channel::{Receiver, TrySendError, bounded};
 
+use report::RobotCheckpoint;
 pub use report::run::{LivenessEvent, LivenessKind};
 
 /// One listing of the run's nodes, made by the [`Lister`] thread.
@@ -303,6 +305,33 @@ impl Life {
             .map_or((0, false), |l| (l.restarts, l.warm_started))
     }
 
+    /// Takes over the liveness record of a coordinator that died (from its checkpoint): its
+    /// events (not announced again), and per robot its restarts, whether its latest process
+    /// was warm-started (a robot lost before the takeover is settled at once). Then raises
+    /// `coordinatorrestarted` (robot id `ROBOT_ID_ALL`) with `silent_ms`, the time since the
+    /// dead coordinator's last checkpoint.
+    pub fn resume(
+        &mut self,
+        events: Vec<LivenessEvent>,
+        robots: &[RobotCheckpoint],
+        silent_ms: u64,
+    ) {
+        self.events = events;
+        self.announced = self.events.len();
+        for r in robots {
+            if let Some(l) = self.lines.get_mut(r.robot_id as usize) {
+                // a robot lost before the takeover keeps no loss time: it is settled at once
+                // (no restart of it is waited for), and a restart that comes still joins
+                *l = Lifeline {
+                    restarts: r.restarts,
+                    warm_started: r.warm_started,
+                    ..Lifeline::default()
+                };
+            }
+        }
+        self.push(ROBOT_ID_ALL, LivenessKind::CoordinatorRestarted, silent_ms);
+    }
+
     /// Every event so far.
     pub fn events(&self) -> &[LivenessEvent] {
         &self.events
@@ -422,5 +451,43 @@ mod tests {
             ]
         );
         assert!(life.joined_since(0, t0) && !life.joined_since(0, t0 + HANG));
+    }
+
+    #[test]
+    fn a_restarted_coordinator_keeps_the_record_and_says_it_took_over() {
+        let t0 = Instant::now();
+        let mut before = Life::new(2, HANG, 3, HANG * 10);
+        before.lost(1, t0);
+        before.joined(1, true, t0);
+        before.warm_started(1, true);
+        before.take_new();
+        let fleet = [
+            RobotCheckpoint {
+                robot_id: 0,
+                ..RobotCheckpoint::default()
+            },
+            RobotCheckpoint {
+                robot_id: 1,
+                restarts: 1,
+                warm_started: true,
+                ..RobotCheckpoint::default()
+            },
+        ];
+        let mut after = Life::new(2, HANG, 3, HANG * 10);
+        after.resume(before.events().to_vec(), &fleet, 700);
+        assert_eq!(after.restarts(1), (1, true));
+        assert_eq!(
+            kinds(&after),
+            vec![
+                (1, LivenessKind::Lost),
+                (1, LivenessKind::Restarted),
+                (ROBOT_ID_ALL, LivenessKind::CoordinatorRestarted)
+            ]
+        );
+        let new = after.take_new();
+        assert_eq!(new.len(), 1, "only the takeover is announced: {new:?}");
+        assert_eq!(new[0].silent_ms, 700);
+        // a robot lost before the takeover does not hold up the end
+        assert!(after.settled(0, true, Instant::now()));
     }
 }

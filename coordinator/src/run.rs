@@ -1,13 +1,22 @@
 //! The driver of a plain run: a one-goal, one-phase plan over the [`Engine`]. Create the run's
 //! services, admit the fleet, assign the goal and `Start`, serve until every robot finished,
 //! hand out the whole fleet table, `Stop`, collect the reports, write the result.
+//!
+//! # Surviving its own death
+//! While it serves, the coordinator writes `coordinator-checkpoint.json` into the out
+//! directory ([`report::checkpoint`]) right after `Start`, about once a second, and at the end.
+//! A coordinator that finds a resumable checkpoint of its run (`qfleet run --restart
+//! on-failure` started it after the previous one died) takes over from it: the robots
+//! re-register with it and replay their discoveries, the plan it sends again is ignored by
+//! robots already in that phase, and the result counts the whole run (throughput from the
+//! first `Start`, `liveness.coordinator_restarts`, the `coordinatorrestarted` event).
 
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::{Command, ROBOT_ID_ALL};
-use bus::{CoordinatorBus, Expected};
+use bus::{CoordinatorBus, Expected, monotonic_ns};
 
 use crate::assemble::{FleetHists, RunEnd};
 use crate::engine::{Assignment, Engine, tolerate};
@@ -15,15 +24,17 @@ use crate::liveness::{Life, Lister};
 use crate::options::{CoordArgs, CoordError, bus_config, secs};
 use crate::wait::{Serving, Waiting, serve};
 use crate::{assemble, output};
-use report::{OutDir, RunResult};
+use report::{CoordinatorCheckpoint, OutDir, OutFile, ReadError, RunResult};
 
 /// How often the liveness thread lists the run's nodes.
 pub(crate) const LIST_EVERY: Duration = Duration::from_millis(100);
 
+/// How often the checkpoint is written while the run is served.
+const CHECKPOINT_EVERY: Duration = Duration::from_secs(1);
+
 /// Runs the coordinator of one run; `stop` is set by a signal handler (graceful stop: robots
 /// are told to stop, their reports collected and a partial result written).
 pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordError> {
-    let t_begin = Instant::now();
     let timeout = secs(args.timeout, "--timeout")?;
     let task = args.map.task()?;
     let (Ok(width), Ok(height)) = (
@@ -63,6 +74,7 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         cfg.merged_buffer,
         args.out.clone(),
     );
+    take_over(&dir, &args, &mut engine);
     let plan = vec![
         Assignment {
             goal: 0,
@@ -72,16 +84,19 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         };
         args.robots as usize
     ];
-    let outcome = drive(&mut engine, &bus, &args, plan, &stop, timeout);
+    let mut cp = Checkpoints::new(dir.clone(), args.run_id.clone());
+    let outcome = drive(&mut engine, &bus, &args, plan, &stop, timeout, &mut cp);
     let result = outcome.and_then(|(active, interrupted)| {
         let hists = FleetHists::read(&dir, args.robots);
         let end = RunEnd {
             active_s: active,
             interrupted,
-            elapsed_s: t_begin.elapsed().as_secs_f64(),
+            elapsed_s: secs_since(engine.began_ns),
         };
         let r = assemble::run_result(&engine, &args, &task, &dir, &hists, end);
         output::write_run(&dir, &r, &engine, &hists)?;
+        // the run is over: a coordinator started after this one has nothing to take over
+        cp.write(&engine, true);
         Ok(r)
     });
     // the last process of the run removes its files; errors here must not hide the result
@@ -89,6 +104,82 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         eprintln!("qfleet-coordinator: warning: cleanup: {e}");
     }
     result
+}
+
+/// Seconds from CLOCK_MONOTONIC time `t_ns` (another process's, too) until now.
+fn secs_since(t_ns: u64) -> f64 {
+    monotonic_ns().saturating_sub(t_ns) as f64 / 1e9
+}
+
+/// Resumes `engine` from the out directory's checkpoint when it is this run's, left by a
+/// coordinator of the same launcher that died (see the module docs); otherwise starts afresh.
+fn take_over(dir: &OutDir, args: &CoordArgs, engine: &mut Engine) {
+    let path = dir.path(OutFile::CoordinatorCheckpoint);
+    let cp: CoordinatorCheckpoint = match dir.read_json(OutFile::CoordinatorCheckpoint) {
+        Ok(cp) => cp,
+        Err(ReadError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
+            return;
+        }
+        Err(e) => {
+            eprintln!("qfleet-coordinator: warning: not resuming: {e}");
+            return;
+        }
+    };
+    let launcher = std::os::unix::process::parent_id();
+    match cp.resumable(&args.run_id, args.robots, launcher) {
+        Ok(()) => {
+            eprintln!(
+                "qfleet-coordinator: taking over run {} from the checkpoint of the coordinator \
+                 that died (coordinator restart {}; {} messages, {} Q-updates merged before)",
+                args.run_id,
+                cp.coordinator_restarts + 1,
+                cp.messages,
+                cp.q_updates_merged
+            );
+            engine.resume(cp);
+        }
+        Err(why) => eprintln!(
+            "qfleet-coordinator: not resuming from {}: {why}",
+            path.display()
+        ),
+    }
+}
+
+/// Writes the checkpoint now and then; a failed write is warned about once and does not stop
+/// the run (the checkpoint only helps a restarted coordinator).
+struct Checkpoints {
+    dir: OutDir,
+    run_id: String,
+    last: Instant,
+    warned: bool,
+}
+
+impl Checkpoints {
+    fn new(dir: OutDir, run_id: String) -> Self {
+        Checkpoints {
+            dir,
+            run_id,
+            last: Instant::now(),
+            warned: false,
+        }
+    }
+
+    /// Writes the checkpoint if the last one is [`CHECKPOINT_EVERY`] old.
+    fn every(&mut self, engine: &Engine) {
+        if self.last.elapsed() >= CHECKPOINT_EVERY {
+            self.write(engine, false);
+        }
+    }
+
+    fn write(&mut self, engine: &Engine, complete: bool) {
+        self.last = Instant::now();
+        let cp = engine.checkpoint(&self.run_id, complete);
+        if let Err(e) = self.dir.write_json(OutFile::CoordinatorCheckpoint, &cp)
+            && !std::mem::replace(&mut self.warned, true)
+        {
+            eprintln!("qfleet-coordinator: warning: checkpoint not written: {e}");
+        }
+    }
 }
 
 /// Handshake, start, serve, table handout, stop, reports; returns (active seconds, interrupted).
@@ -99,6 +190,7 @@ fn drive(
     plan: Vec<Assignment>,
     stop: &AtomicBool,
     timeout: Duration,
+    cp: &mut Checkpoints,
 ) -> Result<(f64, bool), CoordError> {
     engine.admit_fleet(bus, stop, timeout)?;
     let lister = Lister::start(bus.config(), LIST_EVERY).map_err(|source| CoordError::Thread {
@@ -106,7 +198,9 @@ fn drive(
         source,
     })?;
     engine.start_phase(bus, plan, Command::Start)?;
-    let t_start = Instant::now();
+    // a coordinator that took over keeps the run's first Start as the throughput's time base
+    let started_ns = *engine.started_ns.get_or_insert_with(monotonic_ns);
+    cp.write(engine, false);
     let how = Waiting {
         strategy: args.wait,
         spin: Duration::from_micros(args.spin_us),
@@ -126,11 +220,12 @@ fn drive(
             if progress {
                 print_progress(e);
             }
+            cp.every(e);
             let now = Instant::now();
             (0..e.robots.len()).all(|i| e.done(i, now))
         },
     )?;
-    let active = t_start.elapsed().as_secs_f64();
+    let active = secs_since(started_ns);
     // every robot is done learning (or lost): hand out the whole fleet table, then Stop
     if !interrupted && args.robots > 1 {
         engine.resend_table(bus, 0)?;

@@ -304,22 +304,39 @@ pub fn supervise(
     let restarting = fleet.policy == RestartPolicy::OnFailure;
     let t0 = Instant::now();
     let mut stopping: Option<Instant> = None;
+    // when whatever still runs is killed: `grace` after the stop, or after the robots were
+    // asked directly (see below), whichever is later
+    let mut kill_at: Option<Instant> = None;
+    // whether the robots themselves were sent SIGTERM during this stop
+    let mut robots_termed = false;
     let mut killed = false;
     let mut seen_interrupts = 0;
     let mut failures: Vec<String> = Vec::new();
     let mut interrupted = false;
     let mut total_restarts = 0;
     // ask the run to stop: the coordinator process stops the robots; without one (or when it
-    // is gone) the robots are asked directly
-    let stop = |procs: &[Proc]| {
+    // is gone) the robots are asked directly. True when the robots were signalled.
+    let stop = |procs: &[Proc]| -> bool {
         let coord_alive = has_coord && procs[0].status.is_none();
         if coord_alive {
             procs[0].signal(libc::SIGTERM);
+            false
         } else {
             for p in &procs[first_robot..] {
                 p.signal(libc::SIGTERM);
             }
+            true
         }
+    };
+    // starts a stop now: records when, asks the run to stop, sets the kill deadline
+    let begin_stop = |procs: &[Proc],
+                      stopping: &mut Option<Instant>,
+                      kill_at: &mut Option<Instant>,
+                      robots_termed: &mut bool| {
+        let now = Instant::now();
+        *stopping = Some(now);
+        *kill_at = Some(now + fleet.grace);
+        *robots_termed = stop(procs);
     };
     loop {
         while let Ok(line) = rx.try_recv() {
@@ -351,6 +368,7 @@ pub fn supervise(
         if finished && stopping.is_none() {
             // the in-process coordinator sent Stop: the robots exit on their own within grace
             stopping = Some(Instant::now());
+            kill_at = Some(Instant::now() + fleet.grace);
         }
         let mut all_done = true;
         let mut exited_robots = Vec::new();
@@ -419,8 +437,7 @@ pub fn supervise(
                     let msg = format!("restarting {}: {}", kind.name(), error_chain(&e));
                     warn(&format!("{msg}; stopping the run"));
                     failures.push(msg);
-                    stopping = Some(Instant::now());
-                    stop(&procs);
+                    begin_stop(&procs, &mut stopping, &mut kill_at, &mut robots_termed);
                 }
             }
         }
@@ -432,8 +449,7 @@ pub fn supervise(
             if n == 1 && stopping.is_none() {
                 failures.push("interrupted (SIGINT/SIGTERM)".into());
                 warn("stopping the run (Ctrl-C again to kill it now)");
-                stopping = Some(Instant::now());
-                stop(&procs);
+                begin_stop(&procs, &mut stopping, &mut kill_at, &mut robots_termed);
             } else if !killed {
                 killed = true;
                 for p in &procs {
@@ -443,17 +459,22 @@ pub fn supervise(
         }
         if stopping.is_none() && !fleet.time_limit.is_zero() && t0.elapsed() >= fleet.time_limit {
             failures.push(format!("time limit of {:?} reached", fleet.time_limit));
-            stopping = Some(Instant::now());
-            stop(&procs);
+            begin_stop(&procs, &mut stopping, &mut kill_at, &mut robots_termed);
         }
         if stopping.is_none() && coord_gone {
             // robots cannot finish without their coordinator: stop them
-            stopping = Some(Instant::now());
-            stop(&procs);
+            begin_stop(&procs, &mut stopping, &mut kill_at, &mut robots_termed);
         }
-        if let Some(t) = stopping
+        if stopping.is_some() && coord_gone && !robots_termed && !killed {
+            // the coordinator was asked to stop the robots but is gone (it may have ended
+            // before its signal handler existed, e.g. a tiny `--time-limit`, or crashed): the
+            // robots are asked directly, and get their own grace period
+            robots_termed = stop(&procs);
+            kill_at = Some(Instant::now() + fleet.grace);
+        }
+        if let Some(t) = kill_at
             && !killed
-            && t.elapsed() >= fleet.grace
+            && Instant::now() >= t
         {
             killed = true;
             for p in &procs {
@@ -475,8 +496,11 @@ pub fn supervise(
     };
     for p in &procs {
         let code = p.status.and_then(|s| s.code());
-        // 130 is how a process answers a stop: not a failure when the launcher asked for it
-        if p.failed() && !(stopping.is_some() && code == Some(130)) {
+        // 130 is how a process answers a stop, and SIGTERM ends one that had no handler yet:
+        // not a failure when the launcher asked for the stop
+        let answered_stop = stopping.is_some()
+            && (code == Some(130) || p.status.and_then(|s| s.signal()) == Some(libc::SIGTERM));
+        if p.failed() && !answered_stop {
             let t = tail(&p.log, 5);
             warn(&format!(
                 "{} — last lines of {}:\n{t}",
@@ -631,6 +655,47 @@ mod tests {
             "{:?}",
             s.failures
         );
+    }
+
+    #[test]
+    fn a_coordinator_gone_during_a_stop_hands_the_stop_to_the_robots() {
+        let d = tempfile::tempdir().unwrap();
+        // the coordinator has no handler (SIGTERM ends it at once, as a real one that is still
+        // starting when a tiny `--time-limit` passes); the robots answer SIGTERM in their logs
+        let coordinator = || {
+            let mut c = Command::new("sh");
+            c.args(["-c", "exec sleep 60"]);
+            c
+        };
+        let robot = sh(
+            r#"trap 'echo got SIGTERM >&2; exit 130' TERM; echo ready >&2; sleep 60 & wait"#,
+        );
+        let mut f = fleet(&robot, d.path(), RestartPolicy::Never);
+        f.coordinator = Some(&coordinator);
+        // a grace so long that a robot left to it would fail the test
+        f.grace = Duration::from_secs(60);
+        let interrupts = AtomicU32::new(0);
+        let logs = d.path().to_path_buf();
+        let s = std::thread::scope(|scope| {
+            scope.spawn(|| {
+                // Ctrl-C once both robots have their handler
+                let ready = |id: u32| {
+                    std::fs::read_to_string(logs.join(format!("robot-{id}.log")))
+                        .is_ok_and(|l| l.contains("ready"))
+                };
+                while !(ready(0) && ready(1)) {
+                    std::thread::sleep(Duration::from_millis(10));
+                }
+                interrupts.fetch_add(1, Ordering::SeqCst);
+            });
+            supervise(&f, &interrupts, |_, _, _, _| {}, |_| {}).unwrap()
+        });
+        assert_eq!(s.failures, vec!["interrupted (SIGINT/SIGTERM)"]);
+        assert_eq!(s.exit, Exit::Interrupted);
+        for id in 0..2 {
+            let log = std::fs::read_to_string(d.path().join(format!("robot-{id}.log"))).unwrap();
+            assert_eq!(log, "ready\ngot SIGTERM\n", "robot {id}");
+        }
     }
 
     #[test]

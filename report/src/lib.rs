@@ -9,6 +9,7 @@
 //!   and writes them ([`OutDir`]);
 //! - [`run`]: what the coordinator reports about a run or an experiment ([`RunResult`],
 //!   [`ExperimentResult`], [`RobotOutcome`], [`LivenessEvent`]);
+//! - [`checkpoint`]: what a restarted coordinator resumes from ([`CoordinatorCheckpoint`]);
 //! - [`atomic`]: the one writer ([`write_atomic`]: temp file, `fsync`, rename), whose errors
 //!   name the file and keep the OS error (a full disk is an error, never a panic).
 //!
@@ -16,12 +17,14 @@
 //! stores results.
 
 pub mod atomic;
+pub mod checkpoint;
 pub mod hist;
 pub mod outdir;
 pub mod robot;
 pub mod run;
 
 pub use atomic::{WriteError, WriteStep, write_atomic, write_json_atomic};
+pub use checkpoint::{CoordinatorCheckpoint, NotResumed, RobotCheckpoint};
 pub use hist::{HistError, LatencyStats};
 pub use outdir::{LatencyPath, OutDir, OutFile, ReadError, RobotHist};
 pub use robot::{ApplyCounters, Counters, EndStatus, LinkCounters, PhaseDetail, RobotResult};

@@ -11,6 +11,7 @@
 //! | `robot-<id>-loop.hdr`         | robot         | loop latency, hdrhistogram V2 binary         |
 //! | `robot-<id>-merged.hdr`       | robot         | merged-batch latency, V2 binary              |
 //! | `latency-<path>.hgrm`         | coordinator   | percentile file of one measured path         |
+//! | `coordinator-checkpoint.json` | coordinator   | [`CoordinatorCheckpoint`](crate::CoordinatorCheckpoint): what a restarted coordinator resumes from |
 //! | `coordinator.log`             | launcher      | the coordinator's stderr                     |
 //! | `robot-<id>.log`              | launcher      | a robot's stderr                             |
 //! | `latency.svg`, `steps.svg`    | launcher      | figures of the run                           |
@@ -131,6 +132,8 @@ pub enum OutFile {
     Latency(LatencyPath),
     /// `coordinator.log`.
     CoordinatorLog,
+    /// `coordinator-checkpoint.json`.
+    CoordinatorCheckpoint,
     /// `robot-<id>.log`.
     RobotLog(u32),
     /// `latency.svg`.
@@ -152,6 +155,7 @@ impl OutFile {
             OutFile::RobotHist { robot, kind } => format!("robot-{robot}-{}.hdr", kind.as_str()),
             OutFile::Latency(p) => format!("latency-{}.hgrm", p.as_str()),
             OutFile::CoordinatorLog => "coordinator.log".into(),
+            OutFile::CoordinatorCheckpoint => "coordinator-checkpoint.json".into(),
             OutFile::RobotLog(id) => format!("robot-{id}.log"),
             OutFile::LatencyPlot => "latency.svg".into(),
             OutFile::StepsPlot => "steps.svg".into(),
@@ -165,6 +169,7 @@ impl OutFile {
             "plan.json" => return Some(OutFile::Plan),
             "checkpoint.json" => return Some(OutFile::Checkpoint),
             "coordinator.log" => return Some(OutFile::CoordinatorLog),
+            "coordinator-checkpoint.json" => return Some(OutFile::CoordinatorCheckpoint),
             "latency.svg" => return Some(OutFile::LatencyPlot),
             "steps.svg" => return Some(OutFile::StepsPlot),
             _ => {}
@@ -342,6 +347,7 @@ mod tests {
             },
             OutFile::RobotEpisodes(7),
             OutFile::CoordinatorLog,
+            OutFile::CoordinatorCheckpoint,
             OutFile::RobotLog(10),
             OutFile::LatencyPlot,
             OutFile::StepsPlot,

@@ -65,6 +65,10 @@ pub struct LinkCounters {
     pub alone_ms: u64,
     /// Discoveries made while no coordinator had accepted this robot (delivered later).
     pub discoveries_while_alone: u64,
+    /// `AssignGoal`/`Start`/`Phase` controls for a phase the robot had already taken (a
+    /// restarted coordinator sending its plan again): ignored, the phase goes on.
+    #[serde(default)]
+    pub plan_repeats: u64,
 }
 
 /// Bus traffic counters of one robot, reported in its result.

@@ -108,6 +108,10 @@ pub enum LivenessKind {
     Joined,
     /// The robot died before it ever registered (seen by the launcher or by its node).
     NeverRegistered,
+    /// A new coordinator process took over the run from its checkpoint (the event's robot id
+    /// is `ROBOT_ID_ALL`, 4294967295; `silent_ms` is the time since the dead coordinator's
+    /// last checkpoint).
+    CoordinatorRestarted,
 }
 
 impl LivenessKind {
@@ -120,6 +124,7 @@ impl LivenessKind {
             LivenessKind::Restarted => "restarted",
             LivenessKind::Joined => "joined",
             LivenessKind::NeverRegistered => "neverregistered",
+            LivenessKind::CoordinatorRestarted => "coordinatorrestarted",
         }
     }
 }
@@ -133,7 +138,7 @@ impl std::fmt::Display for LivenessKind {
 /// One liveness event of the run (also printed as an `event …` line on stdout).
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct LivenessEvent {
-    /// The robot.
+    /// The robot (`ROBOT_ID_ALL` for an event of the coordinator).
     pub robot_id: u32,
     /// What happened.
     pub kind: LivenessKind,
@@ -223,6 +228,9 @@ pub struct LivenessReport {
     /// Restarts over the fleet.
     #[serde(default)]
     pub restarts: u32,
+    /// Times a new coordinator process took over the run from its checkpoint.
+    #[serde(default)]
+    pub coordinator_restarts: u32,
     /// Discoveries received from robot processes that died and were restarted (their
     /// successors start numbering again and report only their own).
     #[serde(default)]
@@ -437,6 +445,7 @@ mod tests {
             LivenessKind::Restarted,
             LivenessKind::Joined,
             LivenessKind::NeverRegistered,
+            LivenessKind::CoordinatorRestarted,
         ] {
             let json = serde_json::to_string(&k).unwrap();
             assert_eq!(

@@ -41,4 +41,8 @@ pub struct AgentArgs {
     /// End a phase after the episode whose greedy path is optimal.
     #[arg(long)]
     pub stop_at_optimum: bool,
+    /// Slow to this many environment steps per second (1 to 10 000 000), so that a person can
+    /// follow the robot in the live view; it then also publishes its state at every pause.
+    #[arg(long, value_name = "STEPS_PER_S", value_parser = qfleet_args::parse_pace)]
+    pub pace: Option<f64>,
 }

@@ -26,10 +26,14 @@
 //! reported after `Stop`, so that its report carries the greedy path after the fleet sync.
 //! `Stop` may come at any time: the robot ends the phase it is in, reports it, and exits.
 //!
-//! **A restarted coordinator** repeats the assignment and start command of the phase under
-//! way. A robot ignores an `AssignGoal` for a phase it is in or has finished, and the start
-//! command that follows it; if it already reported that phase, it sends the report again (the
-//! new coordinator never got it).
+//! **A repeated plan is not a new phase.** A coordinator restarted mid-run (`qfleet run
+//! --restart on-failure`) admits the re-joining robots and sends its plan again: `AssignGoal`
+//! and `Start` for the phase the robots are already in, or have finished. The robot ignores an
+//! `AssignGoal`, `Start` or `Phase` whose phase is not after the last phase it took
+//! ([`Effect::Repeated`]): it goes on with that phase and keeps its discovery log and its
+//! sequence numbers, instead of learning the phase again from scratch. A phase of an experiment
+//! it already reported is reported again on the repeated `AssignGoal` (an experiment's
+//! coordinator restarted by `qfleet experiment --restart on-failure` waits for that report).
 //!
 //! # Q-tables per goal
 //! The robot keeps one Q-table per goal. A phase starts a fresh learner (its schedule and
@@ -77,12 +81,9 @@ pub enum Effect {
     Assigned,
     /// `Start` / `Phase`: go on to the assigned phase.
     Go,
-    /// The `AssignGoal` of a phase the robot is in or has finished (a restarted coordinator
-    /// repeats it), or the start command after it: ignored.
-    Repeated {
-        /// The phase it named.
-        phase: u32,
-    },
+    /// `AssignGoal`, `Start` or `Phase` for a phase the robot already took (it is in it, or
+    /// finished it): a restarted coordinator sending its plan again. Ignored, not rejected.
+    Repeated,
     /// Handshake traffic (`Ack`, `Refuse`): the link's business, nothing for the plan.
     Handshake,
     /// An unknown command byte: dropped, count it as rejected.
@@ -96,10 +97,8 @@ pub struct Plan {
     go: bool,
     stopped: bool,
     started: bool,
-    /// The phase last taken by [`take_next`](Self::take_next).
+    /// The phase of the last assignment taken: the phase the robot is in, or has finished.
     current: Option<u32>,
-    /// The last `AssignGoal` was a repeat: its start command is one too.
-    repeat: bool,
 }
 
 impl Plan {
@@ -110,12 +109,9 @@ impl Plan {
                 self.stopped = true;
                 Effect::Stop
             }
+            Ok(Command::AssignGoal) if self.taken(ctl.phase) => Effect::Repeated,
+            Ok(Command::Start | Command::Phase) if self.taken(ctl.phase) => Effect::Repeated,
             Ok(Command::AssignGoal) => {
-                if self.current.is_some_and(|c| ctl.phase <= c) {
-                    self.repeat = true;
-                    return Effect::Repeated { phase: ctl.phase };
-                }
-                self.repeat = false;
                 self.assigned = Some(Assignment {
                     goal_id: ctl.goal_id,
                     goal: Some(Cell::new(ctl.goal_x, ctl.goal_y)),
@@ -126,9 +122,6 @@ impl Plan {
                 Effect::Assigned
             }
             Ok(Command::Start | Command::Phase) => {
-                if std::mem::take(&mut self.repeat) {
-                    return Effect::Repeated { phase: ctl.phase };
-                }
                 if !self.started && self.assigned.is_none() {
                     self.assigned = Some(Assignment::IMPLICIT);
                 }
@@ -139,6 +132,16 @@ impl Plan {
             Ok(Command::Ack | Command::Refuse) => Effect::Handshake,
             Err(_) => Effect::Rejected,
         }
+    }
+
+    /// Whether `phase` is one the robot already took (in it, or finished with it).
+    fn taken(&self, phase: u32) -> bool {
+        self.current.is_some_and(|c| phase <= c)
+    }
+
+    /// The phase of the last assignment taken ([`take_next`](Self::take_next)), if any.
+    pub fn current_phase(&self) -> Option<u32> {
+        self.current
     }
 
     /// Whether `Stop` came (or the caller stopped the robot).
@@ -265,36 +268,58 @@ mod tests {
         assert!(!p.stopped());
     }
 
-    #[test]
-    fn a_repeated_assignment_of_the_current_or_an_earlier_phase_is_ignored_with_its_start() {
-        let mut p = Plan::default();
-        p.on(&assign(0, 1, 0, 10));
-        p.on(&ctl(Command::Start));
-        assert_eq!(p.take_next().map(|a| a.phase), Some(0));
-        // a restarted coordinator repeats phase 0: nothing to learn again
-        assert_eq!(p.on(&assign(0, 1, 0, 10)), Effect::Repeated { phase: 0 });
-        assert_eq!(p.on(&ctl(Command::Start)), Effect::Repeated { phase: 0 });
-        assert_eq!(p.take_next(), None);
-        // the next phase is taken as usual
-        assert_eq!(p.on(&assign(1, 2, 1, 10)), Effect::Assigned);
-        assert_eq!(p.on(&ctl(Command::Phase)), Effect::Go);
-        assert_eq!(p.take_next().map(|a| a.phase), Some(1));
-        assert_eq!(p.on(&assign(0, 1, 0, 10)), Effect::Repeated { phase: 0 });
-        assert_eq!(p.on(&ctl(Command::Phase)), Effect::Repeated { phase: 0 });
-        assert_eq!(p.take_next(), None);
+    fn go(command: Command, phase: u32) -> Control {
+        Control {
+            phase,
+            ..ctl(command)
+        }
     }
 
     #[test]
-    fn an_assignment_that_came_without_its_start_is_replaced_by_the_repeat() {
+    fn a_restarted_coordinators_plan_for_the_phase_being_learned_is_ignored() {
         let mut p = Plan::default();
-        p.on(&assign(0, 1, 0, 10));
-        p.on(&ctl(Command::Start));
+        p.on(&assign(0, 5, 0, 0));
+        p.on(&go(Command::Start, 0));
+        assert_eq!(p.take_next().map(|a| a.phase), Some(0));
+        // mid-phase, a restarted coordinator admits the robot again and resends its plan
+        assert_eq!(p.on(&assign(0, 5, 0, 0)), Effect::Repeated);
+        assert_eq!(p.on(&go(Command::Start, 0)), Effect::Repeated);
+        assert_eq!(p.take_next(), None, "phase 0 is not learned again");
+        assert_eq!(p.current_phase(), Some(0));
+        assert!(!p.stopped());
+        // its Stop is obeyed as usual
+        assert_eq!(p.on(&ctl(Command::Stop)), Effect::Stop);
+    }
+
+    #[test]
+    fn a_finished_earlier_phase_is_not_taken_again_but_the_next_one_is() {
+        let mut p = Plan::default();
+        p.on(&assign(0, 5, 0, 40));
+        p.on(&go(Command::Start, 0));
         p.take_next().unwrap();
-        // the coordinator died between phase 1's AssignGoal and its Phase; the next one repeats
-        p.on(&assign(1, 2, 1, 10));
-        assert_eq!(p.on(&assign(1, 2, 1, 10)), Effect::Assigned);
-        p.on(&ctl(Command::Phase));
-        assert_eq!(p.take_next().map(|a| a.phase), Some(1));
+        p.on(&assign(1, 3, 1, 40));
+        p.on(&go(Command::Phase, 1));
+        assert_eq!(p.take_next().map(|a| (a.goal_id, a.phase)), Some((1, 1)));
+        // a resent plan of phase 0 or 1 (finished, or being learned) changes nothing
+        for phase in [0, 1] {
+            assert_eq!(p.on(&assign(0, 5, phase, 40)), Effect::Repeated);
+            assert_eq!(p.on(&go(Command::Phase, phase)), Effect::Repeated);
+            assert_eq!(p.take_next(), None);
+        }
+        // phase 2 is new
+        assert_eq!(p.on(&assign(0, 5, 2, 40)), Effect::Assigned);
+        assert_eq!(p.take_next(), None, "waits for its Phase");
+        assert_eq!(p.on(&go(Command::Phase, 2)), Effect::Go);
+        assert_eq!(p.take_next().map(|a| a.phase), Some(2));
+    }
+
+    #[test]
+    fn a_fresh_robot_takes_any_phase_it_is_given() {
+        // a restarted robot process joins mid-experiment: its first assignment may be phase 3
+        let mut p = Plan::default();
+        assert_eq!(p.on(&assign(1, 3, 3, 40)), Effect::Assigned);
+        assert_eq!(p.on(&go(Command::Phase, 3)), Effect::Go);
+        assert_eq!(p.take_next().map(|a| a.phase), Some(3));
     }
 
     #[test]

@@ -3,9 +3,9 @@
 //! a plan with one goal and one phase — and reports.
 //!
 //! # Topics, from the robot's side
-//! - `robot/state` (latest-wins): every `--state-every` steps, at each phase's end, and every
-//!   100 ms while not learning (a heartbeat); only the newest progress matters, so a slow
-//!   coordinator loses nothing of value.
+//! - `robot/state` (latest-wins): every `--state-every` steps, at every `--pace` pause, at each
+//!   phase's end, and every 100 ms while not learning (a heartbeat); only the newest progress
+//!   matters, so a slow coordinator loses nothing of value.
 //! - `robot/hints` (latest-wins): batches of changed Q-values of the current goal; a newer
 //!   batch carries newer values, and a lost batch only delays sharing (the values are sent
 //!   again when they change, and the coordinator resends its whole table before the end).
@@ -23,9 +23,11 @@
 //! # Surviving the coordinator
 //! In every phase and between phases the robot watches its coordinator ([`crate::reconnect`]):
 //! without one it keeps learning alone and holds its discoveries; with a restarted one it
-//! re-registers and replays every discovery it ever made. A robot that joins (or re-joins)
-//! finds the coordinator's fleet table of its goal waiting in its merged-hint buffer and
-//! applies it before its first episode (a warm start).
+//! re-registers and replays every discovery it ever made; the restarted coordinator's plan for
+//! the phase the robot is already in is ignored ([`Effect::Repeated`]), so the phase goes on
+//! where it was. A robot process that joins a running fleet (a restarted robot) finds the
+//! coordinator's fleet table of its goal waiting in its merged-hint buffer and applies it
+//! before its first episode (a warm start).
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -48,6 +50,7 @@ use crate::discovery::{AckOutcome, DISCOVERY_RESEND, DiscoveryLog};
 use crate::error::AgentError;
 use crate::experiment::{Assignment, Effect, Plan};
 use crate::gate::{ControlGate, Verdict};
+use crate::pace::Pacer;
 use crate::reconnect::{Link, LinkEvent, handshake};
 use crate::share::{ApplyCtx, HintBatcher, MergedApplier};
 
@@ -134,6 +137,7 @@ pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, Agent
         relayed: BTreeMap::new(),
         state_seq: 0,
         hint_seq: 0,
+        pacer: Pacer::new(args.pace),
         stop,
         timeout,
     };
@@ -168,6 +172,8 @@ struct Robot<'a> {
     relayed: BTreeMap<u32, Vec<(u32, f32)>>,
     state_seq: u64,
     hint_seq: u64,
+    /// `--pace` (off: never pauses).
+    pacer: Pacer,
     stop: Arc<AtomicBool>,
     timeout: Duration,
 }
@@ -379,6 +385,13 @@ impl Robot<'_> {
                         break;
                     }
                 }
+                // --pace: a pause every few steps (when off, a countdown that never runs out)
+                if self.pacer.step() {
+                    self.pause(p, info.next)?;
+                    if self.plan.stopped() {
+                        break;
+                    }
+                }
                 if info.done {
                     let rec = p.learner.end_episode(info.transition);
                     p.last_episode_steps = rec.steps;
@@ -404,6 +417,22 @@ impl Robot<'_> {
         p.learn_s = p.t0.elapsed().as_secs_f64();
         p.own_final = p.learner.greedy_path_len();
         Ok(())
+    }
+
+    /// A `--pace` pause: sleeps what the pacer says, then shows where the robot is, shares what
+    /// it learned and reads its inbox (a slow pace pauses up to a second per step: a stop must
+    /// not wait for the next `--poll-every`, nor the coordinator take the robot for hung).
+    fn pause(&mut self, p: &mut Phase, at: u32) -> Result<(), AgentError> {
+        let nap = self.pacer.pause(monotonic_ns());
+        if !nap.is_zero() {
+            std::thread::sleep(nap);
+        }
+        if self.args.share.share.hints() && !p.batcher.is_empty() {
+            self.send_hints(p);
+        }
+        self.send_state(p, RobotStatus::Running, at);
+        let _ = self.bus.state.notify();
+        self.poll(Some(p))
     }
 
     /// The end of a phase's learning: flush hints, get every discovery acknowledged, write the
@@ -803,11 +832,15 @@ impl Robot<'_> {
             }
             match self.plan.on(&ctl) {
                 Effect::Rejected => self.c.rejected += 1,
-                // a restarted coordinator repeats a phase this robot reported already
-                Effect::Repeated { phase: q } if ctl.command == Command::AssignGoal.as_u8() => {
+                // a restarted coordinator's plan for the phase we are in (or finished): that
+                // phase goes on, with its discovery log and sequence numbers; a phase reported
+                // already is reported again (the new coordinator never got it)
+                Effect::Repeated => {
+                    self.link.counters.plan_repeats += 1;
                     if let Some(p) = phase.as_deref_mut()
                         && p.reported
-                        && p.a.phase == q
+                        && p.a.phase == ctl.phase
+                        && ctl.command == Command::AssignGoal.as_u8()
                     {
                         self.send_report(p)?;
                     }

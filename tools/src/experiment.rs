@@ -68,6 +68,10 @@ pub struct ExperimentCmd {
     /// Record every message into this MCAP file (`NAME-seed-S.mcap` with several seeds).
     #[arg(long, value_name = "FILE.mcap")]
     record: Option<PathBuf>,
+    /// Slow every robot to this many environment steps per second (1 to 10 000 000), so that
+    /// a person can follow them with `--live`.
+    #[arg(long, value_name = "STEPS_PER_S", value_parser = qfleet_args::parse_pace)]
+    pace: Option<f64>,
 }
 
 /// The two rules of Q-hint sharing: how the coordinator merges robots' values into the fleet
@@ -132,6 +136,8 @@ pub struct Supervision {
     pub max_restarts: u32,
     /// Grace period of a stopping process before it is killed.
     pub grace: Duration,
+    /// The robots' `--pace` (steps per second), if any.
+    pub pace: Option<f64>,
 }
 
 impl Default for Supervision {
@@ -140,6 +146,7 @@ impl Default for Supervision {
             policy: RestartPolicy::Never,
             max_restarts: 3,
             grace: Duration::from_secs(5),
+            pace: None,
         }
     }
 }
@@ -210,6 +217,7 @@ pub fn run_once(
             .args(["--share", m.sharing.as_cli()])
             .args(["--apply", &rules.apply.to_string()])
             .args(["--timeout", &m.timeout_s.to_string()])
+            .args(qfleet_args::pace_cli(sup.pace))
             .arg("--out")
             .arg(out);
         if m.stop_at_optimum {
@@ -282,6 +290,7 @@ impl ExperimentCmd {
             policy: self.restart,
             max_restarts: self.max_restarts,
             grace,
+            pace: self.pace,
         };
         let out_dir =
             LaunchDir::prepare(self.out.as_deref(), self.force, "exp").map_err(|e| match e {
@@ -303,6 +312,7 @@ impl ExperimentCmd {
             let cfg = vec![
                 ("manifest".into(), self.file.display().to_string()),
                 ("seed".into(), seed.to_string()),
+                ("pace".into(), qfleet_args::pace_cli(self.pace).join(" ")),
             ];
             let watch = crate::live::start(
                 &id,

@@ -83,6 +83,10 @@ pub struct RunCmd {
     /// Record every message of every topic into this MCAP file (Foxglove opens it).
     #[arg(long, value_name = "FILE.mcap")]
     record: Option<PathBuf>,
+    /// Slow every robot to this many environment steps per second (1 to 10 000 000), so that
+    /// a person can follow them with `--live`; a paced robot also shows its cell at every pause.
+    #[arg(long, value_name = "STEPS_PER_S", value_parser = qfleet_args::parse_pace)]
+    pace: Option<f64>,
 }
 
 impl RunCmd {
@@ -114,6 +118,7 @@ impl RunCmd {
             ("share_args".into(), self.share.to_cli().join(" ")),
             ("merge".into(), self.merge.to_string()),
             ("wait".into(), self.wait.to_string()),
+            ("pace".into(), qfleet_args::pace_cli(self.pace).join(" ")),
         ];
         let watch = crate::live::start(
             &run_id,
@@ -272,6 +277,7 @@ impl RunCmd {
                     &launcher::seed::run_robot(self.learner.seed, id).to_string(),
                 ])
                 .args(self.share.to_cli())
+                .args(qfleet_args::pace_cli(self.pace))
                 .arg("--out")
                 .arg(out);
             cmd
