@@ -1,6 +1,6 @@
-//! End-to-end: `qfleet experiment` with real `robot-agent` processes and the
-//! in-process experiment coordinator, over iceoryx2 shared memory. Unique run ids, bounded in
-//! time, no shared-memory files left behind.
+//! End-to-end: `qfleet experiment` with real `robot-agent` and `qfleet-coordinator --plan`
+//! processes over iceoryx2 shared memory. Unique run ids, bounded in time, no shared-memory
+//! files left behind.
 
 use std::process::Command;
 
@@ -191,8 +191,41 @@ fn an_invalid_manifest_is_refused_with_the_field_and_reason() {
     );
 }
 
-/// A manifest long enough to kill a robot in the middle of its first phase (4000 episodes
-/// took 0.3 s: the phase was over before the kill).
+/// The pid of the live process of the experiment launched with `--run-id prefix` (its run
+/// ids are `<prefix>-s<seed>-…`) whose command line has `arg value`, if any.
+fn child_with_arg(prefix: &str, arg: &str, value: &str) -> Option<i32> {
+    let run = format!("--run-id\0{prefix}-");
+    let needle = format!("{arg}\0{value}\0");
+    std::fs::read_dir("/proc")
+        .ok()?
+        .flatten()
+        .filter_map(|e| e.file_name().to_str()?.parse::<i32>().ok())
+        .find(|pid| {
+            let cmd = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
+            let cmd = String::from_utf8_lossy(&cmd);
+            let zombie = std::fs::read_to_string(format!("/proc/{pid}/stat"))
+                .map(|s| {
+                    s.rsplit_once(')')
+                        .is_none_or(|(_, rest)| rest.trim_start().starts_with('Z'))
+                })
+                .unwrap_or(true);
+            !zombie && cmd.contains(&run) && cmd.contains(&needle)
+        })
+}
+
+/// The files of `dir` whose names start with `prefix` and end with `suffix`.
+fn files_like(dir: &std::path::Path, prefix: &str, suffix: &str) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .map(|d| {
+            d.flatten()
+                .filter_map(|e| e.file_name().into_string().ok())
+                .filter(|n| n.starts_with(prefix) && n.ends_with(suffix))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// A manifest long enough to kill a robot in the middle of its first phase.
 const LONG_TWO_PHASES: &str = r#"
 name = "long"
 sharing = "both"
@@ -334,10 +367,77 @@ fn an_experiment_robot_killed_mid_phase_is_restarted_and_warm_started() {
 }
 
 #[test]
-#[ignore = "open (issue 11): the experiment coordinator runs inside the qfleet process, so it cannot be killed apart from its launcher yet"]
 fn an_experiment_survives_a_coordinator_kill() {
-    // With a coordinator process of its own, this test kills it mid-phase (as
-    // tests/reliability.rs does for runs) and expects the restarted coordinator to finish every
-    // phase with discoveries_received == discoveries_sent.
-    panic!("the experiment coordinator is not a process of its own yet");
+    let dir = scratch("exp-coord-kill");
+    let file = dir.join("m.toml");
+    std::fs::write(&file, LONG_TWO_PHASES).expect("write manifest");
+    let id = run_id("xc");
+    let seed_dir = dir.join("out").join("seed-2");
+    let child = qfleet_suite::spawn(
+        Command::new(bin("qfleet"))
+            .args(["experiment", "--json", "--run-id", &id])
+            .args(["--restart", "on-failure", "--max-restarts", "2", "--out"])
+            .arg(dir.join("out"))
+            .arg(&file),
+    );
+    // mid-phase: the coordinator has started phase 0 (its checkpoint says so) and no robot has
+    // finished it yet (no phase file)
+    let mut coord = None;
+    assert!(
+        qfleet_suite::wait_until(qfleet_suite::PROCESS_TIMEOUT, || {
+            let cp: Option<Value> = std::fs::read_to_string(seed_dir.join("checkpoint.json"))
+                .ok()
+                .and_then(|t| serde_json::from_str(&t).ok());
+            coord = child_with_arg(&id, "--plan", &seed_dir.join("plan.json").display().to_string());
+            coord.is_some() && cp.is_some_and(|c| c["current"]["phase"] == 0)
+        }),
+        "the experiment's coordinator never started phase 0"
+    );
+    let done_before = files_like(&seed_dir, "robot-", "-phase-0.json");
+    // SAFETY: kill(2) on the coordinator this test started through qfleet experiment.
+    unsafe {
+        libc::kill(coord.unwrap(), libc::SIGKILL);
+    }
+    assert!(
+        done_before.is_empty(),
+        "the kill came after phase 0 ended for {done_before:?}: make the phase longer"
+    );
+    let out = qfleet_suite::wait_bounded(child, qfleet_suite::PROCESS_TIMEOUT);
+    assert!(out.status.success(), "{}", describe(&out));
+    assert!(
+        String::from_utf8_lossy(&out.stderr)
+            .contains("coordinator was killed by signal 9; restarting it"),
+        "{}",
+        describe(&out)
+    );
+    let v: Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    let r: report::run::ExperimentResult =
+        serde_json::from_value(v[0].clone()).expect("an ExperimentResult");
+    assert_eq!(r.coordinator_restarts, 1, "{v}");
+    assert!(!r.interrupted, "{v}");
+    assert_eq!(r.phases.len(), 2, "{v}");
+    for phase in &r.phases {
+        assert_eq!(phase.robots.len(), 3, "{v}");
+        for x in &phase.robots {
+            assert_eq!(x.status, report::run::RobotOutcome::Finished, "{v}");
+            assert!(x.episodes > 0, "{v}");
+        }
+        assert_eq!(
+            phase.discoveries_received, phase.discoveries_sent,
+            "phase {}: {v}",
+            phase.phase
+        );
+    }
+    assert!(r.phases[0].discoveries_sent > 0, "nothing to lose: {v}");
+    // every robot noticed the loss and re-joined the new coordinator
+    for robot in 0..3 {
+        let text = std::fs::read_to_string(seed_dir.join(format!("robot-{robot}.json")))
+            .expect("robot result");
+        let rr: report::RobotResult = serde_json::from_str(&text).expect("a RobotResult");
+        assert_eq!(rr.counters.link.coordinator_losses, 1, "robot {robot}: {text}");
+        assert_eq!(rr.counters.link.rejoins, 1, "robot {robot}: {text}");
+    }
+    let left = leftovers(&id);
+    assert!(left.is_empty(), "{left:?}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -6,7 +6,6 @@ use std::collections::BTreeMap;
 use bus::bus_schema::{FinalReport, RobotStatus};
 use hdrhistogram::Histogram;
 use planner::task::Task;
-use qfleet_args::Plan;
 use report::hist::{self, LatencyStats, new_hist};
 use report::run::{
     GoalPhase, LivenessReport, PhaseResult, RobotEntry, RobotOutcome, RobotPhase, RunResult,
@@ -16,6 +15,7 @@ use report::{LatencyPath, OutDir, OutFile, PhaseDetail, RobotHist, RobotResult};
 
 use crate::engine::{Engine, Slot};
 use crate::experiment::merged_path_len;
+use crate::plan::ExperimentPlan;
 use crate::options::CoordArgs;
 
 /// The fleet's loop and merged latency histograms, added up from every robot's `.hdr` files
@@ -247,7 +247,7 @@ pub(crate) struct GoalTrack<'a> {
 
 /// The result of phase `p` of an experiment.
 pub(crate) fn phase_result(
-    plan: &Plan,
+    plan: &ExperimentPlan,
     e: &Engine,
     goals: &[GoalTrack<'_>],
     p: usize,
@@ -255,8 +255,7 @@ pub(crate) fn phase_result(
     out: &OutDir,
     wall_s: f64,
 ) -> PhaseResult {
-    let m = &plan.manifest;
-    let details: Vec<Option<PhaseDetail>> = (0..m.robots)
+    let details: Vec<Option<PhaseDetail>> = (0..plan.robots)
         .map(|robot| {
             let f = OutFile::RobotPhase {
                 robot,
@@ -304,8 +303,8 @@ pub(crate) fn phase_result(
             .collect();
         goal_results.push(GoalPhase {
             goal: g,
-            name: m.goals[g].name.clone(),
-            cell: plan.goal_cells[g].to_string(),
+            name: plan.goals[g].name.clone(),
+            cell: plan.goals[g].cell.to_string(),
             robots: mine.iter().map(|r| r.robot_id).collect(),
             merged_path_len: gs
                 .envs
@@ -330,9 +329,12 @@ pub(crate) fn phase_result(
     }
     PhaseResult {
         phase: p,
-        name: m.phases[p].name.clone(),
-        episodes: m.phases[p].episodes,
+        name: plan.phases[p].name.clone(),
+        episodes: plan.phases[p].episodes,
         goals: goal_results,
+        discoveries_sent: robots.iter().map(|r| r.discoveries_sent).sum(),
+        // filled in by the checkpoint, which knows what earlier coordinators received
+        discoveries_received: 0,
         robots,
         wall_s,
     }

@@ -113,10 +113,6 @@ pub(crate) struct Engine {
     pub(crate) started_ns: Option<u64>,
     /// Fleet-table changes counted by the coordinators before this one.
     changes_before: u64,
-    /// Print liveness events as `event …` lines on stdout (the coordinator process, whose
-    /// stdout its launcher reads); off for a coordinator inside the launcher's own process,
-    /// whose stdout carries the result.
-    pub(crate) events_on_stdout: bool,
     merged_buffer: usize,
     /// Where the launcher leaves `robot-<id>.exited` for a robot process that ended.
     out: PathBuf,
@@ -210,7 +206,6 @@ impl Engine {
             began_ns: monotonic_ns(),
             started_ns: None,
             changes_before: 0,
-            events_on_stdout: true,
             merged_buffer,
             out,
             began: SystemTime::now(),
@@ -301,12 +296,11 @@ impl Engine {
         self.announce();
     }
 
-    /// Prints the liveness events raised since the last call as `event <kind> <id> <ns>` (when
-    /// [`events_on_stdout`](Self::events_on_stdout); otherwise they are only kept).
+    /// Prints the liveness events raised since the last call as `event <kind> <id> <ns>`.
     pub(crate) fn announce(&mut self) {
         use std::io::Write;
         let new = self.life.take_new();
-        if new.is_empty() || !self.events_on_stdout {
+        if new.is_empty() {
             return;
         }
         let mut out = std::io::stdout().lock();

@@ -1,6 +1,9 @@
-//! The driver of an experiment over the [`Engine`]: robots go through the phases of a
-//! manifest over the control topic; one fleet table per goal (merged only within the goal);
-//! the merged greedy path of every goal is watched; per-robot results are collected per phase.
+//! The driver of an experiment over the [`Engine`], in the coordinator process
+//! (`qfleet-coordinator --plan plan.json`, started and restarted by `qfleet experiment` through
+//! the launcher as `qfleet run` starts its coordinator): robots go through the phases of the
+//! [`ExperimentPlan`] over the control topic; one fleet table per goal (merged only within the
+//! goal); the merged greedy path of every goal is watched; per-robot results are collected
+//! per phase.
 //!
 //! # Per phase
 //! 1. `AssignGoal` to each robot (goal id and cell, `phase`, `episodes`), then `Start` (phase 0)
@@ -13,59 +16,38 @@
 //!    time it equals the BFS optimum.
 //! 3. Read each robot's `robot-<id>-phase-<p>.json` (its per-episode log) to turn that time into
 //!    env steps per robot (interpolated between the robot's episode ends).
+//! 4. Keep the phase's result in `checkpoint.json` ([`Checkpoint`]).
 //!
 //! After the last phase: `Stop` to all.
+//!
+//! # A coordinator restart
+//! A coordinator started again with the same run id and out directory finds the checkpoint:
+//! it admits the fleet again (the robots, learning alone meanwhile, re-register and replay their
+//! discoveries), skips the phases done and starts the phase under way again with the same
+//! `AssignGoal` and start command. A robot ignores a repeated assignment of a phase it is in or
+//! has finished, and answers the repeat of a phase it already reported with its report again,
+//! so the phase ends as if nothing happened. The fleet tables start empty again (the robots
+//! keep what they learned); the counts of earlier coordinators are carried in the checkpoint.
 
-use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use bus::bus_schema::{Command, ROBOT_ID_ALL};
-use bus::{BusConfig, CoordinatorBus, Expected, monotonic_ns};
+use bus::{CoordinatorBus, Expected, monotonic_ns};
+use planner::map::GridMap;
 use planner::{Cell, Env};
-use qfleet_args::Plan;
+use report::{OutDir, OutFile, ReadError};
 
 use crate::assemble::{self, GoalTrack};
+use crate::checkpoint::{Checkpoint, LifeCounts};
 use crate::engine::{Assignment, Engine, tolerate};
 use crate::liveness::{Life, Lister};
-use crate::merge::{FleetTable, MergeRule};
-use crate::options::{CoordError, WaitStrategy, secs};
+use crate::merge::FleetTable;
+use crate::options::{CoordArgs, CoordError, bus_config, secs};
+pub use crate::plan::ExperimentPlan;
 use crate::run::LIST_EVERY;
 use crate::wait::{Serving, Waiting, serve};
 pub use report::run::{ExperimentResult, GoalPhase, PhaseResult, RobotPhase};
-
-/// What the coordinator needs besides the plan.
-#[derive(Debug, Clone)]
-pub struct ExperimentOptions {
-    /// Run id.
-    pub run_id: String,
-    /// Seed of this repetition.
-    pub seed: u64,
-    /// Directory where robots write their phase files.
-    pub out: PathBuf,
-    /// Merge rule of the fleet tables.
-    pub merge: MergeRule,
-}
-
-/// How the experiment's robots are supervised (as `qfleet run`'s `--restart` / `--hang-ms`).
-#[derive(Debug, Clone, Copy)]
-pub struct Supervision {
-    /// Restarts per robot the launcher may make: a phase waits (up to the manifest's timeout)
-    /// for a lost robot to come back while it has restarts left.
-    pub restarts: u32,
-    /// A running robot silent this long is reported hung.
-    pub hang: Duration,
-}
-
-impl Default for Supervision {
-    /// No restarts, the 2 s heartbeat deadline `qfleet run` uses.
-    fn default() -> Self {
-        Supervision {
-            restarts: 0,
-            hang: Duration::from_millis(2000),
-        }
-    }
-}
 
 /// One goal's merged-path watch during a phase.
 struct Watch {
@@ -74,28 +56,19 @@ struct Watch {
     merged_optimal_ns: Option<u64>,
 }
 
-/// Runs one experiment (one seed) over the bus with no restarts; robots must be started by the
-/// caller.
-pub fn run_experiment(
-    plan: &Plan,
-    opts: &ExperimentOptions,
+/// Runs (or resumes, see the module docs) the experiment of `plan` with the coordinator
+/// options `args` (run id, out directory, merge rule, wait strategy, buffers, `--restarts`,
+/// `--hang-ms`); robots must be started (and restarted) by the caller. `stop` is set by a
+/// signal handler: the phase under way ends, the robots are stopped, and the result says
+/// `interrupted`.
+pub fn run(
+    args: &CoordArgs,
+    plan: &ExperimentPlan,
     stop: &AtomicBool,
 ) -> Result<ExperimentResult, CoordError> {
-    run_experiment_with(plan, opts, Supervision::default(), stop)
-}
-
-/// Runs one experiment (one seed) over the bus; robots must be started (and restarted, within
-/// `sup.restarts`) by the caller.
-pub fn run_experiment_with(
-    plan: &Plan,
-    opts: &ExperimentOptions,
-    sup: Supervision,
-    stop: &AtomicBool,
-) -> Result<ExperimentResult, CoordError> {
-    let t_begin = Instant::now();
-    let m = &plan.manifest;
-    let timeout = secs(m.timeout_s, "the manifest's timeout_s")?;
-    let grid = &plan.map.grid;
+    let map = plan.check()?;
+    let timeout = secs(plan.timeout_s, "the plan's timeout_s")?;
+    let grid = &map.grid;
     let (Ok(width), Ok(height)) = (u16::try_from(grid.width()), u16::try_from(grid.height()))
     else {
         return Err(CoordError::MapTooLarge {
@@ -103,57 +76,128 @@ pub fn run_experiment_with(
             height: grid.height(),
         });
     };
-    let mut cfg = BusConfig::new(opts.run_id.clone(), m.robots)?;
-    cfg.hint_buffer = 64;
-    cfg.merged_buffer = (4096 / m.robots as usize).clamp(8, 64);
-    cfg.send_timeout = Duration::from_secs(1);
-    cfg.validate()?;
+    let dir = OutDir::new(&args.out);
+    dir.create()?;
+    let prev = match dir.read_json::<Checkpoint>(OutFile::Checkpoint) {
+        Ok(c) => Some(c),
+        Err(ReadError::Io { .. }) => None,
+        Err(e) => {
+            eprintln!("qfleet-coordinator: warning: {e}; starting the experiment over");
+            None
+        }
+    };
+    let mut cp = Checkpoint::resume(
+        prev,
+        &args.run_id,
+        plan.seed,
+        plan.phases.len(),
+        monotonic_ns(),
+    );
+    if cp.restarts() > 0 {
+        eprintln!(
+            "qfleet-coordinator: restart {} of experiment {}: resuming at phase {} of {}",
+            cp.restarts(),
+            args.run_id,
+            cp.next_phase(),
+            plan.phases.len()
+        );
+    }
+    dir.write_json(OutFile::Checkpoint, &cp)?;
+    let cfg = bus_config(args, plan.robots)?;
     let bus = CoordinatorBus::create(&cfg)?;
     let expected = Expected {
-        robots: m.robots,
+        robots: plan.robots,
         map_hash: bus::bus_schema::map_fingerprint(grid.width(), grid.height(), grid.free_flags()),
         width,
         height,
     };
-    let life = Life::new(m.robots, sup.hang, sup.restarts, timeout);
+    let life = Life::new(
+        plan.robots,
+        Duration::from_millis(args.hang_ms),
+        args.restarts,
+        timeout,
+    );
     let mut engine = Engine::new(
         expected,
-        plan.goal_cells.len() as u32,
-        opts.merge,
+        plan.goals.len() as u32,
+        args.merge,
         life,
         cfg.merged_buffer,
-        opts.out.clone(),
+        args.out.clone(),
     );
-    // this coordinator runs inside `qfleet experiment`, whose stdout is the result: its
-    // liveness events go to the result only
-    engine.events_on_stdout = false;
-    let out = drive(plan, opts, &mut engine, &bus, stop, timeout, t_begin);
+    let ctx = Ctx {
+        args,
+        plan,
+        map: &map,
+        dir: &dir,
+        timeout,
+    };
+    let out = drive(&ctx, &mut cp, &mut engine, &bus, stop);
     if let Err(e) = bus.close() {
-        eprintln!("qfleet experiment: warning: cleanup: {e}");
+        eprintln!("qfleet-coordinator: warning: cleanup: {e}");
     }
     out
 }
 
+/// What the driver reads.
+struct Ctx<'a> {
+    args: &'a CoordArgs,
+    plan: &'a ExperimentPlan,
+    map: &'a GridMap,
+    dir: &'a OutDir,
+    timeout: Duration,
+}
+
+/// This coordinator process's counts, for the checkpoint.
+fn life_counts(e: &Engine) -> LifeCounts {
+    LifeCounts {
+        received: e.disc.received(),
+        from_dead: e.disc.from_dead(),
+        relays_sent: e.relays_sent,
+        q_updates_merged: e.q_merged,
+        rejected: e.rejected,
+    }
+}
+
+/// The merged-path watch of every goal in phase `p`.
+fn watches(plan: &ExperimentPlan, map: &GridMap, p: usize) -> Vec<Watch> {
+    let assignment = &plan.assignment[p];
+    (0..plan.goals.len())
+        .map(|g| {
+            let mut starts: Vec<(Cell, u32)> = Vec::new();
+            for (r, &rg) in assignment.iter().enumerate() {
+                if rg == g && !starts.iter().any(|(s, _)| *s == plan.starts[r]) {
+                    starts.push((plan.starts[r], plan.optimal[r][g]));
+                }
+            }
+            Watch {
+                envs: starts
+                    .iter()
+                    .map(|(s, _)| Env::new(&map.grid, *s, plan.goals[g].cell, plan.rewards))
+                    .collect(),
+                optimal: starts.iter().map(|(_, o)| *o).collect(),
+                merged_optimal_ns: None,
+            }
+        })
+        .collect()
+}
+
 fn drive(
-    plan: &Plan,
-    opts: &ExperimentOptions,
+    ctx: &Ctx<'_>,
+    cp: &mut Checkpoint,
     engine: &mut Engine,
     bus: &CoordinatorBus,
     stop: &AtomicBool,
-    timeout: Duration,
-    t_begin: Instant,
 ) -> Result<ExperimentResult, CoordError> {
-    let m = &plan.manifest;
-    let grid = &plan.map.grid;
-    engine.admit_fleet(bus, stop, timeout)?;
+    let plan = ctx.plan;
+    engine.admit_fleet(bus, stop, ctx.timeout)?;
     let lister = Lister::start(bus.config(), LIST_EVERY).map_err(|source| CoordError::Thread {
         what: "liveness",
         source,
     })?;
-    let rewards = m.learner.config()?.rewards;
     let how = Waiting {
-        strategy: WaitStrategy::Hybrid,
-        spin: Duration::from_micros(200),
+        strategy: ctx.args.wait,
+        spin: Duration::from_micros(ctx.args.spin_us),
     };
     let serving = Serving {
         bus,
@@ -161,37 +205,20 @@ fn drive(
         how,
         stop,
     };
-    let out_dir = report::OutDir::new(&opts.out);
-    let mut phases = Vec::new();
-    for (p, phase) in m.phases.iter().enumerate() {
-        let t_phase = Instant::now();
-        let phase_ns = monotonic_ns();
-        let assignment = &plan.assignment[p];
-        let mut watches: Vec<Watch> = (0..plan.goal_cells.len())
-            .map(|g| {
-                let mut starts: Vec<(Cell, u32)> = Vec::new();
-                for (r, &rg) in assignment.iter().enumerate() {
-                    if rg == g && !starts.iter().any(|(s, _)| *s == plan.starts[r]) {
-                        starts.push((plan.starts[r], plan.optimal[r][g]));
-                    }
-                }
-                Watch {
-                    envs: starts
-                        .iter()
-                        .map(|(s, _)| Env::new(grid, *s, plan.goal_cells[g], rewards))
-                        .collect(),
-                    optimal: starts.iter().map(|(_, o)| *o).collect(),
-                    merged_optimal_ns: None,
-                }
-            })
-            .collect();
-        let plan_p = assignment
+    // the phases done, and the one a signal cut short
+    let mut ended = cp.clone();
+    let mut interrupted = false;
+    for p in cp.next_phase()..plan.phases.len() {
+        let phase_ns = cp.start_phase(p, monotonic_ns());
+        ctx.dir.write_json(OutFile::Checkpoint, &*cp)?;
+        let mut watches = watches(plan, ctx.map, p);
+        let plan_p = plan.assignment[p]
             .iter()
             .map(|&g| Assignment {
                 goal: g as u32,
-                cell: plan.goal_cells[g],
+                cell: plan.goals[g].cell,
                 phase: p as u32,
-                episodes: phase.episodes,
+                episodes: plan.phases[p].episodes,
             })
             .collect();
         let go = if p == 0 {
@@ -200,17 +227,17 @@ fn drive(
             Command::Phase
         };
         engine.start_phase(bus, plan_p, go)?;
-        let interrupted = serve(
+        interrupted = serve(
             engine,
             &serving,
             |e| watch_merged(e, &mut watches),
             |e| {
-                let now = Instant::now();
+                let now = std::time::Instant::now();
                 (0..e.robots.len()).all(|i| e.phase_done(i, now))
             },
         )?;
         // the reports are in; the phase files were written before them
-        let wall_s = t_phase.elapsed().as_secs_f64();
+        let wall_s = monotonic_ns().saturating_sub(phase_ns) as f64 / 1e9;
         let tracks: Vec<GoalTrack<'_>> = watches
             .iter()
             .map(|w| GoalTrack {
@@ -219,28 +246,33 @@ fn drive(
                 merged_optimal_ns: w.merged_optimal_ns,
             })
             .collect();
-        phases.push(assemble::phase_result(
-            plan, engine, &tracks, p, phase_ns, &out_dir, wall_s,
-        ));
+        let result = assemble::phase_result(plan, engine, &tracks, p, phase_ns, ctx.dir, wall_s);
+        ended = cp.clone();
+        ended.phase_done(result, life_counts(engine));
         if interrupted {
             break;
         }
+        *cp = ended.clone();
+        ctx.dir.write_json(OutFile::Checkpoint, &*cp)?;
     }
     tolerate(bus.stop(ROBOT_ID_ALL))?;
+    let totals = ended.totals_with(life_counts(engine));
     Ok(ExperimentResult {
-        name: m.name.clone(),
-        run_id: opts.run_id.clone(),
-        seed: opts.seed,
-        map: plan.map.name.clone(),
-        robots: m.robots,
-        sharing: m.sharing.as_cli().into(),
-        phases,
-        discoveries_received: engine.disc.received(),
-        relays_sent: engine.relays_sent,
-        q_updates_merged: engine.q_merged,
-        rejected: engine.rejected,
+        name: plan.name.clone(),
+        run_id: ctx.args.run_id.clone(),
+        seed: plan.seed,
+        map: ctx.map.name.clone(),
+        robots: plan.robots,
+        sharing: plan.sharing.clone(),
+        phases: ended.phases,
+        discoveries_received: totals.discoveries,
+        relays_sent: totals.relays_sent,
+        q_updates_merged: totals.q_updates_merged,
+        rejected: totals.rejected,
         liveness: assemble::liveness(engine),
-        wall_s: t_begin.elapsed().as_secs_f64(),
+        coordinator_restarts: cp.restarts(),
+        interrupted,
+        wall_s: monotonic_ns().saturating_sub(cp.began_ns) as f64 / 1e9,
     })
 }
 
@@ -291,6 +323,7 @@ pub fn merged_path_len(table: &FleetTable, env: &Env) -> Option<u32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::merge::MergeRule;
     use bus::bus_schema::QHint;
 
     #[test]

@@ -5,11 +5,13 @@
 //! Decisions live in IO-free types tested as specifications: [`admission`] (who belongs to
 //! the fleet, bound to the iceoryx2 node that registered), [`discovery`] (ordering, dedup,
 //! acks, relays), [`validate`] (every message field), [`liveness`] (lost, hung, restarted),
-//! [`merge`] (the fleet table). One engine (`engine`) carries them out on the bus; [`run`]
-//! and [`experiment`] are two small drivers over it.
+//! [`merge`] (the fleet table), [`checkpoint`] (an experiment's progress across coordinator
+//! restarts). One engine (`engine`) carries them out on the bus; [`run`] and [`experiment`]
+//! are two small drivers over it; an experiment's driver reads its [`plan`].
 
 pub mod admission;
 mod assemble;
+pub mod checkpoint;
 pub mod discovery;
 mod engine;
 pub mod experiment;
@@ -17,6 +19,7 @@ pub mod liveness;
 pub mod merge;
 pub mod options;
 pub mod output;
+pub mod plan;
 pub mod run;
 pub mod validate;
 mod wait;

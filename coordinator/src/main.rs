@@ -1,12 +1,14 @@
-//! `qfleet-coordinator`: the coordinator process of a qfleet run (started by `qfleet run`).
+//! `qfleet-coordinator`: the coordinator process of a qfleet run (started by `qfleet run`) or,
+//! with `--plan plan.json`, of one repetition of an experiment (started by `qfleet
+//! experiment`; a coordinator started again resumes the experiment from `checkpoint.json`).
 //!
-//! Exit codes:
-//! - 0: the run completed and every robot reported;
+//! Exit codes (the same for runs and experiments):
+//! - 0: the run (every phase) completed and every robot reported;
 //! - 1: a runtime failure (the bus, a thread, writing the result);
 //! - 2: bad input (an option value, the map, the scenario, the learner options);
 //! - 3: a robot was refused at registration (schema or map mismatch);
-//! - 4: the run completed, but some robot was lost or sent no report (a hung robot is
-//!   reported as `hung` and does not change the exit code);
+//! - 4: the run completed, but some robot was lost or sent no report (in some phase, for an
+//!   experiment; a hung robot is reported as `hung` and does not change the exit code);
 //! - 130: interrupted by a signal (a partial result is written when the run had started).
 
 use std::process::ExitCode;
@@ -14,7 +16,10 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::Parser;
-use coordinator::{CoordArgs, RobotOutcome};
+use coordinator::experiment::ExperimentPlan;
+use coordinator::output;
+use coordinator::{CoordArgs, CoordError, RobotOutcome};
+use report::OutDir;
 
 /// The coordinator of a qfleet run: admits robots, merges their Q hints, measures the loop.
 #[derive(Debug, Parser)]
@@ -31,6 +36,9 @@ fn main() -> ExitCode {
     if let Err(e) = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)) {
         eprintln!("qfleet-coordinator: warning: cannot install the signal handler: {e}");
     }
+    if let Some(file) = cli.args.plan.clone() {
+        return experiment(&cli.args, &file, &stop);
+    }
     match coordinator::run(cli.args, stop) {
         Ok(r) => {
             let incomplete = r
@@ -43,6 +51,42 @@ fn main() -> ExitCode {
                 r.robots.len(),
                 r.all_optimal,
                 r.throughput.q_updates_merged
+            );
+            if r.interrupted {
+                ExitCode::from(130)
+            } else if incomplete {
+                ExitCode::from(4)
+            } else {
+                ExitCode::SUCCESS
+            }
+        }
+        Err(e) => {
+            eprintln!("qfleet-coordinator: error: {}", chain(&e));
+            ExitCode::from(e.exit_code())
+        }
+    }
+}
+
+/// `--plan`: one repetition of an experiment; its result goes to `result.json` in `--out`.
+fn experiment(args: &CoordArgs, file: &std::path::Path, stop: &AtomicBool) -> ExitCode {
+    let done = ExperimentPlan::read(file)
+        .map_err(CoordError::from)
+        .and_then(|plan| coordinator::experiment::run(args, &plan, stop))
+        .and_then(|r| {
+            output::write_experiment(&OutDir::new(&args.out), &r)?;
+            Ok(r)
+        });
+    match done {
+        Ok(r) => {
+            let incomplete = r.phases.iter().flat_map(|p| &p.robots).any(|x| {
+                matches!(x.status, RobotOutcome::Lost | RobotOutcome::Missing)
+            });
+            eprintln!(
+                "qfleet-coordinator: experiment {} done: {} phases{}, {} coordinator restarts",
+                r.run_id,
+                r.phases.len(),
+                if r.interrupted { " (interrupted)" } else { "" },
+                r.coordinator_restarts
             );
             if r.interrupted {
                 ExitCode::from(130)

@@ -13,7 +13,7 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
-use bus::BusError;
+use bus::{BusConfig, BusError};
 use clap::Args;
 use qfleet_args::MapArgs;
 
@@ -64,6 +64,12 @@ pub struct CoordArgs {
     /// for a lost robot to come back while it has restarts left.
     #[arg(long, default_value_t = 0)]
     pub restarts: u32,
+    /// Run an experiment: the resolved plan `qfleet experiment` wrote (`plan.json`); the fleet
+    /// size, map, goals, phases and timeout come from it (`--robots`, the map options and
+    /// `--timeout` are not used). Its progress is kept in `checkpoint.json` in `--out`, and a
+    /// coordinator started again with the same run id resumes from it.
+    #[arg(long, value_name = "FILE.json")]
+    pub plan: Option<PathBuf>,
 }
 
 /// Why the coordinator failed.
@@ -82,6 +88,9 @@ pub enum CoordError {
     /// The map, scenario or learner options could not be loaded.
     #[error("loading the map, task or learner options")]
     Task(#[from] qfleet_args::ArgsError),
+    /// The experiment plan (`--plan`) cannot be read or does not fit together.
+    #[error("the experiment plan")]
+    Plan(#[source] crate::plan::PlanError),
     /// The map is larger than the wire format's 65535 cells a side.
     #[error("maps larger than 65535 cells a side are not supported ({width}x{height})")]
     MapTooLarge {
@@ -126,12 +135,31 @@ impl CoordError {
     /// 1 any other failure.
     pub fn exit_code(&self) -> u8 {
         match self {
-            CoordError::Option { .. } | CoordError::Task(_) | CoordError::MapTooLarge { .. } => 2,
+            CoordError::Option { .. }
+            | CoordError::Task(_)
+            | CoordError::Plan(_)
+            | CoordError::MapTooLarge { .. } => 2,
             CoordError::Interrupted(_) => 130,
             CoordError::Refused { .. } => 3,
             _ => 1,
         }
     }
+}
+
+/// The bus configuration of a run or experiment of `robots` robots with `args`' buffers.
+pub(crate) fn bus_config(args: &CoordArgs, robots: u32) -> Result<BusConfig, CoordError> {
+    let mut cfg = BusConfig::new(args.run_id.clone(), robots)?;
+    cfg.hint_buffer = args.hint_buffer;
+    cfg.merged_buffer = if args.merged_buffer == 0 {
+        (4096 / robots as usize).clamp(8, 64)
+    } else {
+        args.merged_buffer
+    };
+    // control is the coordinator's only lossless output; a robot that stopped draining it
+    // (SIGSTOP, or killed and not cleaned up yet) must not stall the whole run for long
+    cfg.send_timeout = Duration::from_secs(1);
+    cfg.validate()?;
+    Ok(cfg)
 }
 
 /// A positive, finite number of seconds as a `Duration`.

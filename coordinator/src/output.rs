@@ -1,9 +1,11 @@
 //! File output of the coordinator: `result.json` (written atomically through the `report`
 //! crate: a temporary file in the same directory, then a rename, so a reader never sees half a
-//! result) and one `latency-<path>.hgrm` per measured latency path.
+//! result) and, for a run, one `latency-<path>.hgrm` per measured latency path. (An
+//! experiment's `checkpoint.json` is written by its driver through the same writer.)
 
 use report::hist;
-use report::{OutDir, OutFile};
+/// The out directory and its file names, as launchers read what the coordinator wrote.
+pub use report::{OutDir, OutFile};
 use serde::Serialize;
 
 use crate::assemble::FleetHists;
@@ -21,5 +23,14 @@ pub(crate) fn write_run(
     for (path, h) in hists.paths(engine) {
         hist::write_hgrm(h, &dir.path(OutFile::Latency(path)))?;
     }
+    Ok(())
+}
+
+/// Writes an experiment's `result.json` into `dir`.
+pub fn write_experiment(
+    dir: &OutDir,
+    result: &report::run::ExperimentResult,
+) -> Result<(), CoordError> {
+    dir.write_json(OutFile::Result, result)?;
     Ok(())
 }

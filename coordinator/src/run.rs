@@ -16,12 +16,12 @@ use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::{Command, ROBOT_ID_ALL};
-use bus::{BusConfig, CoordinatorBus, Expected, monotonic_ns};
+use bus::{CoordinatorBus, Expected, monotonic_ns};
 
 use crate::assemble::{FleetHists, RunEnd};
 use crate::engine::{Assignment, Engine, tolerate};
 use crate::liveness::{Life, Lister};
-use crate::options::{CoordArgs, CoordError, secs};
+use crate::options::{CoordArgs, CoordError, bus_config, secs};
 use crate::wait::{Serving, Waiting, serve};
 use crate::{assemble, output};
 use report::{CoordinatorCheckpoint, OutDir, OutFile, ReadError, RunResult};
@@ -46,17 +46,7 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
             height: task.grid.height(),
         });
     };
-    let mut cfg = BusConfig::new(args.run_id.clone(), args.robots)?;
-    cfg.hint_buffer = args.hint_buffer;
-    cfg.merged_buffer = if args.merged_buffer == 0 {
-        (4096 / args.robots as usize).clamp(8, 64)
-    } else {
-        args.merged_buffer
-    };
-    // control is the coordinator's only lossless output; a robot that stopped draining it
-    // (SIGSTOP, or killed and not cleaned up yet) must not stall the whole run for long
-    cfg.send_timeout = Duration::from_secs(1);
-    cfg.validate()?;
+    let cfg = bus_config(&args, args.robots)?;
     let dir = OutDir::new(&args.out);
     dir.create()?;
     let expected = Expected {

@@ -73,9 +73,9 @@ pub enum SuperviseError {
 
 /// What the fleet is made of and how it is supervised.
 pub struct Fleet<'a> {
-    /// The coordinator's command, if it is a process of its own (`qfleet run`); its stdout
-    /// is piped to the supervisor. `None`: the coordinator runs in the launcher
-    /// (`qfleet experiment`), and `finished` says when it is done.
+    /// The coordinator's command (`qfleet run`, `qfleet experiment`); its stdout is piped to
+    /// the supervisor. `None`: the caller coordinates in its own process and says through
+    /// `finished` when it is done.
     pub coordinator: Option<&'a (dyn Fn() -> Command + Sync)>,
     /// Robot `id`'s command.
     pub robot: &'a (dyn Fn(u32) -> Command + Sync),

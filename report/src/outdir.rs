@@ -3,6 +3,8 @@
 //! | file                          | written by    | what                                         |
 //! |-------------------------------|---------------|----------------------------------------------|
 //! | `result.json`                 | coordinator   | the run's result (the launcher reads it)     |
+//! | `plan.json`                   | launcher      | an experiment's resolved plan (coordinator `--plan`) |
+//! | `checkpoint.json`             | coordinator   | an experiment's progress: phases done, their results |
 //! | `robot-<id>.json`             | robot         | [`RobotResult`](crate::RobotResult)          |
 //! | `robot-<id>-phase-<p>.json`   | robot         | [`PhaseDetail`](crate::PhaseDetail) of a phase |
 //! | `robot-<id>-episodes.csv`     | robot         | one line per episode                         |
@@ -104,6 +106,10 @@ impl LatencyPath {
 pub enum OutFile {
     /// `result.json`.
     Result,
+    /// `plan.json`.
+    Plan,
+    /// `checkpoint.json`.
+    Checkpoint,
     /// `robot-<id>.json`.
     Robot(u32),
     /// `robot-<id>-phase-<p>.json`.
@@ -141,6 +147,8 @@ impl OutFile {
     pub fn name(self) -> String {
         match self {
             OutFile::Result => "result.json".into(),
+            OutFile::Plan => "plan.json".into(),
+            OutFile::Checkpoint => "checkpoint.json".into(),
             OutFile::Robot(id) => format!("robot-{id}.json"),
             OutFile::RobotPhase { robot, phase } => format!("robot-{robot}-phase-{phase}.json"),
             OutFile::RobotEpisodes(id) => format!("robot-{id}-episodes.csv"),
@@ -158,6 +166,8 @@ impl OutFile {
     pub fn parse(name: &str) -> Option<OutFile> {
         match name {
             "result.json" => return Some(OutFile::Result),
+            "plan.json" => return Some(OutFile::Plan),
+            "checkpoint.json" => return Some(OutFile::Checkpoint),
             "coordinator.log" => return Some(OutFile::CoordinatorLog),
             "coordinator-checkpoint.json" => return Some(OutFile::CoordinatorCheckpoint),
             "latency.svg" => return Some(OutFile::LatencyPlot),
@@ -327,6 +337,8 @@ mod tests {
     fn every_kind() -> Vec<OutFile> {
         let mut v = vec![
             OutFile::Result,
+            OutFile::Plan,
+            OutFile::Checkpoint,
             OutFile::Robot(0),
             OutFile::Robot(255),
             OutFile::RobotPhase {

@@ -369,7 +369,14 @@ pub struct PhaseResult {
     pub goals: Vec<GoalPhase>,
     /// Per robot.
     pub robots: Vec<RobotPhase>,
-    /// Wall time of the phase, s.
+    /// Discoveries the robots made in this phase (the sum of `robots[].discoveries_sent`).
+    #[serde(default)]
+    pub discoveries_sent: u64,
+    /// Distinct discoveries of this phase the coordinator received (a restarted coordinator
+    /// gets the robots' replays, so it counts them too).
+    #[serde(default)]
+    pub discoveries_received: u64,
+    /// Wall time of the phase, s (from its start, also across a coordinator restart).
     pub wall_s: f64,
 }
 
@@ -399,9 +406,17 @@ pub struct ExperimentResult {
     /// Messages dropped as invalid (bad fields, or from a node that did not register the
     /// robot id they name).
     pub rejected: u64,
-    /// Liveness over the whole experiment.
+    /// Liveness as the last coordinator process saw it (a restarted coordinator starts a new
+    /// record).
     #[serde(default)]
     pub liveness: LivenessReport,
+    /// Times the coordinator process was started again after it died (the experiment resumed
+    /// from its checkpoint each time).
+    #[serde(default)]
+    pub coordinator_restarts: u32,
+    /// Stopped by a signal before the last phase ended (the phases done are in `phases`).
+    #[serde(default)]
+    pub interrupted: bool,
     /// Wall time, s.
     pub wall_s: f64,
 }

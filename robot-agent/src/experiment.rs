@@ -31,7 +31,9 @@
 //! and `Start` for the phase the robots are already in, or have finished. The robot ignores an
 //! `AssignGoal`, `Start` or `Phase` whose phase is not after the last phase it took
 //! ([`Effect::Repeated`]): it goes on with that phase and keeps its discovery log and its
-//! sequence numbers, instead of learning the phase again from scratch.
+//! sequence numbers, instead of learning the phase again from scratch. A phase of an experiment
+//! it already reported is reported again on the repeated `AssignGoal` (an experiment's
+//! coordinator restarted by `qfleet experiment --restart on-failure` waits for that report).
 //!
 //! # Q-tables per goal
 //! The robot keeps one Q-table per goal. A phase starts a fresh learner (its schedule and

@@ -207,7 +207,7 @@ pub fn register_until(
     }
 }
 
-/// The start handshake: [`register_until`], then a wait for `Start` (or `Stop`) in slices that
+/// The start handshake: [`register_until`], then a wait for `Start` (`Phase`, or `Stop`) in slices that
 /// look at the stop flag (giving up with [`BusError::Interrupted`]) and at the coordinator: if
 /// it dies before sending `Start`, its resources are cleaned and the robot registers again,
 /// with whatever coordinator comes up next (`qfleet run --restart on-failure` starts one).
@@ -259,7 +259,8 @@ pub fn handshake(
     }
 }
 
-/// Waits up to `timeout` for `Start` or `Stop` from the gate's coordinator; the coordinator's
+/// Waits up to `timeout` for `Start` (or `Phase`, the start command of a later phase) or
+/// `Stop` from the gate's coordinator; the coordinator's
 /// other controls go to `on_other`, everyone else's are dropped.
 fn wait_start(
     bus: &RobotBus,
@@ -274,7 +275,8 @@ fn wait_start(
                 continue;
             }
             match Command::try_from(ctl.command) {
-                Ok(Command::Start | Command::Stop) => return Ok(ctl),
+                // `Phase`: a robot (re)started during a later phase of an experiment
+                Ok(Command::Start | Command::Phase | Command::Stop) => return Ok(ctl),
                 _ => on_other(&ctl),
             }
         }

@@ -35,7 +35,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::{
-    FinalReport, PseudoTargetDiscovery, Register, RobotStatus, SCHEMA_VERSION, map_fingerprint,
+    Command, FinalReport, PseudoTargetDiscovery, Register, RobotStatus, SCHEMA_VERSION, map_fingerprint,
 };
 use bus::iceoryx2::identifiers::UniquePublisherId;
 use bus::{BusConfig, BusError, RobotBus, monotonic_ns};
@@ -530,7 +530,8 @@ impl Robot<'_> {
     }
 
     /// The phase's `FinalReport`: learning summary, counters, loop latency. A report that
-    /// reaches nobody after `Stop` (the coordinator already left) is not an error.
+    /// reaches nobody after `Stop` (the coordinator already left) or while the coordinator is
+    /// gone is not an error.
     fn send_report(&mut self, p: &mut Phase) -> Result<(), AgentError> {
         p.reported = true;
         let s = Self::summary(p);
@@ -565,7 +566,11 @@ impl Robot<'_> {
         };
         match self.bus.report.send_and_notify(&rep) {
             Ok(_) => Ok(()),
-            Err(BusError::NoSubscriber { .. }) if self.plan.stopped() => Ok(()),
+            // without a coordinator the report waits for the restarted one's repeat of the
+            // phase (see the protocol in `crate::experiment`)
+            Err(BusError::NoSubscriber { .. }) if self.plan.stopped() || self.link.alone() => {
+                Ok(())
+            }
             Err(e) => Err(e.into()),
         }
     }
@@ -828,8 +833,18 @@ impl Robot<'_> {
             match self.plan.on(&ctl) {
                 Effect::Rejected => self.c.rejected += 1,
                 // a restarted coordinator's plan for the phase we are in (or finished): that
-                // phase goes on, with its discovery log and sequence numbers
-                Effect::Repeated => self.link.counters.plan_repeats += 1,
+                // phase goes on, with its discovery log and sequence numbers; a phase reported
+                // already is reported again (the new coordinator never got it)
+                Effect::Repeated => {
+                    self.link.counters.plan_repeats += 1;
+                    if let Some(p) = phase.as_deref_mut()
+                        && p.reported
+                        && p.a.phase == ctl.phase
+                        && ctl.command == Command::AssignGoal.as_u8()
+                    {
+                        self.send_report(p)?;
+                    }
+                }
                 _ => {}
             }
         }

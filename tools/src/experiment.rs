@@ -1,20 +1,22 @@
-//! `qfleet experiment FILE`: run a manifest (see `qfleet_args::manifest`). This process is the
-//! coordinator (`coordinator::experiment`, in-process); the robots are
-//! `robot-agent` processes found next to `qfleet`, started and supervised by the `launcher`
-//! crate (the same restart policy as `qfleet run`). One run per seed of the manifest.
+//! `qfleet experiment FILE`: run a manifest (see `qfleet_args::manifest`), one run per seed.
+//! Each run is launched as `qfleet run` launches its run (`crate::launch`, then
+//! `launcher::supervise`): the coordinator is a `qfleet-coordinator --plan plan.json` process
+//! (the resolved plan of that seed, written into the seed's directory), the robots are
+//! `robot-agent` processes, all found next to `qfleet` and supervised with the same restart
+//! policy. A coordinator restarted after a crash resumes the experiment from the
+//! `checkpoint.json` it keeps in the same directory; the result is its `result.json`.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::time::Duration;
 
-use anyhow::{Context, Result, anyhow, bail};
+use anyhow::{Context, Result, anyhow};
 use clap::{Args, ValueEnum};
 use coordinator::MergeRule;
-use coordinator::experiment::{ExperimentOptions, ExperimentResult, run_experiment_with};
-use launcher::out::{OutDir, OutError, inventory, write_atomic};
-use launcher::run_id::{RunClaim, RunIdError};
+use coordinator::experiment::{ExperimentPlan, ExperimentResult};
+use launcher::out::{OutDir as LaunchDir, OutError, inventory};
 use launcher::spawn::sibling;
+use coordinator::output::{OutDir, OutFile};
 use launcher::{Exit, Fleet, RestartPolicy, supervise};
 use qfleet_args::{Plan, ShareMode, load_manifest};
 use robot_agent::ApplyRule;
@@ -37,14 +39,15 @@ pub struct ExperimentCmd {
     /// Write into a non-empty `--out` directory, replacing files of the same names.
     #[arg(long)]
     force: bool,
-    /// Restart a robot-agent that died, crashed or hung (with backoff; the coordinator
-    /// warm-starts it from its goal's fleet table).
+    /// Restart a robot-agent or the coordinator that died, crashed or hung (with backoff; the
+    /// coordinator warm-starts a robot from its goal's fleet table, a restarted coordinator
+    /// resumes the experiment from its checkpoint).
     #[arg(long, value_enum, default_value_t = RestartPolicy::Never)]
     restart: RestartPolicy,
-    /// Restarts allowed per robot with `--restart on-failure`.
+    /// Restarts allowed per process with `--restart on-failure`.
     #[arg(long, default_value_t = 3)]
     max_restarts: u32,
-    /// Seconds the robots get to exit after the experiment ends before they are killed.
+    /// Seconds a stopping process gets before it is killed.
     #[arg(long, default_value_t = 5.0)]
     grace: f64,
     /// Override the manifest's sharing mode.
@@ -124,14 +127,14 @@ pub fn load_plan(file: &Path) -> Result<Plan> {
     Ok(m.resolve(base)?)
 }
 
-/// How the robot processes of a repetition are supervised.
+/// How the processes of a repetition are supervised.
 #[derive(Debug, Clone, Copy)]
 pub struct Supervision {
-    /// Restart policy.
+    /// Restart policy (robots and the coordinator).
     pub policy: RestartPolicy,
-    /// Restarts allowed per robot.
+    /// Restarts allowed per process.
     pub max_restarts: u32,
-    /// Grace period of the robots after the coordinator's Stop, before they are killed.
+    /// Grace period of a stopping process before it is killed.
     pub grace: Duration,
     /// The robots' `--pace` (steps per second), if any.
     pub pace: Option<f64>,
@@ -148,9 +151,9 @@ impl Default for Supervision {
     }
 }
 
-/// Runs one repetition of `plan` with `seed` and the sharing `rules`: claims the run id,
-/// starts and supervises the robots (`launcher::supervise`, on a thread that lives as long as
-/// they do), coordinates in this process, cleans up.
+/// Runs one repetition of `plan` with `seed` and the sharing `rules` in `out`: claims the run
+/// id, writes the seed's plan, starts and supervises the coordinator and the robots, cleans up,
+/// and returns the coordinator's result.
 pub fn run_once(
     plan: &Plan,
     seed: u64,
@@ -159,18 +162,40 @@ pub fn run_once(
     out: &Path,
     sup: Supervision,
 ) -> Result<ExperimentResult> {
-    launcher::run_id::validate(run_id).context(Exit::BadInput)?;
-    bus::validate_run_id(run_id).context(Exit::BadInput)?;
-    let _claim = RunClaim::acquire(run_id).map_err(|e| match e {
-        RunIdError::InUse { .. } | RunIdError::Invalid { .. } => anyhow!(e).context(Exit::BadInput),
-        e => anyhow!(e),
-    })?;
+    let _claim = crate::launch::claim(run_id)?;
     // iceoryx2 root usable, no other user's file in the prefix, room in /dev/shm
     bus::preflight(&bus::BusConfig::new(run_id, plan.manifest.robots)?)?;
+    let coord_bin = sibling("qfleet-coordinator")?;
     let robot_bin = sibling("robot-agent")?;
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let dir = OutDir::new(out);
+    dir.create()?;
+    // the checkpoint and result of an earlier experiment in this directory (`--force`) are
+    // not ours: this run starts at its first phase, and an old result must not pass for ours
+    for f in [OutFile::Checkpoint, OutFile::Result] {
+        let _ = std::fs::remove_file(dir.path(f));
+    }
+    let plan_file = dir.write_json(
+        OutFile::Plan,
+        &ExperimentPlan::of(plan, seed).context(Exit::BadInput)?,
+    )?;
     crate::catch_interrupts()?;
     let m = &plan.manifest;
+    // the coordinator waits for a lost robot while the launcher may still restart it
+    let restarts = match sup.policy {
+        RestartPolicy::Never => 0,
+        RestartPolicy::OnFailure => sup.max_restarts,
+    };
+    let coordinator = || -> Command {
+        let mut cmd = Command::new(&coord_bin);
+        cmd.args(["--run-id", run_id])
+            .arg("--plan")
+            .arg(&plan_file)
+            .args(["--merge", &rules.merge.to_string()])
+            .args(["--restarts", &restarts.to_string()])
+            .arg("--out")
+            .arg(out);
+        cmd
+    };
     let robot = |r: u32| -> Command {
         let g0 = plan.assignment[0][r as usize];
         let mut learner = m.learner.clone();
@@ -200,11 +225,8 @@ pub fn run_once(
         }
         cmd
     };
-    // the coordinator's stop flag: a Ctrl-C, or robots that could not be started at all
-    let stop = AtomicBool::new(false);
-    let finished = AtomicBool::new(false);
     let fleet = Fleet {
-        coordinator: None,
+        coordinator: Some(&coordinator),
         robot: &robot,
         robots: m.robots,
         policy: sup.policy,
@@ -212,66 +234,32 @@ pub fn run_once(
         grace: sup.grace,
         time_limit: Duration::ZERO,
         logs: out,
-        finished: Some(&finished),
+        finished: None,
     };
-    let never = AtomicU32::new(0);
-    let (result, supervised) = std::thread::scope(|s| {
-        let robots = s.spawn(|| {
-            let r = supervise(&fleet, &never, |_, _, _, _| {}, term::warn);
-            if r.is_err() {
-                stop.store(true, Ordering::SeqCst);
-            }
-            r
-        });
-        s.spawn(|| {
-            while !finished.load(Ordering::SeqCst) {
-                if crate::STOP.load(Ordering::SeqCst) {
-                    stop.store(true, Ordering::SeqCst);
-                }
-                std::thread::sleep(Duration::from_millis(20));
-            }
-        });
-        // the coordinator waits for a lost robot while the launcher may still restart it
-        let restarts = match sup.policy {
-            RestartPolicy::Never => 0,
-            RestartPolicy::OnFailure => sup.max_restarts,
-        };
-        let result = run_experiment_with(
-            plan,
-            &ExperimentOptions {
-                run_id: run_id.to_string(),
-                seed,
-                out: out.to_path_buf(),
-                merge: rules.merge,
-            },
-            coordinator::experiment::Supervision {
-                restarts,
-                ..Default::default()
-            },
-            &stop,
-        );
-        finished.store(true, Ordering::SeqCst);
-        let supervised = robots
-            .join()
-            .unwrap_or_else(|_| unreachable!("the supervise thread does not panic"));
-        (result, supervised)
-    });
-    let prefix = bus_schema::names::iceoryx_prefix(run_id);
-    if let Err(e) = bus::clean_stale(&prefix) {
-        term::warn(&format!("warning: cleaning up run {run_id}: {e}"));
-    }
+    let supervised = supervise(&fleet, &crate::INTERRUPTS, |_, _, _, _| {}, term::warn);
+    // whatever happened: no file of the run may stay behind
+    crate::launch::clean_up(run_id);
     let supervised = supervised?;
-    if crate::STOP.load(Ordering::SeqCst) {
+    if supervised.restarts > 0 {
+        term::warn(&format!(
+            "{} process restarts during run {run_id}",
+            supervised.restarts
+        ));
+    }
+    if supervised.exit == Exit::Interrupted {
         return Err(anyhow!("interrupted by Ctrl-C").context(Exit::Interrupted));
     }
-    let result = result?;
     if !supervised.failures.is_empty() {
-        bail!(
+        return Err(anyhow!(
             "{} (logs in {})",
             supervised.failures.join("; "),
             out.display()
-        );
+        )
+        .context(supervised.exit));
     }
+    let result: ExperimentResult = dir
+        .read_json(OutFile::Result)
+        .context("the coordinator wrote no result")?;
     Ok(result)
 }
 
@@ -305,7 +293,7 @@ impl ExperimentCmd {
             pace: self.pace,
         };
         let out_dir =
-            OutDir::prepare(self.out.as_deref(), self.force, "exp").map_err(|e| match e {
+            LaunchDir::prepare(self.out.as_deref(), self.force, "exp").map_err(|e| match e {
                 OutError::Io { .. } => anyhow!(e),
                 e => anyhow!(e).context(Exit::BadInput),
             })?;
@@ -347,17 +335,6 @@ impl ExperimentCmd {
                     )));
                 }
             };
-            let json = serde_json::to_string_pretty(&r)?;
-            let file = dir.join("result.json");
-            if let Err(e) = write_atomic(&file, json.as_bytes()) {
-                let kept = out_dir.keep();
-                bail!(
-                    "writing {}: {e}; kept in {}: {}",
-                    file.display(),
-                    kept.display(),
-                    inventory(&dir)
-                );
-            }
             if !self.json {
                 out!("{}", crate::table::experiment_table(&r))?;
             }

@@ -4,6 +4,7 @@ mod bench;
 mod clean;
 mod eval;
 mod experiment;
+mod launch;
 mod learn;
 mod live;
 mod plots;
@@ -55,8 +56,7 @@ enum Command {
 
 /// SIGINT/SIGTERM received so far (the first stops a run gracefully, the second kills it).
 pub static INTERRUPTS: AtomicU32 = AtomicU32::new(0);
-/// Set on the first SIGINT/SIGTERM: the stop flag of in-process loops (the experiment
-/// coordinator).
+/// Set on the first SIGINT/SIGTERM (a sweep does not retry a run that failed after it).
 pub static STOP: AtomicBool = AtomicBool::new(false);
 
 /// Asks the run to stop gracefully, as SIGINT/SIGTERM do (the live view's `q` calls it too).

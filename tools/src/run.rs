@@ -9,7 +9,7 @@
 //! second Ctrl-C kills at once (SIGTERM to the launcher counts as a Ctrl-C). Afterwards every
 //! shared-memory file of the run is removed. Restarts of failed processes: see
 //! `launcher::supervise`. The run id is claimed exclusively (`launcher::run_id::RunClaim`)
-//! before anything starts.
+//! before anything starts (`crate::launch`, as `qfleet experiment` does).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -20,7 +20,6 @@ use clap::Args;
 use coordinator::{MergeRule, RunResult, WaitStrategy};
 use indicatif::{ProgressBar, ProgressStyle};
 use launcher::out::{OutDir, OutError, inventory};
-use launcher::run_id::{RunClaim, RunIdError};
 use launcher::spawn::sibling;
 use launcher::{Exit, Fleet, RestartPolicy, supervise};
 use qfleet_args::{LearnerArgs, MapArgs};
@@ -96,29 +95,7 @@ impl RunCmd {
         // check everything before starting any process: bad input is exit code 2
         let (task, cfg, grace, time_limit, run_id) = self.check().context(Exit::BadInput)?;
         // the run id is ours alone from here until this process ends, however it ends
-        let claim = RunClaim::acquire(&run_id).map_err(|e| match e {
-            RunIdError::InUse { .. } | RunIdError::Invalid { .. } => {
-                anyhow!(e).context(Exit::BadInput)
-            }
-            e => anyhow!(e),
-        })?;
-        // an earlier run with this id that crashed may have left services half-created (iceoryx2
-        // then reports them as hanging in creation forever): remove its leftovers before any
-        // process of this run exists — unless a process of that run is still alive
-        match bus::clean_stale(&bus_schema::names::iceoryx_prefix(&run_id)) {
-            Ok(r) if !r.alive.is_empty() => {
-                return Err(anyhow!(
-                    "run id {run_id} is in use by a live run ({} process(es) alive); pick another --run-id",
-                    r.alive.len()
-                )
-                .context(Exit::BadInput));
-            }
-            Ok(r) if r.dead_cleaned > 0 || !r.removed.is_empty() => term::warn(&format!(
-                "removed the leftovers of an earlier crashed run with id {run_id}"
-            )),
-            Ok(_) => {}
-            Err(e) => term::warn(&format!("warning: cleaning leftovers of run {run_id}: {e}")),
-        }
+        let claim = crate::launch::claim(&run_id)?;
         let coord_bin = sibling("qfleet-coordinator")?;
         let robot_bin = sibling("robot-agent")?;
         let out_dir =
@@ -164,8 +141,7 @@ impl RunCmd {
         );
         let quit = crate::live::finish(watch);
         // whatever happened: no file of the run may stay behind
-        let cleaned = bus::clean_stale(&bus_schema::names::iceoryx_prefix(&run_id));
-        let leftovers = bus::leftover_files(&bus_schema::names::iceoryx_prefix(&run_id));
+        crate::launch::clean_up(&run_id);
         let result = std::fs::read_to_string(out.join("result.json"))
             .ok()
             .and_then(|t| serde_json::from_str::<RunResult>(&t).ok());
@@ -174,14 +150,6 @@ impl RunCmd {
             && let Err(e) = crate::runplots::write(&out)
         {
             term::warn(&format!("warning: plotting the run: {e:#}"));
-        }
-        if let Err(e) = cleaned {
-            term::warn(&format!("warning: cleaning up run {run_id}: {e}"));
-        }
-        if !leftovers.is_empty() {
-            term::warn(&format!(
-                "warning: files of run {run_id} left behind: {leftovers:?}"
-            ));
         }
         let done = outcome?;
         match &result {
