@@ -245,7 +245,12 @@ episodes = 200
 /// and its run id. `qfleet experiment --run-id` takes a prefix: each seed runs under
 /// `<prefix>-s<seed>-<pid>-<time>`, so the robots' command lines never hold the prefix alone.
 fn experiment_robot(prefix: &str, robot: u32) -> Option<(i32, String)> {
-    let robot_arg = format!("--robot-id\0{robot}\0");
+    experiment_process(prefix, "robot-agent", &format!("--robot-id\0{robot}\0"))
+}
+
+/// The pid and run id of a live process of the experiment started with `--run-id prefix`
+/// whose program is named `program` and whose command line holds `arg` (NUL-separated words).
+fn experiment_process(prefix: &str, program: &str, arg: &str) -> Option<(i32, String)> {
     for e in std::fs::read_dir("/proc").ok()?.flatten() {
         let Some(pid) = e.file_name().to_str().and_then(|n| n.parse::<i32>().ok()) else {
             continue;
@@ -264,9 +269,13 @@ fn experiment_robot(prefix: &str, robot: u32) -> Option<(i32, String)> {
                     .is_none_or(|(_, rest)| rest.trim_start().starts_with('Z'))
             })
             .unwrap_or(true);
+        let named = args
+            .first()
+            .is_some_and(|a| a.rsplit(|&b| b == b'/').next() == Some(program.as_bytes()));
         if let Some(id) = run_id
+            && named
             && id.starts_with(&format!("{prefix}-"))
-            && String::from_utf8_lossy(&cmd).contains(&robot_arg)
+            && String::from_utf8_lossy(&cmd).contains(arg)
             && !zombie
         {
             return Some((pid, id));

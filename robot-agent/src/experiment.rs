@@ -6,7 +6,7 @@
 //!    `Refuse` on `coord/control` (see the `bus` crate's start handshake).
 //! 2. Before each phase `p` the coordinator sends `AssignGoal` to this robot (`goal_id`, goal
 //!    cell, `phase = p`, `episodes`, 0 = the robot's `--episodes`), then `Start` (phase 0) or
-//!    `Phase` (later phases) to all.
+//!    `Phase` (later phases) to all, with `phase = p` too.
 //! 3. The robot learns `episodes` episodes towards its goal, sharing by `--share` (Q hints and
 //!    discoveries tagged with the goal id), and stops the phase early after the episode whose
 //!    greedy path is optimal when `--stop-at-optimum` is given.
@@ -220,10 +220,10 @@ mod tests {
                 report_at_end: false,
             }
         );
-        // the next phase: a new assignment, then Phase
+        // the next phase: a new assignment, then Phase (carrying the phase number)
         p.on(&assign(1, 3, 1, 40));
         assert_eq!(p.take_next(), None);
-        p.on(&ctl(Command::Phase));
+        p.on(&go(Command::Phase, 1));
         let b = p.take_next().unwrap();
         assert_eq!((b.goal_id, b.phase, b.episodes), (1, 1, Some(40)));
         assert!(
