@@ -369,7 +369,9 @@ fn an_experiment_robot_killed_mid_phase_is_restarted_and_warm_started() {
 fn an_experiment_survives_a_coordinator_kill() {
     let dir = scratch("exp-coord-kill");
     let file = dir.join("m.toml");
-    std::fs::write(&file, LONG_TWO_PHASES).expect("write manifest");
+    // a first phase long enough to kill the coordinator in its middle
+    std::fs::write(&file, LONG_TWO_PHASES.replace("episodes = 4000", "episodes = 30000"))
+        .expect("write manifest");
     let id = run_id("xc");
     let seed_dir = dir.join("out").join("seed-2");
     let child = qfleet_suite::spawn(
@@ -379,19 +381,21 @@ fn an_experiment_survives_a_coordinator_kill() {
             .arg(dir.join("out"))
             .arg(&file),
     );
-    // mid-phase: the coordinator has started phase 0 (its checkpoint says so) and no robot has
-    // finished it yet (no phase file)
-    let mut coord = None;
+    // mid-phase: every robot is learning phase 0 and none has finished it yet (no phase file)
+    let mut robot = None;
     assert!(
         qfleet_suite::wait_until(qfleet_suite::PROCESS_TIMEOUT, || {
-            let cp: Option<Value> = std::fs::read_to_string(seed_dir.join("checkpoint.json"))
-                .ok()
-                .and_then(|t| serde_json::from_str(&t).ok());
-            coord = child_with_arg(&id, "--plan", &seed_dir.join("plan.json").display().to_string());
-            coord.is_some() && cp.is_some_and(|c| c["current"]["phase"] == 0)
+            robot = experiment_robot(&id, 0);
+            robot.is_some()
         }),
-        "the experiment's coordinator never started phase 0"
+        "robot 0 of experiment {id} never started"
     );
+    let (_, run) = robot.unwrap();
+    for r in 0..3 {
+        wait_learning(&run, 3, r);
+    }
+    let coord = child_with_arg(&id, "--plan", &seed_dir.join("plan.json").display().to_string());
+    assert!(coord.is_some(), "no coordinator process of {run}");
     let done_before = files_like(&seed_dir, "robot-", "-phase-0.json");
     // SAFETY: kill(2) on the coordinator this test started through qfleet experiment.
     unsafe {
