@@ -19,6 +19,14 @@
 //! Without a policy (`--restart never`, the default) a dead robot is reported lost (and the
 //! coordinator process is told at once, see [`crate::events`]) and the run goes on without it;
 //! a dead coordinator ends the run.
+//!
+//! # Stopping (Ctrl-C/SIGTERM, `--time-limit`, a restart that cannot be made)
+//! Each child has its own process group, so a stop is delivered by the launcher: SIGTERM to the
+//! coordinator process, which stops the robots over the bus and writes its result. Without a
+//! coordinator process, or once it is gone (it may end before its signal handler exists, e.g.
+//! a time limit that passes during start-up), the robots get SIGTERM directly, with a grace
+//! period of their own. Whatever still runs `grace` after it was asked is killed. A child that
+//! ends with 130 or by that SIGTERM answered the stop and is no failure.
 
 use std::io::{BufRead, BufReader};
 use std::os::unix::process::ExitStatusExt;
