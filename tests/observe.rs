@@ -72,3 +72,125 @@ fn a_recorded_run_reads_back_with_the_runs_own_counts() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `qfleet topic list`, `echo` and `hz` attached to a live (paced, so that it lasts) run: the
+/// list says the run is live, echo prints one decodable JSON line per message and sees both
+/// final reports, hz prints JSON rate objects; the run's own result is untouched (every robot
+/// finished, every discovery received) and nothing of the run is left behind.
+#[test]
+fn topic_tools_read_a_live_run_without_changing_it() {
+    use qfleet_suite::{describe, leftovers, run_id, scratch, spawn, wait_bounded, wait_until};
+    use std::process::Stdio;
+    use std::time::Duration;
+    let id = run_id("topic");
+    let dir = scratch(&id);
+    let qfleet = bin_dir().join("qfleet");
+    let timeout = Duration::from_secs(180);
+    let run = spawn(Command::new(&qfleet).args([
+        "run",
+        "--robots",
+        "2",
+        "--map",
+        "builtin:paper-10",
+        "--episodes",
+        "300",
+        "--pace",
+        "4000",
+        "--json",
+        "--run-id",
+        &id,
+    ]));
+    let topic = |args: &[&str]| {
+        let mut c = Command::new(&qfleet);
+        c.arg("topic")
+            .args(args)
+            .args(["--run-id", &id, "--wait", "60"]);
+        c
+    };
+    // into files: a pipe nobody reads while the run goes on would stall the reader
+    let to_file = |args: &[&str], name: &str| {
+        let f = std::fs::File::create(dir.join(name)).unwrap();
+        topic(args)
+            .stdin(Stdio::null())
+            .stdout(f)
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let echo = to_file(&["echo"], "echo.jsonl");
+    let hz = to_file(&["hz", "--json"], "hz.jsonl");
+    // while the run goes on, `list` sees it live
+    let mut listed = serde_json::Value::Null;
+    let live = wait_until(Duration::from_secs(60), || {
+        let out = topic(&["list", "--json"]).output().unwrap();
+        listed = serde_json::from_slice(&out.stdout).unwrap_or_default();
+        listed[0]["live"] == true
+    });
+    assert!(live, "topic list never saw the run live: {listed}");
+    assert_eq!(listed.as_array().map(Vec::len), Some(9), "{listed}");
+    assert_eq!(
+        listed[0]["topic"].as_str().map(|t| t.contains(&id)),
+        Some(true),
+        "{listed}"
+    );
+
+    let run = wait_bounded(run, timeout);
+    assert!(run.status.success(), "{}", describe(&run));
+    let echo = wait_bounded(echo, timeout);
+    assert!(echo.status.success(), "{}", describe(&echo));
+    let hz = wait_bounded(hz, timeout);
+    assert!(hz.status.success(), "{}", describe(&hz));
+
+    // the run's result is what an unobserved run gives
+    let result: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let robots = result["robots"].as_array().unwrap();
+    assert_eq!(robots.len(), 2, "{result}");
+    for r in robots {
+        assert_eq!(r["status"], "finished", "{result}");
+    }
+    assert_eq!(
+        result["discoveries_sent"], result["discoveries_received"],
+        "{result}"
+    );
+
+    // echo: every line is a JSON object naming its topic, with the decoded message
+    let text = std::fs::read_to_string(dir.join("echo.jsonl")).unwrap();
+    let lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect();
+    let of = |t: &str| lines.iter().filter(|l| l["topic"] == t).count();
+    assert!(of("robot/state") > 0, "no robot/state line:\n{text}");
+    assert_eq!(of("robot/report"), 2, "one final report per robot");
+    let discoveries = of("robot/discovery") as u64;
+    assert!(discoveries <= result["discoveries_sent"].as_u64().unwrap());
+    for l in &lines {
+        assert!(
+            l["recv_ns"].as_u64().is_some() && l["msg"].is_object(),
+            "{l}"
+        );
+    }
+    let report = lines.iter().find(|l| l["topic"] == "robot/report").unwrap();
+    assert_eq!(report["msg"]["episodes"], 300, "{report}");
+
+    // hz: JSON objects of rates, the state topic counted
+    let hz_text = std::fs::read_to_string(dir.join("hz.jsonl")).unwrap();
+    let rates: Vec<serde_json::Value> = hz_text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect();
+    assert!(!rates.is_empty(), "hz printed nothing: {}", describe(&hz));
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(
+        rates
+            .iter()
+            .any(|r| r["robot/state"]["total"].as_u64() > Some(0)),
+        "{hz_text}"
+    );
+    for r in &rates {
+        assert!(r["robot/state"]["per_s"].as_f64().is_some(), "{r}");
+    }
+
+    let left = leftovers(&id);
+    assert!(left.is_empty(), "files of the run left behind: {left:?}");
+}

@@ -3,9 +3,10 @@
 //! open one subscriber on every topic and drain them all, fast, without ever publishing.
 //!
 //! What an outsider costs the run: one node and one subscriber per topic, taken from the
-//! spare ports the bus sizes every service with (`BusConfig::spare_ports`). On lossless topics
-//! the publishers wait for every connected subscriber, so [`Observer::poll`] must be called in
-//! a tight loop; it takes everything buffered on every topic each time.
+//! spare ports the bus sizes every service with (`BusConfig::spare_ports`). A lossless send
+//! never waits for an outside reader: a full buffer of ours drops that sample for us alone, so
+//! [`Observer::poll`] must be called in a tight loop to see everything; it takes everything
+//! buffered on every topic each time.
 
 use std::time::{Duration, Instant};
 
@@ -51,7 +52,6 @@ pub struct Observer {
     ack: Inbox<DiscoveryAck>,
     relay: Inbox<DiscoveryRelay>,
     _node: Node<ipc::Service>,
-    node_name: String,
     run_id: String,
 }
 
@@ -94,9 +94,11 @@ impl Observer {
     /// Joins run `run_id` now (its services must exist).
     pub fn open(run_id: &str) -> Result<Self, ObserveError> {
         let cfg = BusConfig::new(run_id, 1)?;
-        let name = format!("qfleet-observer-{}", std::process::id());
-        let node = cfg.create_node(&name)?;
-        let node_name = name;
+        let node = cfg.create_node(&format!(
+            "{}{}",
+            bus::OBSERVER_NODE_PREFIX,
+            std::process::id()
+        ))?;
         Ok(Self {
             register: Inbox::open(&node, &cfg)?,
             state: Inbox::open(&node, &cfg)?,
@@ -108,7 +110,6 @@ impl Observer {
             ack: Inbox::open(&node, &cfg)?,
             relay: Inbox::open(&node, &cfg)?,
             _node: node,
-            node_name,
             run_id: run_id.to_string(),
         })
     }
@@ -122,7 +123,7 @@ impl Observer {
     /// time (monotonic ns); returns how many there were.
     pub fn poll(&self, mut f: impl FnMut(u64, Msg<'_>)) -> Result<usize, ObserveError> {
         let mut n = 0;
-        // lossless topics first: their publishers wait for us
+        // lossless topics first: a full buffer there loses messages for us
         n += self
             .control
             .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Control(m)))?;
@@ -153,14 +154,17 @@ impl Observer {
         Ok(n)
     }
 
-    /// Whether any process of the run other than this observer is alive (false once the run
-    /// ended; then drop the observer and call [`leave`]).
+    /// Whether any process of the run is alive, outside readers (this one and others) not
+    /// counted: false once the run ended, even while another `topic echo` is still attached
+    /// (then drop the observer and call [`leave`]).
     pub fn run_alive(&self) -> bool {
         let Ok(cfg) = BusConfig::new(&self.run_id, 1) else {
             return false;
         };
         match bus::check_nodes(&cfg, false) {
-            Ok(r) => r.alive().any(|n| n.name != self.node_name),
+            Ok(r) => r
+                .alive()
+                .any(|n| !n.name.starts_with(bus::OBSERVER_NODE_PREFIX)),
             // unreadable bookkeeping: assume alive, the caller's stop flag still ends the loop
             Err(_) => true,
         }

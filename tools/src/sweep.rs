@@ -258,12 +258,10 @@ impl SweepCmd {
                             merged_t.push(t);
                         }
                         avg.push(gp.avg_steps);
-                        term::warn(&format!(
-                            "sweep: {map} N={n} {label} seed {seed}: own optimum after {} steps/robot, merged after {}",
-                            gp.robot_steps_to_optimal
-                                .map_or("-".into(), |s| format!("{s:.0}")),
-                            gp.merged_steps_per_robot
-                                .map_or("-".into(), |s| format!("{s:.0}")),
+                        term::warn(&progress_line(
+                            &format!("{map} N={n} {label} seed {seed}"),
+                            gp.robot_steps_to_optimal,
+                            gp.merged_steps_per_robot,
                         ));
                     }
                     let robot_steps = mean(&own);
@@ -456,6 +454,21 @@ fn plot(path: &Path, rows: &[Row]) -> Result<()> {
     Ok(())
 }
 
+/// One run's line on stderr: when the robots' own tables and the merged table first gave the
+/// optimal path, in env steps per robot (words, not `-`, when never).
+fn progress_line(run: &str, own: Option<f64>, merged: Option<f64>) -> String {
+    let when = |v: Option<f64>| {
+        v.map_or("never reached".into(), |s| {
+            format!("after {s:.0} steps/robot")
+        })
+    };
+    format!(
+        "sweep: {run}: own optimum {}, merged optimum {}",
+        when(own),
+        when(merged)
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::median;
@@ -467,5 +480,15 @@ mod tests {
         assert_eq!(median(&mut [4.0, 1.0, f64::INFINITY]), Some(4.0));
         assert_eq!(median(&mut [1.0, f64::INFINITY]), None);
         assert_eq!(median(&mut [1.0, 2.0, 3.0, f64::INFINITY]), Some(2.5));
+    }
+
+    #[test]
+    fn a_progress_line_says_never_in_words() {
+        let s = super::progress_line("m N=2 none seed 1", Some(461_430.4), None);
+        assert_eq!(
+            s,
+            "sweep: m N=2 none seed 1: own optimum after 461430 steps/robot, merged optimum never reached"
+        );
+        assert!(!s.contains(" - ") && !s.contains("Some("), "{s}");
     }
 }
