@@ -667,9 +667,8 @@ mod tests {
             c.args(["-c", "exec sleep 60"]);
             c
         };
-        let robot = sh(
-            r#"trap 'echo got SIGTERM >&2; exit 130' TERM; echo ready >&2; sleep 60 & wait"#,
-        );
+        let robot =
+            sh(r#"trap 'echo got SIGTERM >&2; exit 130' TERM; echo ready >&2; sleep 60 & wait"#);
         let mut f = fleet(&robot, d.path(), RestartPolicy::Never);
         f.coordinator = Some(&coordinator);
         // a grace so long that a robot left to it would fail the test
