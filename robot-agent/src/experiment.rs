@@ -223,7 +223,8 @@ mod tests {
         // the next phase: a new assignment, then Phase
         p.on(&assign(1, 3, 1, 40));
         assert_eq!(p.take_next(), None);
-        p.on(&ctl(Command::Phase));
+        // the coordinator's `Phase` names the phase it starts (one of phase 0 is a repeat)
+        p.on(&go(Command::Phase, 1));
         let b = p.take_next().unwrap();
         assert_eq!((b.goal_id, b.phase, b.episodes), (1, 1, Some(40)));
         assert!(
