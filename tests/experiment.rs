@@ -404,7 +404,11 @@ fn an_experiment_survives_a_coordinator_kill() {
     for r in 0..3 {
         wait_learning(&run, 3, r);
     }
-    let coord = child_with_arg(&id, "--plan", &seed_dir.join("plan.json").display().to_string());
+    let coord = child_with_arg(
+        &id,
+        "--plan",
+        &seed_dir.join("plan.json").display().to_string(),
+    );
     assert!(coord.is_some(), "no coordinator process of {run}");
     let done_before = files_like(&seed_dir, "robot-", "-phase-0.json");
     // SAFETY: kill(2) on the coordinator this test started through qfleet experiment.
@@ -447,7 +451,10 @@ fn an_experiment_survives_a_coordinator_kill() {
         let text = std::fs::read_to_string(seed_dir.join(format!("robot-{robot}.json")))
             .expect("robot result");
         let rr: report::RobotResult = serde_json::from_str(&text).expect("a RobotResult");
-        assert_eq!(rr.counters.link.coordinator_losses, 1, "robot {robot}: {text}");
+        assert_eq!(
+            rr.counters.link.coordinator_losses, 1,
+            "robot {robot}: {text}"
+        );
         assert_eq!(rr.counters.link.rejoins, 1, "robot {robot}: {text}");
     }
     let left = leftovers(&id);

@@ -231,12 +231,19 @@ mod tests {
         // killed during phase 1: the next process resumes phase 1 with its start time
         let mut d = Checkpoint::resume(reread(&c), "r", 1, 3, 400);
         assert_eq!((d.next_phase(), d.restarts(), d.began_ns), (1, 1, 100));
-        assert_eq!(d.start_phase(1, 500), 300, "a resumed phase keeps its clock");
+        assert_eq!(
+            d.start_phase(1, 500),
+            300,
+            "a resumed phase keeps its clock"
+        );
         // the robots replayed all 7 earlier discoveries and made 5 new ones
         d.phase_done(phase(1, &[2, 3]), life(12, 20));
         assert_eq!(d.phases[1].discoveries_received, 5);
         assert_eq!(d.phases[1].discoveries_sent, 5);
-        assert_eq!(d.totals.q_updates_merged, 70, "earlier processes' counts carried");
+        assert_eq!(
+            d.totals.q_updates_merged, 70,
+            "earlier processes' counts carried"
+        );
         assert_eq!(d.start_phase(2, 600), 600);
     }
 

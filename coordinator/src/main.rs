@@ -78,9 +78,11 @@ fn experiment(args: &CoordArgs, file: &std::path::Path, stop: &AtomicBool) -> Ex
         });
     match done {
         Ok(r) => {
-            let incomplete = r.phases.iter().flat_map(|p| &p.robots).any(|x| {
-                matches!(x.status, RobotOutcome::Lost | RobotOutcome::Missing)
-            });
+            let incomplete = r
+                .phases
+                .iter()
+                .flat_map(|p| &p.robots)
+                .any(|x| matches!(x.status, RobotOutcome::Lost | RobotOutcome::Missing));
             eprintln!(
                 "qfleet-coordinator: experiment {} done: {} phases{}, {} coordinator restarts",
                 r.run_id,

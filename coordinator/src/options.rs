@@ -90,7 +90,7 @@ pub enum CoordError {
     Task(#[from] qfleet_args::ArgsError),
     /// The experiment plan (`--plan`) cannot be read or does not fit together.
     #[error("the experiment plan")]
-    Plan(#[source] crate::plan::PlanError),
+    Plan(#[source] Box<crate::plan::PlanError>),
     /// The map is larger than the wire format's 65535 cells a side.
     #[error("maps larger than 65535 cells a side are not supported ({width}x{height})")]
     MapTooLarge {

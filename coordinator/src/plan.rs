@@ -75,7 +75,7 @@ pub enum PlanError {
         spec: String,
         /// Why.
         #[source]
-        source: planner::map::MapError,
+        source: Box<planner::map::MapError>,
     },
     /// A field is out of shape or range.
     #[error("{field}: {reason}")]
@@ -142,7 +142,10 @@ impl ExperimentPlan {
         if !(self.timeout_s.is_finite() && self.timeout_s > 0.0) {
             return Err(bad(
                 "timeout_s",
-                format!("must be a positive number of seconds, got {}", self.timeout_s),
+                format!(
+                    "must be a positive number of seconds, got {}",
+                    self.timeout_s
+                ),
             ));
         }
         if self.goals.is_empty() || self.goals.len() > u32::MAX as usize {
@@ -177,7 +180,10 @@ impl ExperimentPlan {
             if row.len() != n || row.iter().any(|&g| g >= self.goals.len()) {
                 return Err(bad(
                     "assignment",
-                    format!("phase {p}: one goal index below {} per robot", self.goals.len()),
+                    format!(
+                        "phase {p}: one goal index below {} per robot",
+                        self.goals.len()
+                    ),
                 ));
             }
         }
@@ -190,7 +196,7 @@ impl ExperimentPlan {
         self.check_shape()?;
         let map = planner::map::load_map(&self.map).map_err(|source| PlanError::Map {
             spec: self.map.clone(),
-            source,
+            source: Box::new(source),
         })?;
         let g = &map.grid;
         let free = |c: Cell| g.contains(i64::from(c.x), i64::from(c.y)) && g.is_free(c);
@@ -224,7 +230,7 @@ impl ExperimentPlan {
 
 impl From<PlanError> for CoordError {
     fn from(e: PlanError) -> Self {
-        CoordError::Plan(e)
+        CoordError::Plan(Box::new(e))
     }
 }
 
@@ -260,13 +266,15 @@ mod tests {
         let p = plan();
         let map = p.check().unwrap();
         assert_eq!(map.grid.width(), 10);
-        let back: ExperimentPlan = serde_json::from_str(&serde_json::to_string(&p).unwrap()).unwrap();
+        let back: ExperimentPlan =
+            serde_json::from_str(&serde_json::to_string(&p).unwrap()).unwrap();
         assert_eq!(back, p);
     }
 
     #[test]
     fn parts_that_do_not_fit_are_refused_with_the_field() {
-        let cases: [(&str, fn(&mut ExperimentPlan)); 7] = [
+        type Break = fn(&mut ExperimentPlan);
+        let cases: [(&str, Break); 7] = [
             ("robots", |p| p.robots = 0),
             ("timeout_s", |p| p.timeout_s = f64::NAN),
             ("phases", |p| p.phases[0].episodes = 0),
@@ -289,7 +297,10 @@ mod tests {
     fn cells_off_the_map_or_on_walls_are_refused() {
         let mut p = plan();
         p.goals[0].cell = Cell::new(10, 0);
-        assert!(matches!(p.check(), Err(PlanError::Field { field: "goals", .. })));
+        assert!(matches!(
+            p.check(),
+            Err(PlanError::Field { field: "goals", .. })
+        ));
         let mut p = plan();
         p.map = "builtin:nope".into();
         assert!(matches!(p.check(), Err(PlanError::Map { .. })));

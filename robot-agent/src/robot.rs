@@ -35,7 +35,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::{
-    Command, FinalReport, PseudoTargetDiscovery, Register, RobotStatus, SCHEMA_VERSION, map_fingerprint,
+    Command, FinalReport, PseudoTargetDiscovery, Register, RobotStatus, SCHEMA_VERSION,
+    map_fingerprint,
 };
 use bus::iceoryx2::identifiers::UniquePublisherId;
 use bus::{BusConfig, BusError, RobotBus, monotonic_ns};
