@@ -1,4 +1,4 @@
-//! An experiment's progress, kept in `checkpoint.json` in its out directory so that a
+//! An experiment's progress, kept in `experiment-checkpoint.json` in its out directory so that a
 //! coordinator process started again after a crash resumes it: the phases done are not run
 //! again, the phase under way keeps its start time, the counts of earlier coordinator processes
 //! are carried over.

@@ -16,7 +16,7 @@
 //!    time it equals the BFS optimum.
 //! 3. Read each robot's `robot-<id>-phase-<p>.json` (its per-episode log) to turn that time into
 //!    env steps per robot (interpolated between the robot's episode ends).
-//! 4. Keep the phase's result in `checkpoint.json` ([`Checkpoint`]).
+//! 4. Keep the phase's result in `experiment-checkpoint.json` ([`Checkpoint`]).
 //!
 //! After the last phase: `Stop` to all.
 //!
@@ -78,7 +78,7 @@ pub fn run(
     };
     let dir = OutDir::new(&args.out);
     dir.create()?;
-    let prev = match dir.read_json::<Checkpoint>(OutFile::Checkpoint) {
+    let prev = match dir.read_json::<Checkpoint>(OutFile::ExperimentCheckpoint) {
         Ok(c) => Some(c),
         Err(ReadError::Io { .. }) => None,
         Err(e) => {
@@ -102,7 +102,7 @@ pub fn run(
             plan.phases.len()
         );
     }
-    dir.write_json(OutFile::Checkpoint, &cp)?;
+    dir.write_json(OutFile::ExperimentCheckpoint, &cp)?;
     let cfg = bus_config(args, plan.robots)?;
     let bus = CoordinatorBus::create(&cfg)?;
     let expected = Expected {
@@ -210,7 +210,7 @@ fn drive(
     let mut interrupted = false;
     for p in cp.next_phase()..plan.phases.len() {
         let phase_ns = cp.start_phase(p, monotonic_ns());
-        ctx.dir.write_json(OutFile::Checkpoint, &*cp)?;
+        ctx.dir.write_json(OutFile::ExperimentCheckpoint, &*cp)?;
         let mut watches = watches(plan, ctx.map, p);
         let plan_p = plan.assignment[p]
             .iter()
@@ -253,7 +253,7 @@ fn drive(
             break;
         }
         *cp = ended.clone();
-        ctx.dir.write_json(OutFile::Checkpoint, &*cp)?;
+        ctx.dir.write_json(OutFile::ExperimentCheckpoint, &*cp)?;
     }
     tolerate(bus.stop(ROBOT_ID_ALL))?;
     let totals = ended.totals_with(life_counts(engine));

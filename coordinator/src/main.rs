@@ -1,6 +1,6 @@
 //! `qfleet-coordinator`: the coordinator process of a qfleet run (started by `qfleet run`) or,
 //! with `--plan plan.json`, of one repetition of an experiment (started by `qfleet
-//! experiment`; a coordinator started again resumes the experiment from `checkpoint.json`).
+//! experiment`; a coordinator started again resumes the experiment from `experiment-checkpoint.json`).
 //!
 //! Exit codes (the same for runs and experiments):
 //! - 0: the run (every phase) completed and every robot reported;

@@ -66,7 +66,7 @@ pub struct CoordArgs {
     pub restarts: u32,
     /// Run an experiment: the resolved plan `qfleet experiment` wrote (`plan.json`); the fleet
     /// size, map, goals, phases and timeout come from it (`--robots`, the map options and
-    /// `--timeout` are not used). Its progress is kept in `checkpoint.json` in `--out`, and a
+    /// `--timeout` are not used). Its progress is kept in `experiment-checkpoint.json` in `--out`, and a
     /// coordinator started again with the same run id resumes from it.
     #[arg(long, value_name = "FILE.json")]
     pub plan: Option<PathBuf>,

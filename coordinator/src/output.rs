@@ -1,7 +1,7 @@
 //! File output of the coordinator: `result.json` (written atomically through the `report`
 //! crate: a temporary file in the same directory, then a rename, so a reader never sees half a
 //! result) and, for a run, one `latency-<path>.hgrm` per measured latency path. (An
-//! experiment's `checkpoint.json` is written by its driver through the same writer.)
+//! experiment's `experiment-checkpoint.json` is written by its driver through the same writer.)
 
 use report::hist;
 /// The out directory and its file names, as launchers read what the coordinator wrote.

@@ -65,9 +65,10 @@ pub struct ExperimentPlan {
 /// A plan that does not fit together.
 #[derive(Debug, thiserror::Error)]
 pub enum PlanError {
-    /// The plan file could not be read or is not a plan.
-    #[error(transparent)]
-    Read(#[from] report::ReadError),
+    /// The plan file could not be read or is not a plan (its message names the file and the
+    /// cause already, so it is not repeated as a source).
+    #[error("{0}")]
+    Read(report::ReadError),
     /// Its map cannot be loaded.
     #[error("the plan's map {spec:?}")]
     Map {
@@ -225,6 +226,12 @@ impl ExperimentPlan {
                 source,
             })
         })
+    }
+}
+
+impl From<report::ReadError> for PlanError {
+    fn from(e: report::ReadError) -> Self {
+        PlanError::Read(e)
     }
 }
 

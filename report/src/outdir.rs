@@ -4,14 +4,14 @@
 //! |-------------------------------|---------------|----------------------------------------------|
 //! | `result.json`                 | coordinator   | the run's result (the launcher reads it)     |
 //! | `plan.json`                   | launcher      | an experiment's resolved plan (coordinator `--plan`) |
-//! | `checkpoint.json`             | coordinator   | an experiment's progress: phases done, their results |
+//! | `experiment-checkpoint.json`  | coordinator   | an experiment's progress: phases done, their results |
 //! | `robot-<id>.json`             | robot         | [`RobotResult`](crate::RobotResult)          |
 //! | `robot-<id>-phase-<p>.json`   | robot         | [`PhaseDetail`](crate::PhaseDetail) of a phase |
 //! | `robot-<id>-episodes.csv`     | robot         | one line per episode                         |
 //! | `robot-<id>-loop.hdr`         | robot         | loop latency, hdrhistogram V2 binary         |
 //! | `robot-<id>-merged.hdr`       | robot         | merged-batch latency, V2 binary              |
 //! | `latency-<path>.hgrm`         | coordinator   | percentile file of one measured path         |
-//! | `coordinator-checkpoint.json` | coordinator   | [`CoordinatorCheckpoint`](crate::CoordinatorCheckpoint): what a restarted coordinator resumes from |
+//! | `coordinator-checkpoint.json` | coordinator   | [`CoordinatorCheckpoint`](crate::CoordinatorCheckpoint): what a restarted run coordinator resumes from |
 //! | `coordinator.log`             | launcher      | the coordinator's stderr                     |
 //! | `robot-<id>.log`              | launcher      | a robot's stderr                             |
 //! | `latency.svg`, `steps.svg`    | launcher      | figures of the run                           |
@@ -108,8 +108,8 @@ pub enum OutFile {
     Result,
     /// `plan.json`.
     Plan,
-    /// `checkpoint.json`.
-    Checkpoint,
+    /// `experiment-checkpoint.json`.
+    ExperimentCheckpoint,
     /// `robot-<id>.json`.
     Robot(u32),
     /// `robot-<id>-phase-<p>.json`.
@@ -148,7 +148,7 @@ impl OutFile {
         match self {
             OutFile::Result => "result.json".into(),
             OutFile::Plan => "plan.json".into(),
-            OutFile::Checkpoint => "checkpoint.json".into(),
+            OutFile::ExperimentCheckpoint => "experiment-checkpoint.json".into(),
             OutFile::Robot(id) => format!("robot-{id}.json"),
             OutFile::RobotPhase { robot, phase } => format!("robot-{robot}-phase-{phase}.json"),
             OutFile::RobotEpisodes(id) => format!("robot-{id}-episodes.csv"),
@@ -167,7 +167,7 @@ impl OutFile {
         match name {
             "result.json" => return Some(OutFile::Result),
             "plan.json" => return Some(OutFile::Plan),
-            "checkpoint.json" => return Some(OutFile::Checkpoint),
+            "experiment-checkpoint.json" => return Some(OutFile::ExperimentCheckpoint),
             "coordinator.log" => return Some(OutFile::CoordinatorLog),
             "coordinator-checkpoint.json" => return Some(OutFile::CoordinatorCheckpoint),
             "latency.svg" => return Some(OutFile::LatencyPlot),
@@ -338,7 +338,7 @@ mod tests {
         let mut v = vec![
             OutFile::Result,
             OutFile::Plan,
-            OutFile::Checkpoint,
+            OutFile::ExperimentCheckpoint,
             OutFile::Robot(0),
             OutFile::Robot(255),
             OutFile::RobotPhase {

@@ -4,7 +4,7 @@
 //! (the resolved plan of that seed, written into the seed's directory), the robots are
 //! `robot-agent` processes, all found next to `qfleet` and supervised with the same restart
 //! policy. A coordinator restarted after a crash resumes the experiment from the
-//! `checkpoint.json` it keeps in the same directory; the result is its `result.json`.
+//! `experiment-checkpoint.json` it keeps in the same directory; the result is its `result.json`.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -171,7 +171,7 @@ pub fn run_once(
     dir.create()?;
     // the checkpoint and result of an earlier experiment in this directory (`--force`) are
     // not ours: this run starts at its first phase, and an old result must not pass for ours
-    for f in [OutFile::Checkpoint, OutFile::Result] {
+    for f in [OutFile::ExperimentCheckpoint, OutFile::Result] {
         let _ = std::fs::remove_file(dir.path(f));
     }
     let plan_file = dir.write_json(
