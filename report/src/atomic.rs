@@ -243,7 +243,7 @@ mod tests {
                 return;
             }
         };
-        let (step, source) = fill(&mut f, b"x").unwrap_err();
+        let (step, source) = fill(&mut f, b"x", Durability::Disk).unwrap_err();
         assert_eq!(step, WriteStep::Write);
         let e = WriteError {
             path: "/out/result.json".into(),
