@@ -24,7 +24,10 @@ use crate::liveness::{Life, Lister};
 use crate::options::{CoordArgs, CoordError, bus_config, secs};
 use crate::wait::{Serving, Waiting, serve};
 use crate::{assemble, output};
-use report::{CoordinatorCheckpoint, OutDir, OutFile, ReadError, RunResult};
+use report::{
+    CoordinatorCheckpoint, Durability, OutDir, OutFile, ReadError, RunResult,
+    write_json_atomic_with,
+};
 
 /// How often the liveness thread lists the run's nodes.
 pub(crate) const LIST_EVERY: Duration = Duration::from_millis(100);
@@ -174,7 +177,10 @@ impl Checkpoints {
     fn write(&mut self, engine: &Engine, complete: bool) {
         self.last = Instant::now();
         let cp = engine.checkpoint(&self.run_id, complete);
-        if let Err(e) = self.dir.write_json(OutFile::CoordinatorCheckpoint, &cp)
+        // atomic, without fsync: it is for a coordinator process that dies, not a machine, and
+        // the serving loop must not wait for a busy disk every second
+        let path = self.dir.path(OutFile::CoordinatorCheckpoint);
+        if let Err(e) = write_json_atomic_with(&path, &cp, Durability::Process)
             && !std::mem::replace(&mut self.warned, true)
         {
             eprintln!("qfleet-coordinator: warning: checkpoint not written: {e}");

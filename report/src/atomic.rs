@@ -63,6 +63,18 @@ impl WriteError {
     }
 }
 
+/// What an atomic write waits for before it returns.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Durability {
+    /// The bytes and the rename are on the disk (`fsync` of the file and its directory): the
+    /// file survives a power loss. Results.
+    Disk,
+    /// The rename is done (no `fsync`): the file survives the death of the writing process,
+    /// not of the machine, and a write never waits for a busy disk. A checkpoint rewritten
+    /// every second from a serving loop.
+    Process,
+}
+
 /// Makes temporary names unique between the threads of one process (the pid separates processes).
 static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
 
@@ -71,6 +83,15 @@ static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
 /// The directory must exist. On any error the temporary file is removed and `path` is left as
 /// it was.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), WriteError> {
+    write_atomic_with(path, bytes, Durability::Disk)
+}
+
+/// [`write_atomic`] with the [`Durability`] asked for.
+pub fn write_atomic_with(
+    path: &Path,
+    bytes: &[u8],
+    durability: Durability,
+) -> Result<(), WriteError> {
     let err = |step: WriteStep| {
         move |source: std::io::Error| WriteError {
             path: path.to_path_buf(),
@@ -99,12 +120,13 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), WriteError> {
         .create_new(true)
         .open(&temp)
         .map_err(err(WriteStep::Create))?;
-    let written = fill(&mut f, bytes).and_then(|step| {
+    let written = fill(&mut f, bytes, durability).and_then(|step| {
         std::fs::rename(&temp, path)
             .map_err(|e| (WriteStep::Rename, e))
             .map(|()| step)
     });
     match written {
+        Ok(()) if durability == Durability::Process => Ok(()),
         Ok(()) => {
             // the rename is durable once the directory is flushed; a directory that cannot be
             // opened for that (some filesystems) leaves the file written, which is what matters
@@ -120,9 +142,16 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), WriteError> {
     }
 }
 
-fn fill(f: &mut File, bytes: &[u8]) -> Result<(), (WriteStep, std::io::Error)> {
+fn fill(
+    f: &mut File,
+    bytes: &[u8],
+    durability: Durability,
+) -> Result<(), (WriteStep, std::io::Error)> {
     f.write_all(bytes).map_err(|e| (WriteStep::Write, e))?;
-    f.sync_all().map_err(|e| (WriteStep::Sync, e))
+    match durability {
+        Durability::Disk => f.sync_all().map_err(|e| (WriteStep::Sync, e)),
+        Durability::Process => Ok(()),
+    }
 }
 
 /// Serialises `value` as pretty JSON and writes it with [`write_atomic`].
@@ -130,12 +159,21 @@ pub fn write_json_atomic<T: serde::Serialize + ?Sized>(
     path: &Path,
     value: &T,
 ) -> Result<(), WriteError> {
+    write_json_atomic_with(path, value, Durability::Disk)
+}
+
+/// [`write_json_atomic`] with the [`Durability`] asked for.
+pub fn write_json_atomic_with<T: serde::Serialize + ?Sized>(
+    path: &Path,
+    value: &T,
+    durability: Durability,
+) -> Result<(), WriteError> {
     let json = serde_json::to_vec_pretty(value).map_err(|e| WriteError {
         path: path.to_path_buf(),
         step: WriteStep::Encode,
         source: std::io::Error::other(e),
     })?;
-    write_atomic(path, &json)
+    write_atomic_with(path, &json, durability)
 }
 
 #[cfg(test)]
@@ -147,6 +185,22 @@ mod tests {
         let _ = std::fs::remove_dir_all(&d);
         std::fs::create_dir_all(&d).unwrap();
         d
+    }
+
+    #[test]
+    fn a_write_without_fsync_still_replaces_the_file_whole() {
+        let d = scratch("atomic-process");
+        let p = d.join("cp.json");
+        write_json_atomic_with(&p, &[1, 2], Durability::Process).unwrap();
+        write_json_atomic_with(&p, &[3], Durability::Process).unwrap();
+        let back: Vec<u32> = serde_json::from_slice(&std::fs::read(&p).unwrap()).unwrap();
+        assert_eq!(back, vec![3]);
+        assert_eq!(
+            std::fs::read_dir(&d).unwrap().count(),
+            1,
+            "no temporary left"
+        );
+        let _ = std::fs::remove_dir_all(&d);
     }
 
     #[test]
@@ -189,7 +243,7 @@ mod tests {
                 return;
             }
         };
-        let (step, source) = fill(&mut f, b"x").unwrap_err();
+        let (step, source) = fill(&mut f, b"x", Durability::Disk).unwrap_err();
         assert_eq!(step, WriteStep::Write);
         let e = WriteError {
             path: "/out/result.json".into(),

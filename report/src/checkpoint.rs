@@ -2,8 +2,9 @@
 //! in the middle of a run (`qfleet run --restart on-failure`) takes over from the one that died.
 //!
 //! The coordinator writes it about once a second while the run is served and once more at the
-//! end (marked [`complete`](CoordinatorCheckpoint::complete)), through the atomic writer, so a
-//! reader never sees half of one. It is small on purpose: counters, the liveness record and
+//! end (marked [`complete`](CoordinatorCheckpoint::complete)), through the atomic writer
+//! without `fsync` ([`Durability::Process`](crate::Durability::Process)): a reader never sees
+//! half of one, and the serving loop never waits for a busy disk. It is small on purpose: counters, the liveness record and
 //! the fleet's robot states, not the fleet tables (a restarted coordinator's tables fill again
 //! from the robots' hints) nor the latency histograms (they restart empty).
 //!

@@ -23,7 +23,10 @@ pub mod outdir;
 pub mod robot;
 pub mod run;
 
-pub use atomic::{WriteError, WriteStep, write_atomic, write_json_atomic};
+pub use atomic::{
+    Durability, WriteError, WriteStep, write_atomic, write_atomic_with, write_json_atomic,
+    write_json_atomic_with,
+};
 pub use checkpoint::{CoordinatorCheckpoint, NotResumed, RobotCheckpoint};
 pub use hist::{HistError, LatencyStats};
 pub use outdir::{LatencyPath, OutDir, OutFile, ReadError, RobotHist};
