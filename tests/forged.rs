@@ -15,7 +15,7 @@ use bus::bus_schema::{
     Command as Cmd, Control, FinalReport, HINT_BATCH_CAP, QHint, QHintBatch, ROBOT_ID_ALL,
     RobotState, SCHEMA_VERSION,
 };
-use bus::{BusConfig, Observer, Outbox, monotonic_ns};
+use bus::{BusConfig, Inbox, Observer, Outbox, monotonic_ns};
 use qfleet_suite::{
     PROCESS_TIMEOUT, bin, describe, leftovers, run_id, scratch, spawn, wait_bounded,
 };
@@ -24,7 +24,7 @@ use serde_json::Value;
 /// Robots of every run here; the forgeries name robots 0–3.
 const ROBOTS: u32 = 4;
 /// Episodes per robot: long enough that the forger acts while the robots learn.
-const EPISODES: &str = "40000";
+const EPISODES: &str = "100000";
 /// Cells of `builtin:paper-20`.
 const CELLS: u32 = 20 * 20;
 
@@ -65,8 +65,12 @@ fn forge_during_run(tag: &str, forge: impl FnOnce(&Observer)) -> Ran {
     );
     let cfg = BusConfig::new(id.as_str(), ROBOTS).expect("config");
     let observer = Observer::join(&cfg, "forger", PROCESS_TIMEOUT).expect("join the run");
-    wait_learning(&observer);
+    let state = observer.inbox::<RobotState>().expect("state inbox");
+    wait_learning(&state, 0);
     forge(&observer);
+    // every robot was still learning after the last forgery: it met them mid-run
+    wait_learning(&state, monotonic_ns());
+    drop(state);
     drop(observer);
     let out = wait_bounded(child, PROCESS_TIMEOUT);
     let result = serde_json::from_slice(&out.stdout)
@@ -79,20 +83,27 @@ fn forge_during_run(tag: &str, forge: impl FnOnce(&Observer)) -> Ran {
     }
 }
 
-/// Waits (bounded) until every robot published a state: the start handshake is over.
-fn wait_learning(observer: &Observer) {
-    let state = observer.inbox::<RobotState>().expect("state inbox");
+/// Waits (bounded) until every robot published a state sent after `after_ns` (monotonic) from
+/// an episode before its last: the robots are learning (past the start handshake, not done).
+fn wait_learning(state: &Inbox<RobotState>, after_ns: u64) {
+    let last: u32 = EPISODES.parse().expect("episodes");
     let deadline = Instant::now() + PROCESS_TIMEOUT;
     let mut seen = [false; ROBOTS as usize];
     while seen.contains(&false) {
         while let Some(s) = state.receive().expect("receive") {
-            if let Some(x) = seen.get_mut(s.robot_id as usize) {
+            if s.send_time_ns > after_ns
+                && s.episode + 1 < last
+                && let Some(x) = seen.get_mut(s.robot_id as usize)
+            {
                 *x = true;
             }
         }
         assert!(
             Instant::now() < deadline,
-            "the robots never started learning"
+            "robots {:?} were not learning (after {after_ns} ns); a run too short for the test?",
+            (0..ROBOTS)
+                .filter(|&i| !seen[i as usize])
+                .collect::<Vec<_>>()
         );
         std::thread::sleep(Duration::from_millis(5));
     }
@@ -130,6 +141,9 @@ fn assert_completed(ran: &Ran) {
 fn forged_final_reports_are_rejected_and_the_real_reports_arrive() {
     let ran = forge_during_run("forged-report", |o| {
         let report = Outbox::<FinalReport>::open(o.node(), o.config()).expect("report outbox");
+        // the subscriber must see the new publisher first (see the forged Stop below)
+        report.connect().expect("connect");
+        std::thread::sleep(Duration::from_millis(300));
         rounds(5, |_| {
             for robot in 0..4 {
                 let _ = report.send_and_notify(&FinalReport {
@@ -166,6 +180,13 @@ fn forged_final_reports_are_rejected_and_the_real_reports_arrive() {
 fn a_forged_stop_is_dropped_and_counted_and_the_run_completes() {
     let ran = forge_during_run("forged-stop", |o| {
         let control = Outbox::<Control>::open(o.node(), o.config()).expect("control outbox");
+        // Let the robots' subscribers see the new publisher before it sends. Without this, in
+        // about 1 of 5 runs two robots saw none of the forged controls although every send
+        // reported 4 receivers: a publisher's first samples, sent before a subscriber updated
+        // its connections, can be lost (never obeyed either: the run still completed). Open:
+        // a restarted coordinator's first controls are such samples too.
+        control.connect().expect("connect");
+        std::thread::sleep(Duration::from_millis(300));
         rounds(5, |round| {
             for robot in [ROBOT_ID_ALL, 0, 1, 2, 3] {
                 let _ = control.send_and_notify(&Control {
@@ -198,6 +219,8 @@ fn a_forged_stop_is_dropped_and_counted_and_the_run_completes() {
 fn forged_hints_from_another_node_are_rejected_and_every_robot_keeps_a_greedy_path() {
     let ran = forge_during_run("forged-hints", |o| {
         let hints = Outbox::<QHintBatch>::open(o.node(), o.config()).expect("hints outbox");
+        hints.connect().expect("connect");
+        std::thread::sleep(Duration::from_millis(300));
         let mut seq = 0;
         rounds(40, |_| {
             for robot in 0..4 {
