@@ -36,6 +36,73 @@ pub enum Msg<'a> {
     Relay(&'a DiscoveryRelay),
 }
 
+/// One message as an owned value: copied out of shared memory for a thread that handles it
+/// later (the recorder's encoder), or rebuilt from its JSON form (replay); the two batch types
+/// are boxed (3–6 KiB each) so that small messages stay small.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Owned {
+    /// `robot/register`.
+    Register(Register),
+    /// `robot/state`.
+    State(RobotState),
+    /// `robot/discovery`.
+    Discovery(PseudoTargetDiscovery),
+    /// `robot/hints`.
+    Hints(Box<QHintBatch>),
+    /// `robot/report`.
+    Report(FinalReport),
+    /// `coord/control`.
+    Control(Control),
+    /// `coord/merged`.
+    Merged(Box<MergedHintBatch>),
+    /// `coord/ack`.
+    Ack(DiscoveryAck),
+    /// `coord/discovery`.
+    Relay(DiscoveryRelay),
+}
+
+impl Owned {
+    /// A copy of `m`.
+    pub fn of(m: Msg<'_>) -> Self {
+        match m {
+            Msg::Register(x) => Self::Register(*x),
+            Msg::State(x) => Self::State(*x),
+            Msg::Discovery(x) => Self::Discovery(*x),
+            Msg::Hints(x) => Self::Hints(Box::new(*x)),
+            Msg::Report(x) => Self::Report(*x),
+            Msg::Control(x) => Self::Control(*x),
+            Msg::Merged(x) => Self::Merged(Box::new(*x)),
+            Msg::Ack(x) => Self::Ack(*x),
+            Msg::Relay(x) => Self::Relay(*x),
+        }
+    }
+
+    /// The copy as a borrowed message.
+    pub fn as_msg(&self) -> Msg<'_> {
+        match self {
+            Self::Register(x) => Msg::Register(x),
+            Self::State(x) => Msg::State(x),
+            Self::Discovery(x) => Msg::Discovery(x),
+            Self::Hints(x) => Msg::Hints(x),
+            Self::Report(x) => Msg::Report(x),
+            Self::Control(x) => Msg::Control(x),
+            Self::Merged(x) => Msg::Merged(x),
+            Self::Ack(x) => Msg::Ack(x),
+            Self::Relay(x) => Msg::Relay(x),
+        }
+    }
+
+    /// Bytes this copy holds (for the recorder's bound on what waits to be encoded).
+    pub fn bytes(&self) -> usize {
+        std::mem::size_of::<Self>()
+            + match self {
+                Self::Hints(_) => std::mem::size_of::<QHintBatch>(),
+                Self::Merged(_) => std::mem::size_of::<MergedHintBatch>(),
+                _ => 0,
+            }
+    }
+}
+
 impl Msg<'_> {
     /// The topic this message travels on.
     pub fn topic(&self) -> Topic {

@@ -19,7 +19,7 @@ use mcap::records::{MessageHeader, Metadata};
 use mcap::{Attachment, WriteOptions, Writer};
 
 use crate::ObserveError;
-use crate::decode::{Msg, json_schema};
+use crate::decode::{Msg, Owned, json_schema};
 use crate::stats::topic_index;
 
 /// Name of the metadata record with the run's configuration.
@@ -189,5 +189,105 @@ impl<W: Write + Seek> Recorder<W> {
             source: e,
         })?;
         Ok(w)
+    }
+}
+
+/// Waiting messages a [`BackgroundRecorder`] holds at most (bytes of their copies) before the
+/// reader waits for the encoder: a run that outpaces the encoder for long loses messages for
+/// the recording alone (in the observer's own buffers), never memory without bound.
+pub const MAX_PENDING_BYTES: usize = 256 << 20;
+
+/// A [`Recorder`] on a thread of its own at the lowest CPU priority (nice 19). The reader only
+/// copies each message out of shared memory; JSON encoding and file writes happen on the
+/// encoder thread, which takes from a busy run only CPU time nobody else wants, and finishes
+/// what did not fit during the run when the run ends ([`finish`](Self::finish)).
+pub struct BackgroundRecorder {
+    tx: Option<std::sync::mpsc::Sender<(u64, Owned)>>,
+    pending: std::sync::Arc<std::sync::atomic::AtomicUsize>,
+    handle: Option<std::thread::JoinHandle<Result<u64, ObserveError>>>,
+}
+
+impl BackgroundRecorder {
+    /// Moves `rec` to a new low-priority encoder thread.
+    pub fn start<W: Write + Seek + Send + 'static>(
+        mut rec: Recorder<W>,
+    ) -> Result<Self, ObserveError> {
+        use std::sync::atomic::Ordering;
+        let (tx, rx) = std::sync::mpsc::channel::<(u64, Owned)>();
+        let pending = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let left = std::sync::Arc::clone(&pending);
+        let handle = std::thread::Builder::new()
+            .name("qfleet-record".into())
+            .spawn(move || {
+                lower_priority();
+                for (t, m) in rx {
+                    left.fetch_sub(m.bytes(), Ordering::AcqRel);
+                    rec.record(t, m.as_msg())?;
+                }
+                let n = rec.written();
+                rec.finish()?;
+                Ok(n)
+            })
+            .map_err(|e| ObserveError::Io {
+                path: "the recorder thread".into(),
+                source: e,
+            })?;
+        Ok(Self {
+            tx: Some(tx),
+            pending,
+            handle: Some(handle),
+        })
+    }
+
+    /// Hands a copy of `msg` (received at monotonic `recv_ns`) to the encoder. Never fails: an
+    /// encoder that stopped on an error reports it from [`finish`](Self::finish).
+    pub fn record(&mut self, recv_ns: u64, msg: Msg<'_>) {
+        use std::sync::atomic::Ordering;
+        let m = Owned::of(msg);
+        let b = m.bytes();
+        while self.pending.load(Ordering::Acquire) + b > MAX_PENDING_BYTES && self.encoding() {
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        if let Some(tx) = &self.tx {
+            self.pending.fetch_add(b, Ordering::AcqRel);
+            if tx.send((recv_ns, m)).is_err() {
+                // the encoder stopped (its error comes out of finish): stop copying
+                self.tx = None;
+            }
+        }
+    }
+
+    fn encoding(&self) -> bool {
+        self.handle.as_ref().is_some_and(|h| !h.is_finished())
+    }
+
+    /// Waits until every message handed over is written and the file is closed; the number of
+    /// messages written, or the encoder's error.
+    pub fn finish(mut self) -> Result<u64, ObserveError> {
+        self.tx = None;
+        match self.handle.take().map(std::thread::JoinHandle::join) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => Err(ObserveError::Bus("the recorder thread panicked".into())),
+            None => Ok(0),
+        }
+    }
+}
+
+impl Drop for BackgroundRecorder {
+    fn drop(&mut self) {
+        self.tx = None;
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+/// Sets the calling thread's nice value to 19 (Linux: the nice value is per thread); best
+/// effort, a refusal leaves the priority as it was.
+fn lower_priority() {
+    // SAFETY: gettid and setpriority take and return plain integers; no memory is shared.
+    unsafe {
+        let tid = libc::gettid();
+        let _ = libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, 19);
     }
 }

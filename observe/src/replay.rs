@@ -14,7 +14,8 @@ use serde::Serialize;
 use serde_json::Value;
 
 use crate::ObserveError;
-use crate::decode::{Msg, topic_by_name};
+pub use crate::decode::Owned;
+use crate::decode::topic_by_name;
 use crate::record::{MAP_ATTACHMENT, RUN_METADATA};
 use crate::stats::{TopicCounts, topic_index};
 
@@ -186,46 +187,6 @@ impl Recording {
     pub fn cell(&self, key: &str) -> Option<(u16, u16)> {
         let (x, y) = self.meta.get(key)?.split_once(',')?;
         Some((x.trim().parse().ok()?, y.trim().parse().ok()?))
-    }
-}
-
-/// A message rebuilt from its JSON form (the batches boxed: 3–6 KiB each).
-#[derive(Debug, Clone, PartialEq)]
-pub enum Owned {
-    /// `robot/register`.
-    Register(Register),
-    /// `robot/state`.
-    State(RobotState),
-    /// `robot/discovery`.
-    Discovery(PseudoTargetDiscovery),
-    /// `robot/hints`.
-    Hints(Box<QHintBatch>),
-    /// `robot/report`.
-    Report(FinalReport),
-    /// `coord/control`.
-    Control(Control),
-    /// `coord/merged`.
-    Merged(Box<MergedHintBatch>),
-    /// `coord/ack`.
-    Ack(DiscoveryAck),
-    /// `coord/discovery`.
-    Relay(DiscoveryRelay),
-}
-
-impl Owned {
-    /// Borrowed as the [`Msg`] the view and the decoders take.
-    pub fn as_msg(&self) -> Msg<'_> {
-        match self {
-            Owned::Register(m) => Msg::Register(m),
-            Owned::State(m) => Msg::State(m),
-            Owned::Discovery(m) => Msg::Discovery(m),
-            Owned::Hints(m) => Msg::Hints(m),
-            Owned::Report(m) => Msg::Report(m),
-            Owned::Control(m) => Msg::Control(m),
-            Owned::Merged(m) => Msg::Merged(m),
-            Owned::Ack(m) => Msg::Ack(m),
-            Owned::Relay(m) => Msg::Relay(m),
-        }
     }
 }
 
@@ -574,5 +535,47 @@ mod tests {
         })
         .unwrap();
         assert!(first.unwrap().abs_diff(t0) < 1_000_000);
+    }
+
+    #[test]
+    fn a_background_recorder_writes_every_message_handed_over_in_order() {
+        let path = std::env::temp_dir().join(format!(
+            "qfleet-observe-bg-{}-{}.mcap",
+            std::process::id(),
+            bus::monotonic_ns()
+        ));
+        let info = RunInfo {
+            run_id: "rec-bg".into(),
+            ..RunInfo::default()
+        };
+        let mut rec =
+            crate::record::BackgroundRecorder::start(Recorder::create(&path, &info).unwrap())
+                .unwrap();
+        let msgs = sample_msgs();
+        let t0 = bus::monotonic_ns();
+        let rounds = 500;
+        for k in 0..rounds {
+            for (i, m) in msgs.iter().enumerate() {
+                rec.record(t0 + (k * msgs.len() + i) as u64, m.as_msg());
+            }
+        }
+        assert_eq!(rec.finish().unwrap(), (rounds * msgs.len()) as u64);
+        let r = Recording::open(&path).unwrap();
+        let _ = std::fs::remove_file(&path);
+        let mut n = 0;
+        r.for_each(|_, topic, v| {
+            assert_eq!(from_json(topic, v), msgs[n % msgs.len()], "message {n}");
+            n += 1;
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(n, rounds * msgs.len());
+    }
+
+    #[test]
+    fn an_owned_copy_is_the_message_it_copied() {
+        for m in sample_msgs() {
+            assert_eq!(Owned::of(m.as_msg()), m);
+        }
     }
 }

@@ -18,7 +18,7 @@ use planner::task::Task;
 
 use crate::ObserveError;
 use crate::attach::Observer;
-use crate::record::{Recorder, RunInfo};
+use crate::record::{BackgroundRecorder, Recorder, RunInfo};
 use crate::stats::TopicCounts;
 use crate::tui::{self, Exit, Feed};
 use crate::view::ViewModel;
@@ -140,8 +140,9 @@ fn watch_thread(
     on_quit: &dyn Fn(),
 ) -> Result<WatchReport, ObserveError> {
     // the file first: a bad path is reported even if the run never starts
+    // encoded on a low-priority thread of its own: this one only copies messages
     let mut rec = match &opts.record {
-        Some(p) => Some(Recorder::create(p, info)?),
+        Some(p) => Some(BackgroundRecorder::start(Recorder::create(p, info)?)?),
         None => None,
     };
     let observer = match Observer::attach(run_id, ATTACH_TIMEOUT, &|| done.load(Ordering::SeqCst)) {
@@ -153,16 +154,12 @@ fn watch_thread(
             return Err(e);
         }
     };
-    let mut rec_err: Option<ObserveError> = None;
     let mut feed = |vm: &mut ViewModel| -> Result<Feed, ObserveError> {
         let over = done.load(Ordering::SeqCst);
         let n = observer.poll(|t, m| {
             vm.apply(t, m);
-            if let Some(r) = rec.as_mut()
-                && rec_err.is_none()
-                && let Err(e) = r.record(t, m)
-            {
-                rec_err = Some(e);
+            if let Some(r) = rec.as_mut() {
+                r.record(t, m);
             }
         })?;
         if over {
@@ -187,12 +184,8 @@ fn watch_thread(
         counts: vm.counts.clone(),
         recorded: 0,
     };
-    if let Some(e) = rec_err {
-        return Err(e);
-    }
     if let Some(r) = rec {
-        report.recorded = r.written();
-        r.finish()?;
+        report.recorded = r.finish()?;
     }
     Ok(report)
 }
