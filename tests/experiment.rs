@@ -313,12 +313,23 @@ fn wait_learning(id: &str, robots: u32, robot: u32) {
     );
 }
 
-#[test]
-fn an_experiment_robot_killed_mid_phase_is_restarted_and_warm_started() {
-    let dir = scratch("exp-restart");
+/// Starts `qfleet experiment` on [`LONG_TWO_PHASES`] with the restart policy in a scratch
+/// directory `name` under a run-id prefix `id`, and waits until robot `robot` runs: the
+/// directory, the prefix, the launcher and that robot's (pid, run id).
+fn start_long_experiment(
+    name: &str,
+    id: &str,
+    robot: u32,
+) -> (
+    std::path::PathBuf,
+    String,
+    std::process::Child,
+    (i32, String),
+) {
+    let dir = scratch(name);
     let file = dir.join("m.toml");
     std::fs::write(&file, LONG_TWO_PHASES).expect("write manifest");
-    let id = run_id("exprestart");
+    let id = run_id(id);
     let child = qfleet_suite::spawn(
         Command::new(bin("qfleet"))
             .args(["experiment", "--json", "--run-id", &id])
@@ -326,15 +337,20 @@ fn an_experiment_robot_killed_mid_phase_is_restarted_and_warm_started() {
             .arg(dir.join("out"))
             .arg(&file),
     );
-    let mut robot = None;
+    let mut found = None;
     assert!(
         qfleet_suite::wait_until(qfleet_suite::PROCESS_TIMEOUT, || {
-            robot = experiment_robot(&id, 1);
-            robot.is_some()
+            found = experiment_robot(&id, robot);
+            found.is_some()
         }),
-        "robot 1 of experiment {id} never started"
+        "robot {robot} of experiment {id} never started"
     );
-    let (pid, run) = robot.unwrap();
+    (dir, id, child, found.unwrap())
+}
+
+#[test]
+fn an_experiment_robot_killed_mid_phase_is_restarted_and_warm_started() {
+    let (dir, id, child, (pid, run)) = start_long_experiment("exp-restart", "exprestart", 1);
     // mid-phase: learning, with hints merged into the fleet table it is warm-started from
     wait_learning(&run, 3, 1);
     std::thread::sleep(std::time::Duration::from_millis(500));
@@ -379,28 +395,9 @@ fn an_experiment_robot_killed_mid_phase_is_restarted_and_warm_started() {
 
 #[test]
 fn an_experiment_survives_a_coordinator_kill() {
-    let dir = scratch("exp-coord-kill");
-    let file = dir.join("m.toml");
-    std::fs::write(&file, LONG_TWO_PHASES).expect("write manifest");
-    let id = run_id("xc");
-    let seed_dir = dir.join("out").join("seed-2");
-    let child = qfleet_suite::spawn(
-        Command::new(bin("qfleet"))
-            .args(["experiment", "--json", "--run-id", &id])
-            .args(["--restart", "on-failure", "--max-restarts", "2", "--out"])
-            .arg(dir.join("out"))
-            .arg(&file),
-    );
     // mid-phase: every robot is learning phase 0 and none has finished it yet (no phase file)
-    let mut robot = None;
-    assert!(
-        qfleet_suite::wait_until(qfleet_suite::PROCESS_TIMEOUT, || {
-            robot = experiment_robot(&id, 0);
-            robot.is_some()
-        }),
-        "robot 0 of experiment {id} never started"
-    );
-    let (_, run) = robot.unwrap();
+    let (dir, id, child, (_, run)) = start_long_experiment("exp-coord-kill", "xc", 0);
+    let seed_dir = dir.join("out").join("seed-2");
     for r in 0..3 {
         wait_learning(&run, 3, r);
     }

@@ -52,18 +52,9 @@ fn main() -> ExitCode {
                 r.all_optimal,
                 r.throughput.q_updates_merged
             );
-            if r.interrupted {
-                ExitCode::from(130)
-            } else if incomplete {
-                ExitCode::from(4)
-            } else {
-                ExitCode::SUCCESS
-            }
+            ended(r.interrupted, incomplete)
         }
-        Err(e) => {
-            eprintln!("qfleet-coordinator: error: {}", chain(&e));
-            ExitCode::from(e.exit_code())
-        }
+        Err(e) => failed(&e),
     }
 }
 
@@ -90,18 +81,9 @@ fn experiment(args: &CoordArgs, file: &std::path::Path, stop: &AtomicBool) -> Ex
                 if r.interrupted { " (interrupted)" } else { "" },
                 r.coordinator_restarts
             );
-            if r.interrupted {
-                ExitCode::from(130)
-            } else if incomplete {
-                ExitCode::from(4)
-            } else {
-                ExitCode::SUCCESS
-            }
+            ended(r.interrupted, incomplete)
         }
-        Err(e) => {
-            eprintln!("qfleet-coordinator: error: {}", chain(&e));
-            ExitCode::from(e.exit_code())
-        }
+        Err(e) => failed(&e),
     }
 }
 
@@ -115,4 +97,22 @@ fn chain(e: &dyn std::error::Error) -> String {
         cur = c.source();
     }
     s
+}
+
+/// The exit code of a finished run or experiment: 130 interrupted, 4 a robot lost or missing,
+/// else 0.
+fn ended(interrupted: bool, incomplete: bool) -> ExitCode {
+    if interrupted {
+        ExitCode::from(130)
+    } else if incomplete {
+        ExitCode::from(4)
+    } else {
+        ExitCode::SUCCESS
+    }
+}
+
+/// Says why the coordinator failed, and exits with the code of that failure.
+fn failed(e: &CoordError) -> ExitCode {
+    eprintln!("qfleet-coordinator: error: {}", chain(e));
+    ExitCode::from(e.exit_code())
 }
