@@ -321,7 +321,7 @@ fn start_long_experiment(
     id: &str,
     robot: u32,
 ) -> (
-    std::path::PathBuf,
+    qfleet_suite::Scratch,
     String,
     std::process::Child,
     (i32, String),

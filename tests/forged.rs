@@ -7,7 +7,6 @@
 //! `/dev/shm` or `/tmp/iceoryx2`.
 
 use std::os::unix::process::CommandExt;
-use std::path::PathBuf;
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
@@ -32,7 +31,7 @@ const CELLS: u32 = 20 * 20;
 struct Ran {
     out: Output,
     result: Value,
-    dir: PathBuf,
+    dir: qfleet_suite::Scratch,
     id: String,
 }
 
