@@ -137,7 +137,30 @@ impl BusConfig {
     /// `/dev/shm` is full is reported as [`BusError::NoShmSpace`], not as iceoryx2's
     /// `UnableToGenerateUniqueNodeId`.
     pub fn create_node(&self, name: &str) -> Result<Node<ipc::Service>, BusError> {
-        let config = self.iceoryx_config()?;
+        self.create_node_with(name, true)
+    }
+
+    /// [`create_node`](Self::create_node) for a robot: without iceoryx2's automatic scan for
+    /// dead nodes at node creation, service opening and node drop. Each scan reads every node
+    /// of the run, so with it a fleet's start-up grows with the square of its size (measured:
+    /// `qfleet run --robots 128 --map builtin:paper-10 --episodes 1` took 35.9 s with the scans,
+    /// 18.7 s without, 2026-12-02). Dead nodes are still cleaned: by the coordinator's liveness
+    /// thread (a dead robot), by the robot itself (a dead coordinator's ports), by a restarted
+    /// coordinator's node creation and by the launcher's clean-up; a restarted robot whose dead
+    /// predecessor still holds a port uses a spare port.
+    pub fn create_robot_node(&self, name: &str) -> Result<Node<ipc::Service>, BusError> {
+        self.create_node_with(name, false)
+    }
+
+    fn create_node_with(
+        &self,
+        name: &str,
+        auto_cleanup: bool,
+    ) -> Result<Node<ipc::Service>, BusError> {
+        let mut config = self.iceoryx_config()?;
+        config.global.node.cleanup_dead_nodes_on_creation = auto_cleanup;
+        config.global.node.cleanup_dead_nodes_on_destruction = auto_cleanup;
+        config.global.service.cleanup_dead_nodes_on_open = auto_cleanup;
         let node_err = |detail: String| BusError::Node {
             node: name.to_string(),
             prefix: self.prefix(),

@@ -368,7 +368,7 @@ impl RobotBus {
                 config.robots
             )));
         }
-        let node = config.create_node(&bus_schema::robot_node_name(robot_id))?;
+        let node = config.create_robot_node(&bus_schema::robot_node_name(robot_id))?;
         let deadline = Instant::now() + wait;
         loop {
             match Self::open_ports(&node, config, robot_id) {
