@@ -259,7 +259,6 @@ fn a_nearly_full_dev_shm_is_a_clear_error_before_starting() {
 
 /// Item 11: the documented maximum, 256 robots, completes on the 2-core machine.
 #[test]
-#[ignore = "open (issue 10 item 11): at load ~70 on 2 cores about 50 of 256 robots registered within the coordinator's fixed 30 s timeout (exit 1); the coordinator got ~1 % CPU, spent listing 256 nodes every 100 ms, while each starting robot walks every file of the run (~6300) in restrict_run_files: start-up cost grows with the square of the fleet"]
 fn two_hundred_fifty_six_robots_the_documented_maximum_complete() {
     let id = run_id("r256");
     let dir = scratch(&id);

@@ -23,6 +23,7 @@ pub mod run_id;
 pub mod seed;
 pub mod spawn;
 pub mod supervise;
+pub mod timeouts;
 
 pub use exit::Exit;
 pub use supervise::{Fleet, RestartPolicy, Supervised, supervise};

@@ -118,23 +118,45 @@ impl Drop for Scratch {
     }
 }
 
-/// Waits for a child with a time bound; kills it (and says so) when the bound passes.
+/// Waits for a child with a time bound; kills it (and says so) when the bound passes. Its
+/// stdout and stderr are read meanwhile, on threads of their own: a child whose output outgrows
+/// the pipe's buffer (a 256-robot result is 130 KB of JSON) would otherwise block in `write`
+/// and never exit.
 pub fn wait_bounded(mut child: Child, timeout: Duration) -> Output {
+    use std::io::Read;
+    fn drain(pipe: Option<impl Read + Send + 'static>) -> std::thread::JoinHandle<Vec<u8>> {
+        std::thread::spawn(move || {
+            let mut buf = Vec::new();
+            if let Some(mut p) = pipe {
+                let _ = p.read_to_end(&mut buf);
+            }
+            buf
+        })
+    }
+    let out = drain(child.stdout.take());
+    let err = drain(child.stderr.take());
     let deadline = Instant::now() + timeout;
-    loop {
+    let (status, timed_out) = loop {
         match child.try_wait().expect("try_wait") {
-            Some(_) => return child.wait_with_output().expect("collect output"),
+            Some(status) => break (status, false),
             None if Instant::now() >= deadline => {
                 let _ = child.kill();
-                let out = child.wait_with_output().expect("collect output");
-                panic!(
-                    "process did not finish within {timeout:?}; stderr:\n{}",
-                    String::from_utf8_lossy(&out.stderr)
-                );
+                break (child.wait().expect("wait"), true);
             }
             None => std::thread::sleep(Duration::from_millis(20)),
         }
-    }
+    };
+    let output = Output {
+        status,
+        stdout: out.join().unwrap_or_default(),
+        stderr: err.join().unwrap_or_default(),
+    };
+    assert!(
+        !timed_out,
+        "process did not finish within {timeout:?}; stderr:\n{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    output
 }
 
 /// Starts `cmd` with piped stdout/stderr.

@@ -249,6 +249,8 @@ impl RunCmd {
             RestartPolicy::Never => 0,
             RestartPolicy::OnFailure => self.max_restarts,
         };
+        // start-up waits that grow with the fleet (both sides wait the same)
+        let timeout = launcher::timeouts::startup_timeout_s(self.robots);
         let coordinator = || -> Command {
             let mut cmd = Command::new(coord_bin);
             cmd.args(["--run-id", run_id, "--robots", &self.robots.to_string()])
@@ -262,6 +264,7 @@ impl RunCmd {
                 .args(["--merge", &self.merge.to_string(), "--progress"])
                 .args(["--hang-ms", &self.hang_ms.to_string()])
                 .args(["--restarts", &restarts.to_string()])
+                .args(["--timeout", &timeout.to_string()])
                 .arg("--out")
                 .arg(out);
             cmd
@@ -278,6 +281,7 @@ impl RunCmd {
                 ])
                 .args(self.share.to_cli())
                 .args(qfleet_args::pace_cli(self.pace))
+                .args(["--timeout", &timeout.to_string()])
                 .arg("--out")
                 .arg(out);
             cmd
