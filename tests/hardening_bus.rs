@@ -1,5 +1,6 @@
 //! Issue 10, the bus and input items, with real processes: what another user, a stalled
-//! outside reader, a full `/dev/shm`, a fleet of 256 and hostile input files can do to a run.
+//! outside reader, a full `/dev/shm` and hostile input files can do to a run (a fleet of 256:
+//! `tests/scale.rs`).
 //!
 //! Tests that need root (another user via `setpriv`, private mount namespaces via `unshare`)
 //! print why they skip when they cannot run; everything else runs as any user.
@@ -255,33 +256,6 @@ fn a_nearly_full_dev_shm_is_a_clear_error_before_starting() {
         describe(&out)
     );
     assert!(!err.contains("UnableToGenerateUniqueNodeId"), "{err}");
-}
-
-/// Item 11: the documented maximum, 256 robots, completes on the 2-core machine.
-#[test]
-fn two_hundred_fifty_six_robots_the_documented_maximum_complete() {
-    let id = run_id("r256");
-    let dir = scratch(&id);
-    let child = launch(
-        &id,
-        &dir,
-        &[
-            "--map",
-            "builtin:paper-10",
-            "--episodes",
-            "20",
-            "--robots",
-            "256",
-        ],
-    );
-    let t0 = Instant::now();
-    let out = wait_bounded(child, Duration::from_secs(600));
-    eprintln!("256 robots: {:.1} s", t0.elapsed().as_secs_f64());
-    assert!(out.status.success(), "{}", describe(&out));
-    assert_all_finished(&result(&out), 256);
-    assert_quiet(&out);
-    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Item 12: an outside reader that never reads any lossless topic never aborts a 64-robot run;
