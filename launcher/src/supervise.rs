@@ -1,6 +1,6 @@
 //! Supervising a run's processes: start them, follow the coordinator's progress and liveness
 //! events, restart failed processes under a policy with backoff, stop everything cleanly (grace
-//! period, then kill) on Ctrl-C/SIGTERM, a time limit, or the end of an in-process coordinator.
+//! period, then kill) on Ctrl-C/SIGTERM or a time limit.
 //!
 //! # Restart policy (`--restart on-failure --max-restarts K`)
 //! - A robot-agent that dies (killed, crashed, non-zero exit) is started again after a backoff
@@ -32,7 +32,7 @@ use std::io::{BufRead, BufReader};
 use std::os::unix::process::ExitStatusExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
@@ -82,8 +82,8 @@ pub enum SuperviseError {
 /// What the fleet is made of and how it is supervised.
 pub struct Fleet<'a> {
     /// The coordinator's command (`qfleet run`, `qfleet experiment`); its stdout is piped to
-    /// the supervisor. `None`: the caller coordinates in its own process and says through
-    /// `finished` when it is done.
+    /// the supervisor. `None`: a fleet of robots alone (the supervisor's own tests), which ends
+    /// when every robot has ended.
     pub coordinator: Option<&'a (dyn Fn() -> Command + Sync)>,
     /// Robot `id`'s command.
     pub robot: &'a (dyn Fn(u32) -> Command + Sync),
@@ -99,9 +99,6 @@ pub struct Fleet<'a> {
     pub time_limit: Duration,
     /// Directory of the process logs (`coordinator.log`, `robot-<id>.log`: stderr).
     pub logs: &'a Path,
-    /// Set by the caller when its in-process coordinator ended: no more restarts, and the
-    /// robots get `grace` to exit on their own before they are killed.
-    pub finished: Option<&'a AtomicBool>,
 }
 
 /// What a supervised run ended with.
@@ -372,12 +369,6 @@ pub fn supervise(
                 CoordLine::Event(_) => {}
             }
         }
-        let finished = fleet.finished.is_some_and(|f| f.load(Ordering::SeqCst));
-        if finished && stopping.is_none() {
-            // the in-process coordinator sent Stop: the robots exit on their own within grace
-            stopping = Some(Instant::now());
-            kill_at = Some(Instant::now() + fleet.grace);
-        }
         let mut all_done = true;
         let mut exited_robots = Vec::new();
         for p in procs.iter_mut() {
@@ -597,7 +588,6 @@ mod tests {
             grace: Duration::from_secs(5),
             time_limit: Duration::ZERO,
             logs,
-            finished: None,
         }
     }
 
@@ -703,18 +693,5 @@ mod tests {
             let log = std::fs::read_to_string(d.path().join(format!("robot-{id}.log"))).unwrap();
             assert_eq!(log, "ready\ngot SIGTERM\n", "robot {id}");
         }
-    }
-
-    #[test]
-    fn the_end_of_an_in_process_coordinator_stops_the_robots_after_grace() {
-        let d = tempfile::tempdir().unwrap();
-        let robot = sh("sleep 60");
-        let done = AtomicBool::new(true);
-        let mut f = fleet(&robot, d.path(), RestartPolicy::OnFailure);
-        f.finished = Some(&done);
-        f.grace = Duration::from_millis(100);
-        let s = supervise(&f, &AtomicU32::new(0), |_, _, _, _| {}, |_| {}).unwrap();
-        assert_eq!(s.restarts, 0, "a robot killed at the end is not restarted");
-        assert_eq!(s.failures.len(), 2, "{:?}", s.failures);
     }
 }

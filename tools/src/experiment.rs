@@ -234,7 +234,6 @@ pub fn run_once(
         grace: sup.grace,
         time_limit: Duration::ZERO,
         logs: out,
-        finished: None,
     };
     let supervised = supervise(&fleet, &crate::INTERRUPTS, |_, _, _, _| {}, term::warn);
     // whatever happened: no file of the run may stay behind

@@ -295,7 +295,6 @@ impl RunCmd {
             grace,
             time_limit,
             logs: out,
-            finished: None,
         };
         let total = u64::from(self.robots) * u64::from(episodes);
         let bar = ProgressBar::new(total);
