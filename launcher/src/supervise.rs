@@ -99,6 +99,10 @@ pub struct Fleet<'a> {
     pub time_limit: Duration,
     /// Directory of the process logs (`coordinator.log`, `robot-<id>.log`: stderr).
     pub logs: &'a Path,
+    /// Called once between starting the coordinator and starting the robots: the launcher's
+    /// outside readers (a recorder, the live view) join the run there, so that they see it
+    /// from the first message a robot sends. Not called again for restarted processes.
+    pub before_robots: Option<&'a (dyn Fn() + Sync)>,
 }
 
 /// What a supervised run ended with.
@@ -296,6 +300,11 @@ pub fn supervise(
         .into_iter()
         .chain((0..fleet.robots).map(Kind::Robot));
     for kind in kinds {
+        if kind == Kind::Robot(0)
+            && let Some(f) = fleet.before_robots
+        {
+            f();
+        }
         match start(kind, fleet, &tx, false) {
             Ok(p) => procs.push(p),
             Err(e) => {
@@ -588,6 +597,7 @@ mod tests {
             grace: Duration::from_secs(5),
             time_limit: Duration::ZERO,
             logs,
+            before_robots: None,
         }
     }
 
@@ -610,6 +620,26 @@ mod tests {
             3,
             "the log is appended to across restarts"
         );
+    }
+
+    #[test]
+    fn the_hook_before_the_robots_runs_once_before_the_first_robot_and_not_for_restarts() {
+        let d = tempfile::tempdir().unwrap();
+        // robot 0 crashes every time (two restarts), robot 1 exits cleanly
+        let robot = sh(r#"[ "$1" = 0 ] && exit 1; exit 0"#);
+        let calls = std::sync::atomic::AtomicU32::new(0);
+        let logs = d.path().to_path_buf();
+        let hook = || {
+            calls.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+            // no robot has been started yet: none has its log
+            assert!(!logs.join("robot-0.log").exists());
+            assert!(!logs.join("robot-1.log").exists());
+        };
+        let mut f = fleet(&robot, d.path(), RestartPolicy::OnFailure);
+        f.before_robots = Some(&hook);
+        let s = supervise(&f, &AtomicU32::new(0), |_, _, _, _| {}, |_| {}).unwrap();
+        assert_eq!(s.restarts, 2);
+        assert_eq!(calls.load(std::sync::atomic::Ordering::SeqCst), 1);
     }
 
     #[test]

@@ -60,7 +60,7 @@ pub struct Observer {
 const DRAIN_MAX: usize = 4096;
 
 impl Observer {
-    /// Waits (polling every 20 ms, up to `timeout`) until run `run_id`'s services exist, then
+    /// Waits (polling every 5 ms, up to `timeout`) until run `run_id`'s services exist, then
     /// joins it. `give_up` is asked between polls (e.g. "the run already ended").
     pub fn attach(
         run_id: &str,
@@ -87,7 +87,7 @@ impl Observer {
                     waited: timeout,
                 });
             }
-            std::thread::sleep(Duration::from_millis(20));
+            std::thread::sleep(Duration::from_millis(5));
         }
     }
 

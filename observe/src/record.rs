@@ -197,7 +197,7 @@ impl<W: Write + Seek> Recorder<W> {
 /// the recording alone (in the observer's own buffers), never memory without bound.
 pub const MAX_PENDING_BYTES: usize = 256 << 20;
 
-/// A [`Recorder`] on a thread of its own at the lowest CPU priority (nice 19). The reader only
+/// A [`Recorder`] on a thread of its own at the lowest CPU priority (`SCHED_IDLE`). The reader only
 /// copies each message out of shared memory; JSON encoding and file writes happen on the
 /// encoder thread, which takes from a busy run only CPU time nobody else wants, and finishes
 /// what did not fit during the run when the run ends ([`finish`](Self::finish)).
@@ -282,12 +282,18 @@ impl Drop for BackgroundRecorder {
     }
 }
 
-/// Sets the calling thread's nice value to 19 (Linux: the nice value is per thread); best
-/// effort, a refusal leaves the priority as it was.
-fn lower_priority() {
-    // SAFETY: gettid and setpriority take and return plain integers; no memory is shared.
+/// Moves the calling thread to the idle scheduling class (`SCHED_IDLE`: it runs only when no
+/// normal thread wants the CPU, and never preempts one when it wakes), falling back to nice 19
+/// where that is refused; Linux scheduling attributes are per thread. Best effort: a refusal of
+/// both leaves the priority as it was.
+pub(crate) fn lower_priority() {
+    // SAFETY: gettid, sched_setscheduler and setpriority take plain integers and a pointer to
+    // a local `sched_param` that outlives the call; no other memory is shared.
     unsafe {
         let tid = libc::gettid();
-        let _ = libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, 19);
+        let param = libc::sched_param { sched_priority: 0 };
+        if libc::sched_setscheduler(tid, libc::SCHED_IDLE, &param) != 0 {
+            let _ = libc::setpriority(libc::PRIO_PROCESS, tid as libc::id_t, 19);
+        }
     }
 }

@@ -3,15 +3,16 @@
 //! leaves when the launcher says the run is over ([`Watch::finish`]).
 //!
 //! The launcher calls [`start`] before starting the run's processes (the thread only reads
-//! iceoryx2's bookkeeping until the services exist, so the run id stays free) and
-//! [`Watch::finish`] after they all exited and **before** it removes the run's files: the
+//! iceoryx2's bookkeeping until the services exist, so the run id stays free),
+//! [`Watch::wait_joined`] after the coordinator and before the robots (so nothing a robot sends
+//! is missed), and [`Watch::finish`] after they all exited and **before** it removes the run's files: the
 //! observer's node must be gone by then.
 
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use planner::grid::Cell;
 use planner::task::Task;
@@ -53,10 +54,36 @@ pub struct WatchReport {
 /// A running watch thread.
 pub struct Watch {
     done: Arc<AtomicBool>,
+    /// [`PENDING`], [`JOINED`] or [`GAVE_UP`]: whether the thread has joined the run yet.
+    joined: Arc<AtomicU8>,
     handle: Option<JoinHandle<Result<WatchReport, ObserveError>>>,
 }
 
+/// [`Watch`]'s join state: still waiting for the run's services.
+const PENDING: u8 = 0;
+/// Joined: a subscriber is open on every topic.
+const JOINED: u8 = 1;
+/// The thread will not join (the run ended first, or the attach failed).
+const GAVE_UP: u8 = 2;
+
 impl Watch {
+    /// Waits (up to `timeout`) until the thread has joined the run with a subscriber on every
+    /// topic, so that it sees every message sent from then on; false when it gave up or the
+    /// time ran out. The launcher calls it between starting the coordinator (whose services
+    /// the thread joins) and starting the robots, so a recording holds the run from its first
+    /// registration: a robot's publisher connects to a subscriber that exists at its first send.
+    pub fn wait_joined(&self, timeout: Duration) -> bool {
+        let t0 = Instant::now();
+        loop {
+            match self.joined.load(Ordering::SeqCst) {
+                JOINED => return true,
+                GAVE_UP => return false,
+                _ if t0.elapsed() >= timeout => return false,
+                _ => std::thread::sleep(Duration::from_millis(1)),
+            }
+        }
+    }
+
     /// Tells the thread the run is over, waits for it to drain, close the recording and
     /// leave the run, and returns what it saw.
     pub fn finish(mut self) -> Result<WatchReport, ObserveError> {
@@ -114,6 +141,8 @@ pub fn start(
 ) -> Watch {
     let done = Arc::new(AtomicBool::new(false));
     let d = Arc::clone(&done);
+    let joined = Arc::new(AtomicU8::new(PENDING));
+    let j = Arc::clone(&joined);
     let run_id = run_id.to_string();
     let (grid, start, goal, name) = (
         task.grid.clone(),
@@ -125,10 +154,20 @@ pub fn start(
         .name("qfleet-watch".into())
         .spawn(move || {
             let vm = ViewModel::new(&name, grid, start, goal);
-            watch_thread(&run_id, vm, &info, &opts, &d, &*on_quit)
+            let r = watch_thread(&run_id, vm, &info, &opts, &d, &j, &*on_quit);
+            // an attach that never happened (an error, the run over first) is final
+            let _ = j.compare_exchange(PENDING, GAVE_UP, Ordering::SeqCst, Ordering::SeqCst);
+            r
         })
         .ok();
-    Watch { done, handle }
+    if handle.is_none() {
+        joined.store(GAVE_UP, Ordering::SeqCst);
+    }
+    Watch {
+        done,
+        joined,
+        handle,
+    }
 }
 
 fn watch_thread(
@@ -137,6 +176,7 @@ fn watch_thread(
     info: &RunInfo,
     opts: &WatchOptions,
     done: &AtomicBool,
+    joined: &AtomicU8,
     on_quit: &dyn Fn(),
 ) -> Result<WatchReport, ObserveError> {
     // the file first: a bad path is reported even if the run never starts
@@ -146,7 +186,18 @@ fn watch_thread(
         None => None,
     };
     let observer = match Observer::attach(run_id, ATTACH_TIMEOUT, &|| done.load(Ordering::SeqCst)) {
-        Ok(o) => o,
+        Ok(o) => {
+            joined.store(JOINED, Ordering::SeqCst);
+            // Joined (before the robots started: see `Watch::wait_joined`), a recorder reads at
+            // the lowest priority, so it takes from a run that fills every core only what the
+            // run leaves: a lossless topic's samples wait in our buffers (256 discoveries per
+            // robot), a latest-wins topic's older samples are dropped for us alone. The live
+            // view keeps its priority: a person is watching it.
+            if !opts.live {
+                crate::record::lower_priority();
+            }
+            o
+        }
         Err(e) => {
             if let Some(r) = rec.take() {
                 r.finish()?;

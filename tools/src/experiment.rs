@@ -152,8 +152,9 @@ impl Default for Supervision {
 }
 
 /// Runs one repetition of `plan` with `seed` and the sharing `rules` in `out`: claims the run
-/// id, writes the seed's plan, starts and supervises the coordinator and the robots, cleans up,
-/// and returns the coordinator's result.
+/// id, writes the seed's plan, starts and supervises the coordinator and the robots (after
+/// `watch`, the live view / recorder, has joined), cleans up, and returns the coordinator's
+/// result.
 pub fn run_once(
     plan: &Plan,
     seed: u64,
@@ -161,6 +162,7 @@ pub fn run_once(
     run_id: &str,
     out: &Path,
     sup: Supervision,
+    watch: Option<&crate::live::Hook>,
 ) -> Result<ExperimentResult> {
     let _claim = crate::launch::claim(run_id)?;
     // iceoryx2 root usable, no other user's file in the prefix, room in /dev/shm
@@ -234,6 +236,13 @@ pub fn run_once(
         grace: sup.grace,
         time_limit: Duration::ZERO,
         logs: out,
+        before_robots: Some(&|| {
+            if let Some(w) = watch {
+                w.wait_joined(
+                    Duration::try_from_secs_f64(m.timeout_s).unwrap_or(Duration::from_secs(30)),
+                );
+            }
+        }),
     };
     let supervised = supervise(&fleet, &crate::INTERRUPTS, |_, _, _, _| {}, term::warn);
     // whatever happened: no file of the run may stay behind
@@ -321,7 +330,7 @@ impl ExperimentCmd {
                 rec,
                 Box::new(crate::request_stop),
             );
-            let r = run_once(&plan, seed, self.rules, &id, &dir, sup);
+            let r = run_once(&plan, seed, self.rules, &id, &dir, sup, Some(&watch));
             crate::live::finish(watch)?;
             let r = match r {
                 Ok(r) => r,

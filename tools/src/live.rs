@@ -34,6 +34,23 @@ pub fn start(
     Hook { watch, record }
 }
 
+impl Hook {
+    /// Waits (up to `timeout`) until the watch thread has joined the run, so a recording or
+    /// the live view misses nothing the robots send; the launcher calls it once the
+    /// coordinator runs and before it starts the robots ([`launcher::Fleet::before_robots`]).
+    /// A watch that could not join in time is a warning: the run goes on unobserved so far.
+    pub fn wait_joined(&self, timeout: std::time::Duration) {
+        if let Some(w) = &self.watch
+            && !w.wait_joined(timeout)
+        {
+            crate::term::warn(&format!(
+                "warning: the live view / recorder did not join the run within {} s; it may miss its first messages",
+                timeout.as_secs()
+            ));
+        }
+    }
+}
+
 /// Ends the watch: returns whether the user pressed `q` in the live view, and says on stderr
 /// where the recording went.
 pub fn finish(hook: Hook) -> Result<bool> {

@@ -138,6 +138,7 @@ impl RunCmd {
             time_limit,
             &task,
             cfg.episodes,
+            &watch,
         );
         let quit = crate::live::finish(watch);
         // whatever happened: no file of the run may stay behind
@@ -244,6 +245,7 @@ impl RunCmd {
         time_limit: Duration,
         task: &planner::task::Task,
         episodes: u32,
+        watch: &crate::live::Hook,
     ) -> Result<launcher::Supervised> {
         let restarts = match self.restart {
             RestartPolicy::Never => 0,
@@ -295,6 +297,11 @@ impl RunCmd {
             grace,
             time_limit,
             logs: out,
+            before_robots: Some(&|| {
+                watch.wait_joined(
+                    Duration::try_from_secs_f64(timeout).unwrap_or(Duration::from_secs(30)),
+                )
+            }),
         };
         let total = u64::from(self.robots) * u64::from(episodes);
         let bar = ProgressBar::new(total);
