@@ -220,3 +220,53 @@ fn topic_tools_read_a_live_run_without_changing_it() {
     let left = leftovers(&id);
     assert!(left.is_empty(), "files of the run left behind: {left:?}");
 }
+
+/// `qfleet experiment --record`: the recording holds every robot's registration and every
+/// phase report, the watch leaves before the launcher removes the run's files (so no "left
+/// behind" warning), and nothing of the run stays.
+#[test]
+fn a_recorded_experiment_holds_every_phase_and_leaves_nothing() {
+    use qfleet_suite::{leftovers, run_id, scratch};
+    let id = run_id("obsx");
+    let dir = scratch(&id);
+    let file = dir.join("exp.mcap");
+    let manifest = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("examples/three-goals-six-robots.toml");
+    let out = Command::new(bin_dir().join("qfleet"))
+        .arg("experiment")
+        .arg(&manifest)
+        .args(["--run-id", &id, "--record"])
+        .arg(&file)
+        .arg("--out")
+        .arg(dir.join("out"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(!stderr.contains("left behind"), "{stderr}");
+    let replay = Command::new(bin_dir().join("qfleet"))
+        .args(["replay", "--json"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    assert!(replay.status.success());
+    let s: serde_json::Value = serde_json::from_slice(&replay.stdout).unwrap();
+    let count = |path: &str| {
+        s["topics"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|t| t["topic"].as_str().unwrap().ends_with(path))
+            .map_or(0, |t| t["count"].as_u64().unwrap())
+    };
+    // six robots, three phases: a report per robot and phase
+    assert!(count("/robot/register") >= 6);
+    assert_eq!(count("/robot/report"), 18);
+    let left: Vec<_> = std::fs::read_dir("/dev/shm")
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().contains(&id))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+    assert!(leftovers(&id).is_empty());
+}

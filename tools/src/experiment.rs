@@ -153,8 +153,8 @@ impl Default for Supervision {
 
 /// Runs one repetition of `plan` with `seed` and the sharing `rules` in `out`: claims the run
 /// id, writes the seed's plan, starts and supervises the coordinator and the robots (after
-/// `watch`, the live view / recorder, has joined), cleans up, and returns the coordinator's
-/// result.
+/// `watch`, the live view / recorder, has joined), finishes the watch, cleans up, and returns
+/// the coordinator's result.
 pub fn run_once(
     plan: &Plan,
     seed: u64,
@@ -162,7 +162,7 @@ pub fn run_once(
     run_id: &str,
     out: &Path,
     sup: Supervision,
-    watch: Option<&crate::live::Hook>,
+    watch: Option<crate::live::Hook>,
 ) -> Result<ExperimentResult> {
     let _claim = crate::launch::claim(run_id)?;
     // iceoryx2 root usable, no other user's file in the prefix, room in /dev/shm
@@ -237,7 +237,7 @@ pub fn run_once(
         time_limit: Duration::ZERO,
         logs: out,
         before_robots: Some(&|| {
-            if let Some(w) = watch {
+            if let Some(w) = &watch {
                 w.wait_joined(
                     Duration::try_from_secs_f64(m.timeout_s).unwrap_or(Duration::from_secs(30)),
                 );
@@ -245,8 +245,11 @@ pub fn run_once(
         }),
     };
     let supervised = supervise(&fleet, &crate::INTERRUPTS, |_, _, _, _| {}, term::warn);
+    // the watch leaves the run before its files are removed (its node is one of them)
+    let watched = watch.map(crate::live::finish).transpose();
     // whatever happened: no file of the run may stay behind
     crate::launch::clean_up(run_id);
+    watched?;
     let supervised = supervised?;
     if supervised.restarts > 0 {
         term::warn(&format!(
@@ -330,8 +333,7 @@ impl ExperimentCmd {
                 rec,
                 Box::new(crate::request_stop),
             );
-            let r = run_once(&plan, seed, self.rules, &id, &dir, sup, Some(&watch));
-            crate::live::finish(watch)?;
+            let r = run_once(&plan, seed, self.rules, &id, &dir, sup, Some(watch));
             let r = match r {
                 Ok(r) => r,
                 Err(e) => {
