@@ -131,14 +131,21 @@ pub fn run_info(
 const ATTACH_TIMEOUT: Duration = Duration::from_secs(120);
 
 /// Starts watching run `run_id` (of `task`) as `opts` asks; `on_quit` is called once when the
-/// user presses `q` in the live view (the launcher's graceful stop, as Ctrl-C).
+/// user presses `q` in the live view (the launcher's graceful stop, as Ctrl-C). The recording
+/// file is created here, before anything of the run starts: a path that cannot be written is
+/// an error now, not after the run.
 pub fn start(
     run_id: &str,
     task: &Task,
     info: RunInfo,
     opts: WatchOptions,
     on_quit: Box<dyn Fn() + Send>,
-) -> Watch {
+) -> Result<Watch, ObserveError> {
+    // encoded on a low-priority thread of its own: the watch thread only copies messages
+    let rec = match &opts.record {
+        Some(p) => Some(BackgroundRecorder::start(Recorder::create(p, &info)?)?),
+        None => None,
+    };
     let done = Arc::new(AtomicBool::new(false));
     let d = Arc::clone(&done);
     let joined = Arc::new(AtomicU8::new(PENDING));
@@ -154,7 +161,7 @@ pub fn start(
         .name("qfleet-watch".into())
         .spawn(move || {
             let vm = ViewModel::new(&name, grid, start, goal);
-            let r = watch_thread(&run_id, vm, &info, &opts, &d, &j, &*on_quit);
+            let r = watch_thread(&run_id, vm, rec, &opts, &d, &j, &*on_quit);
             // an attach that never happened (an error, the run over first) is final
             let _ = j.compare_exchange(PENDING, GAVE_UP, Ordering::SeqCst, Ordering::SeqCst);
             r
@@ -163,28 +170,22 @@ pub fn start(
     if handle.is_none() {
         joined.store(GAVE_UP, Ordering::SeqCst);
     }
-    Watch {
+    Ok(Watch {
         done,
         joined,
         handle,
-    }
+    })
 }
 
 fn watch_thread(
     run_id: &str,
     mut vm: ViewModel,
-    info: &RunInfo,
+    mut rec: Option<BackgroundRecorder>,
     opts: &WatchOptions,
     done: &AtomicBool,
     joined: &AtomicU8,
     on_quit: &dyn Fn(),
 ) -> Result<WatchReport, ObserveError> {
-    // the file first: a bad path is reported even if the run never starts
-    // encoded on a low-priority thread of its own: this one only copies messages
-    let mut rec = match &opts.record {
-        Some(p) => Some(BackgroundRecorder::start(Recorder::create(p, info)?)?),
-        None => None,
-    };
     let observer = match Observer::attach(run_id, ATTACH_TIMEOUT, &|| done.load(Ordering::SeqCst)) {
         Ok(o) => {
             joined.store(JOINED, Ordering::SeqCst);

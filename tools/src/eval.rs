@@ -333,10 +333,13 @@ impl EvalCmd {
         for name in &self.configs {
             match all.iter().find(|c| c.name == name) {
                 Some(c) => configs.push(c),
-                None => bail!(
-                    "unknown configuration '{name}' (known: {})",
-                    all.iter().map(|c| c.name).collect::<Vec<_>>().join(", ")
-                ),
+                None => {
+                    return Err(anyhow::anyhow!(
+                        "unknown configuration '{name}' (known: {})",
+                        all.iter().map(|c| c.name).collect::<Vec<_>>().join(", ")
+                    )
+                    .context(launcher::Exit::BadInput));
+                }
             }
         }
         let want = |f: Family| self.families.is_empty() || self.families.contains(&f);
@@ -346,7 +349,8 @@ impl EvalCmd {
                 for i in 0..self.maps as usize {
                     tasks.push(
                         suite::generate(family, size, i, self.suite_seed)
-                            .with_context(|| format!("generating a {family} map of side {size}"))?,
+                            .with_context(|| format!("generating a {family} map of side {size}"))
+                            .context(launcher::Exit::BadInput)?,
                     );
                 }
             }

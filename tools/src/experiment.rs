@@ -332,7 +332,7 @@ impl ExperimentCmd {
                 self.live,
                 rec,
                 Box::new(crate::request_stop),
-            );
+            )?;
             let r = run_once(&plan, seed, self.rules, &id, &dir, sup, Some(watch));
             let r = match r {
                 Ok(r) => r,

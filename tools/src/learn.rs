@@ -84,9 +84,10 @@ pub struct Outcomes {
 impl LearnCmd {
     /// Runs the command.
     pub fn run(self) -> Result<()> {
-        let task = self.map.task()?;
-        let cfg = self.learner.config()?;
-        let mut learner = Learner::new(&task, cfg)?;
+        // a map, scenario or learner option that does not hold is bad input (exit code 2)
+        let task = self.map.task().context(launcher::Exit::BadInput)?;
+        let cfg = self.learner.config().context(launcher::Exit::BadInput)?;
+        let mut learner = Learner::new(&task, cfg).context(launcher::Exit::BadInput)?;
         let t0 = Instant::now();
         let (records, summary) = learner.run(|_| {});
         let elapsed = t0.elapsed().as_secs_f64();

@@ -15,7 +15,8 @@ pub struct Hook {
 }
 
 /// Starts watching run `run_id` on `task` when `live` or `record` is set; `config` goes into
-/// the recording's metadata; `on_quit` is the launcher's graceful stop (what Ctrl-C does).
+/// the recording's metadata; `on_quit` is the launcher's graceful stop (what Ctrl-C does). A
+/// recording file that cannot be created is bad input: nothing of the run has started yet.
 pub fn start(
     run_id: &str,
     task: &Task,
@@ -23,15 +24,20 @@ pub fn start(
     live: bool,
     record: Option<PathBuf>,
     on_quit: Box<dyn Fn() + Send>,
-) -> Hook {
+) -> Result<Hook> {
     let opts = WatchOptions {
         live,
         record: record.clone(),
     };
-    let watch = opts
-        .any()
-        .then(|| start_watch(run_id, task, run_info(run_id, task, config), opts, on_quit));
-    Hook { watch, record }
+    let watch = match opts.any() {
+        true => Some(
+            start_watch(run_id, task, run_info(run_id, task, config), opts, on_quit)
+                .context("starting the recording")
+                .context(launcher::Exit::BadInput)?,
+        ),
+        false => None,
+    };
+    Ok(Hook { watch, record })
 }
 
 impl Hook {

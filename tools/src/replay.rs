@@ -33,13 +33,15 @@ impl ReplayCmd {
     /// Runs the command.
     pub fn run(self) -> Result<()> {
         if !(self.speed.is_finite() && self.speed > 0.0) {
-            return Err(anyhow!(
-                "--speed must be a positive number, got {}",
-                self.speed
-            ));
+            return Err(
+                anyhow!("--speed must be a positive number, got {}", self.speed)
+                    .context(launcher::Exit::BadInput),
+            );
         }
+        // a file that is missing or not a qfleet recording is bad input (exit code 2)
         let rec = Recording::open(&self.file)
-            .with_context(|| format!("reading {}", self.file.display()))?;
+            .with_context(|| format!("reading {}", self.file.display()))
+            .context(launcher::Exit::BadInput)?;
         if self.live {
             return self.live(&rec);
         }

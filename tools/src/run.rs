@@ -127,7 +127,7 @@ impl RunCmd {
             self.live,
             self.record.clone(),
             Box::new(crate::request_stop),
-        );
+        )?;
 
         let outcome = self.supervise(
             &run_id,

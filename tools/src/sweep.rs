@@ -308,6 +308,13 @@ impl SweepCmd {
                 }
             }
         }
+        if rows.is_empty() && !skipped.is_empty() {
+            // every manifest was skipped: nothing was measured
+            return Err(
+                anyhow::anyhow!("no manifest could be loaded ({})", skipped.join("; "))
+                    .context(launcher::Exit::BadInput),
+            );
+        }
         let md = markdown(&rows, &skipped);
         std::fs::write(self.out.join("sweep.md"), &md)?;
         std::fs::write(

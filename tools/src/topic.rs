@@ -98,8 +98,8 @@ impl TopicCmd {
 }
 
 fn list(t: &Target) -> Result<()> {
-    bus::validate_run_id(&t.run_id)?;
-    let only = t.topic()?;
+    bus::validate_run_id(&t.run_id).context(launcher::Exit::BadInput)?;
+    let only = t.topic().context(launcher::Exit::BadInput)?;
     let live = run_services_exist(&t.run_id)?;
     let mut out = std::io::stdout().lock();
     let topics: Vec<Topic> = Topic::ALL
@@ -145,9 +145,9 @@ enum Mode {
 }
 
 fn watch(t: &Target, mode: Mode) -> Result<()> {
-    bus::validate_run_id(&t.run_id)?;
-    let only = t.topic()?;
-    let wait = t.wait()?;
+    bus::validate_run_id(&t.run_id).context(launcher::Exit::BadInput)?;
+    let only = t.topic().context(launcher::Exit::BadInput)?;
+    let wait = t.wait().context(launcher::Exit::BadInput)?;
     let stop = interrupted()?;
     let observer = Observer::attach(&t.run_id, wait, &|| stop.load(Ordering::SeqCst))
         .with_context(|| format!("joining run {}", t.run_id))?;

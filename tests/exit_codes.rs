@@ -1,0 +1,81 @@
+//! Bad input to any `qfleet` command is exit code 2 with one `qfleet: error: …` line, never 1
+//! (a runtime failure), 0 or a panic (README "Exit codes"). One table over every command that
+//! reads a file, a map, a learner option, a run id or a topic name.
+
+use std::process::Command;
+
+use qfleet_suite::{bin, scratch};
+
+#[test]
+fn bad_input_to_every_command_is_exit_code_2_with_a_clear_error() {
+    let dir = scratch("exitcodes");
+    let not_mcap = dir.join("not.mcap");
+    std::fs::write(&not_mcap, "this is not an MCAP file\n").unwrap();
+    let not_a_map = dir.join("not.map");
+    std::fs::write(&not_a_map, "type octile\nheight x\n").unwrap();
+    let readme = concat!(env!("CARGO_MANIFEST_DIR"), "/README.md");
+    let missing = dir.join("missing.toml");
+    // a recording in a directory that does not exist: refused before the run starts
+    let no_dir = dir.join("no/such/dir/run.mcap");
+    let (not_mcap, not_a_map, missing, no_dir) = (
+        not_mcap.to_str().unwrap(),
+        not_a_map.to_str().unwrap(),
+        missing.to_str().unwrap(),
+        no_dir.to_str().unwrap(),
+    );
+    let manifest = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/examples/three-goals-six-robots.toml"
+    );
+    let cases: Vec<Vec<&str>> = vec![
+        vec!["learn", "--map", "/dev/null"],
+        vec!["learn", "--map", readme],
+        vec!["learn", "--map", not_a_map],
+        vec!["learn", "--map", "builtin:nope"],
+        vec!["learn", "--gamma", "1.5"],
+        vec!["learn", "--alpha", "nan"],
+        vec!["learn", "--optimistic", "1e39"],
+        vec!["eval", "--configs", "nope", "--sizes", "10"],
+        vec!["eval", "--sizes", "0", "--seeds", "1"],
+        vec!["replay", not_mcap],
+        vec!["replay", missing],
+        vec!["replay", "--speed", "0", not_mcap],
+        vec!["topic", "echo", "--run-id", "../x"],
+        vec!["topic", "hz", "--run-id", "x", "robot/nope"],
+        vec!["topic", "list", "--run-id", "x y"],
+        vec!["sweep", missing],
+        vec!["run", "--map", "/dev/null"],
+        vec!["run", "--gamma", "2"],
+        vec![
+            "run",
+            "--robots",
+            "1",
+            "--episodes",
+            "1",
+            "--record",
+            no_dir,
+        ],
+        vec!["experiment", manifest, "--record", no_dir],
+        vec!["experiment", missing],
+        vec!["clean", "--run-id", "../x"],
+    ];
+    let mut wrong = Vec::new();
+    for args in &cases {
+        let out = Command::new(bin("qfleet"))
+            .args(args)
+            .current_dir(&*dir)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let clear = stderr.contains("error") && !stderr.contains("panicked");
+        if out.status.code() != Some(2) || !clear {
+            wrong.push(format!(
+                "qfleet {}: exit {:?}: {}",
+                args.join(" "),
+                out.status.code(),
+                stderr.trim()
+            ));
+        }
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
