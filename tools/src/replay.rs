@@ -45,7 +45,8 @@ impl ReplayCmd {
         if self.live {
             return self.live(&rec);
         }
-        let s = rec.summary()?;
+        // a recording whose records or messages do not decode is bad input too
+        let s = rec.summary().context(launcher::Exit::BadInput)?;
         if self.json {
             println!("{}", serde_json::to_string(&s)?);
             return Ok(());
@@ -74,13 +75,14 @@ impl ReplayCmd {
     }
 
     fn live(&self, rec: &Recording) -> Result<()> {
-        let mut vm = view_of_recording(rec)?;
+        let mut vm = view_of_recording(rec).context(launcher::Exit::BadInput)?;
         // decode everything first (typed, with receive times), then play it at its pace
         let mut msgs = Vec::new();
         rec.for_each(|t, topic, v| {
             msgs.push((rec.mono_of(t), from_json(topic, v)));
             Ok(())
-        })?;
+        })
+        .context(launcher::Exit::BadInput)?;
         let t0 = msgs.first().map_or(0, |m| m.0);
         let start = Instant::now();
         let speed = self.speed;
