@@ -326,9 +326,24 @@ fn start_long_experiment(
     std::process::Child,
     (i32, String),
 ) {
+    start_experiment(LONG_TWO_PHASES, name, id, robot)
+}
+
+/// [`start_long_experiment`] with another manifest.
+fn start_experiment(
+    manifest: &str,
+    name: &str,
+    id: &str,
+    robot: u32,
+) -> (
+    qfleet_suite::Scratch,
+    String,
+    std::process::Child,
+    (i32, String),
+) {
     let dir = scratch(name);
     let file = dir.join("m.toml");
-    std::fs::write(&file, LONG_TWO_PHASES).expect("write manifest");
+    std::fs::write(&file, manifest).expect("write manifest");
     let id = run_id(id);
     let child = qfleet_suite::spawn(
         Command::new(bin("qfleet"))
@@ -456,5 +471,166 @@ fn an_experiment_survives_a_coordinator_kill() {
     }
     let left = leftovers(&id);
     assert!(left.is_empty(), "{left:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Two long phases of the paper's improved learner (it makes the discoveries the phases
+/// count), so that a kill can land in the middle of the second one.
+const LONG_BOTH_PHASES: &str = r#"
+name = "long both"
+sharing = "both"
+episodes = 60000
+seeds = [3]
+timeout_s = 100
+[map]
+source = "builtin:paper-20"
+[[goals]]
+name = "corner"
+cell = [19, 19]
+[[goals]]
+name = "edge"
+cell = [19, 0]
+[robots]
+count = 3
+[assignment]
+policy = "round-robin"
+[learner]
+kind = "improved"
+[[phases]]
+[[phases]]
+rotate = 1
+"#;
+
+/// Waits (bounded) until every robot of the experiment in `seed_dir` wrote its result of
+/// phase `phase`.
+fn wait_phase_done(seed_dir: &std::path::Path, robots: usize, phase: usize) {
+    assert!(
+        qfleet_suite::wait_until(qfleet_suite::PROCESS_TIMEOUT, || {
+            files_like(seed_dir, "robot-", &format!("-phase-{phase}.json")).len() == robots
+        }),
+        "phase {phase} never ended in {}",
+        seed_dir.display()
+    );
+}
+
+/// The checks every resumed experiment of [`LONG_BOTH_PHASES`] must pass: exit 0, two phases
+/// in which every robot finished and every discovery sent was received, nothing left.
+fn both_phases_complete(out: &std::process::Output, id: &str) -> report::run::ExperimentResult {
+    assert!(out.status.success(), "{}", describe(out));
+    let v: Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    let r: report::run::ExperimentResult =
+        serde_json::from_value(v[0].clone()).expect("an ExperimentResult");
+    assert!(!r.interrupted, "{v}");
+    assert_eq!(r.phases.len(), 2, "{v}");
+    for phase in &r.phases {
+        assert_eq!(phase.robots.len(), 3, "{v}");
+        for x in &phase.robots {
+            assert_eq!(x.status, report::run::RobotOutcome::Finished, "{v}");
+            assert!(x.episodes > 0, "{v}");
+        }
+        assert_eq!(
+            phase.discoveries_received, phase.discoveries_sent,
+            "phase {}: {v}",
+            phase.phase
+        );
+    }
+    let left = leftovers(id);
+    assert!(left.is_empty(), "{left:?}");
+    r
+}
+
+#[test]
+fn a_robot_killed_in_a_later_phase_is_restarted_into_that_phase() {
+    let (dir, id, child, (_, run)) = start_experiment(LONG_BOTH_PHASES, "exp-late-robot", "xl", 1);
+    let seed_dir = dir.join("out").join("seed-3");
+    wait_phase_done(&seed_dir, 3, 0);
+    // phase 1 under way: robot 1 (the same process) is learning it
+    wait_learning(&run, 3, 1);
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let (pid, _) = experiment_robot(&id, 1).expect("robot 1 alive in phase 1");
+    // SAFETY: kill(2) on a robot this test started through qfleet experiment.
+    unsafe {
+        libc::kill(pid, libc::SIGKILL);
+    }
+    assert!(
+        files_like(&seed_dir, "robot-1", "-phase-1.json").is_empty(),
+        "robot 1 had already finished phase 1: make the phase longer"
+    );
+    let out = qfleet_suite::wait_bounded(child, qfleet_suite::PROCESS_TIMEOUT);
+    assert!(
+        String::from_utf8_lossy(&out.stderr)
+            .contains("robot-agent 1 was killed by signal 9; restarting it"),
+        "{}",
+        describe(&out)
+    );
+    let r = both_phases_complete(&out, &id);
+    assert_eq!(r.liveness.restarts, 1, "{:?}", r.liveness);
+    // the new process learned phase 1's goal, not phase 0's again
+    let p1: Value = serde_json::from_str(
+        &std::fs::read_to_string(seed_dir.join("robot-1-phase-1.json")).expect("phase 1 file"),
+    )
+    .unwrap();
+    let p0: Value = serde_json::from_str(
+        &std::fs::read_to_string(seed_dir.join("robot-1-phase-0.json")).expect("phase 0 file"),
+    )
+    .unwrap();
+    let plan: Value = serde_json::from_str(
+        &std::fs::read_to_string(seed_dir.join("plan.json")).expect("plan.json"),
+    )
+    .unwrap();
+    let goal_of = |phase: usize| plan["assignment"][phase][1].clone();
+    assert_ne!(goal_of(0), goal_of(1), "the phases must differ for robot 1");
+    assert_eq!(p1["goal_id"], goal_of(1), "{p1}");
+    assert_eq!(p0["goal_id"], goal_of(0), "{p0}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_coordinator_killed_after_a_phase_ended_resumes_with_the_next_phase() {
+    let (dir, id, child, _) = start_experiment(LONG_BOTH_PHASES, "exp-late-coord", "xk", 0);
+    let seed_dir = dir.join("out").join("seed-3");
+    wait_phase_done(&seed_dir, 3, 0);
+    // the phase's result is in the checkpoint once the coordinator closed it
+    let checkpoint = seed_dir.join("experiment-checkpoint.json");
+    let mut phase0 = Value::Null;
+    assert!(
+        qfleet_suite::wait_until(qfleet_suite::PROCESS_TIMEOUT, || {
+            let Ok(text) = std::fs::read_to_string(&checkpoint) else {
+                return false;
+            };
+            let Ok(c) = serde_json::from_str::<Value>(&text) else {
+                return false;
+            };
+            phase0 = c["phases"][0].clone();
+            !phase0.is_null()
+        }),
+        "phase 0 never reached the checkpoint"
+    );
+    let (run_pid, _) =
+        experiment_process(&id, "qfleet-coordinator", "--plan").expect("coordinator");
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    // SAFETY: kill(2) on the coordinator this test started through qfleet experiment.
+    unsafe {
+        libc::kill(run_pid, libc::SIGKILL);
+    }
+    assert!(
+        files_like(&seed_dir, "robot-", "-phase-1.json").len() < 3,
+        "phase 1 had already ended: make it longer"
+    );
+    let out = qfleet_suite::wait_bounded(child, qfleet_suite::PROCESS_TIMEOUT);
+    assert!(
+        String::from_utf8_lossy(&out.stderr)
+            .contains("coordinator was killed by signal 9; restarting it"),
+        "{}",
+        describe(&out)
+    );
+    let r = both_phases_complete(&out, &id);
+    assert_eq!(r.coordinator_restarts, 1);
+    // phase 0 was not run again: its result is the one checkpointed before the kill
+    assert_eq!(
+        serde_json::to_value(&r.phases[0]).unwrap(),
+        phase0,
+        "phase 0 changed after the restart"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
