@@ -409,9 +409,19 @@ impl Learner {
         &self.q
     }
 
-    /// The Q-table, for applying values learned elsewhere (e.g. a fleet's merged hints).
+    /// The Q-table, for applying values learned elsewhere (e.g. a fleet's merged hints). The
+    /// next episode's sweeps run even if this learner tried nothing new: values set from
+    /// outside must reach the pairs that lead to them.
     pub fn q_mut(&mut self) -> &mut QTable {
+        self.model_dirty = true;
         &mut self.q
+    }
+
+    /// The (state·4 + action) pairs tried so far, in the order first tried (empty for a learner
+    /// without replay or sweeps): what a fleet robot offers to share after planning changed
+    /// their values.
+    pub fn tried_pairs(&self) -> &[u32] {
+        &self.seen
     }
 
     /// Episodes finished so far.

@@ -119,7 +119,7 @@ pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, Agent
             robot_id: args.robot_id,
             robots: args.robots,
             goal_id: 0,
-            rule: args.share.apply,
+            rule: args.share.apply_rule(qfleet_args::ValueBound::of(&cfg)),
         }),
         bus,
         base,
@@ -397,6 +397,9 @@ impl Robot<'_> {
                     let rec = p.learner.end_episode(info.transition);
                     p.last_episode_steps = rec.steps;
                     p.records.push(rec);
+                    if share && p.learner.config().extras.needs_model() {
+                        self.offer_planned(p);
+                    }
                     break;
                 }
             }
@@ -418,6 +421,19 @@ impl Robot<'_> {
         p.learn_s = p.t0.elapsed().as_secs_f64();
         p.own_final = p.learner.greedy_path_len();
         Ok(())
+    }
+
+    /// After an episode of a planning learner: offers every tried pair's value to the batcher
+    /// (replay and sweeps changed values no step noted; unchanged ones are skipped there).
+    fn offer_planned(&mut self, p: &mut Phase) {
+        for i in 0..p.learner.tried_pairs().len() {
+            let sa = p.learner.tried_pairs()[i];
+            let (s, a) = (sa >> 2, (sa & 3) as u8);
+            let q = p.learner.q().row(s as usize)[a as usize];
+            if p.batcher.offer(s, a, q, p.steps, monotonic_ns) {
+                self.send_hints(p);
+            }
+        }
     }
 
     /// A `--pace` pause: sleeps what the pacer says, then shows where the robot is, shares what
