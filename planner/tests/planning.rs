@@ -99,3 +99,37 @@ fn same_seed_same_episodes() {
     assert_eq!(run(4), run(4));
     assert_ne!(run(4), run(5));
 }
+
+#[test]
+fn values_kept_falling_change_nothing_alone_and_keep_a_bound_set_from_outside() {
+    // alone, from the optimistic start, no update raises a value: the option is a no-op
+    for family in Family::GENERATED {
+        let t = generate(family, 20, 1, 7).expect("map");
+        let mut plain = Learner::new(&t.task, LearnerConfig::planning(100, 3)).expect("config");
+        let mut falling = plain.clone();
+        falling.keep_values_falling();
+        assert_eq!(plain.run(|_| {}).0, falling.run(|_| {}).0, "{}", t.id);
+        assert_eq!(plain.q().rows(), falling.q().rows(), "{}", t.id);
+    }
+    // a tighter bound set from outside (a fleet's merged hint) survives the next episode's
+    // replay and sweeps only with the option; without it, backups from this learner's own
+    // looser neighbours raise it again
+    let t = serpentine(8, 5);
+    let bound_after = |falling: bool| {
+        let mut l = Learner::new(&t, LearnerConfig::planning(3, 1)).expect("config");
+        if falling {
+            l.keep_values_falling();
+        }
+        l.run_episode();
+        // (0,0) moving right, the way to the goal: hint a value far below what it holds
+        let before = l.q().row(0)[1];
+        l.q_mut().set_checked(0, 1, 1e-6);
+        l.table_changed();
+        l.run_episode();
+        (before, l.q().row(0)[1])
+    };
+    let (before, kept) = bound_after(true);
+    assert!(before > 1e-6 && kept <= 1e-6, "{before} -> {kept}");
+    let (_, raised) = bound_after(false);
+    assert!(raised > 1e-6, "{raised}");
+}

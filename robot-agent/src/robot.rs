@@ -311,6 +311,15 @@ impl Robot<'_> {
             .seed
             .wrapping_add(u64::from(a.phase).wrapping_mul(0x9E37_79B9));
         let mut learner = Learner::new(&task, cfg)?;
+        // min-sharing of upper bounds: a tighter fleet value must survive this robot's own
+        // backups (see `Learner::keep_values_falling`)
+        let bound = qfleet_args::ValueBound::of(&cfg);
+        if self.args.share.share.hints()
+            && bound == qfleet_args::ValueBound::Upper
+            && self.args.share.apply_rule(bound) == crate::share::ApplyRule::Min
+        {
+            learner.keep_values_falling();
+        }
         if let Some(q) = self.tables.get(&a.goal_id) {
             *learner.q_mut() = q.clone();
         }
@@ -397,7 +406,7 @@ impl Robot<'_> {
                     let rec = p.learner.end_episode(info.transition);
                     p.last_episode_steps = rec.steps;
                     p.records.push(rec);
-                    if share && p.learner.config().extras.needs_model() {
+                    if share && p.learner.planned() {
                         self.offer_planned(p);
                     }
                     break;
@@ -423,8 +432,8 @@ impl Robot<'_> {
         Ok(())
     }
 
-    /// After an episode of a planning learner: offers every tried pair's value to the batcher
-    /// (replay and sweeps changed values no step noted; unchanged ones are skipped there).
+    /// After an episode whose replay or sweeps changed values no step noted: offers every tried
+    /// pair's value to the batcher (unchanged ones are skipped there) and sends the batch.
     fn offer_planned(&mut self, p: &mut Phase) {
         for i in 0..p.learner.tried_pairs().len() {
             let sa = p.learner.tried_pairs()[i];
@@ -433,6 +442,10 @@ impl Robot<'_> {
             if p.batcher.offer(s, a, q, p.steps, monotonic_ns) {
                 self.send_hints(p);
             }
+        }
+        // what planning learned goes out now, not `--hint-flush-steps` later
+        if !p.batcher.is_empty() {
+            self.send_hints(p);
         }
     }
 
@@ -797,8 +810,13 @@ impl Robot<'_> {
                 record(&mut self.merged_hist, now - m.send_time_ns);
             }
             if share && let Some(p) = phase.as_deref_mut() {
+                let before = self.applier.counters().entries_applied;
                 self.applier
                     .apply(m, p.learner.q_mut(), p.batcher.visits(), now);
+                if self.applier.counters().entries_applied != before {
+                    // the planning learner's sweeps carry the new values to their predecessors
+                    p.learner.table_changed();
+                }
             }
         }
         // discoveries of other robots, relayed by the coordinator (lossless: always drained)
