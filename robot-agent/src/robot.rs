@@ -408,6 +408,9 @@ impl Robot<'_> {
                     p.records.push(rec);
                     if share && p.learner.planned() {
                         self.offer_planned(p);
+                        // the merged batches that piled up during replay and sweeps: drained
+                        // now, before the latest-wins buffer overwrites them
+                        self.poll(Some(p))?;
                     }
                     break;
                 }

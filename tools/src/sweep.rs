@@ -48,6 +48,12 @@ pub struct SweepCmd {
     /// stay).
     #[arg(long)]
     learner: Option<planner::LearnerKind>,
+    /// Slow every robot to this many environment steps per second (robot-agent `--pace`), so
+    /// that the robots of a run learn at the same time: unpaced, a planning robot reaches its
+    /// optimum within a few scheduler time slices, and N robots on 2 cores learn mostly one
+    /// after another (the later ones warm-started from the earlier ones' fleet table).
+    #[arg(long, value_name = "STEPS_PER_S", value_parser = qfleet_args::parse_pace)]
+    pace: Option<f64>,
     /// Directory for the runs' files, sweep.json and sweep.md.
     #[arg(long, default_value = "results/sweep")]
     out: PathBuf,
@@ -225,7 +231,11 @@ impl SweepCmd {
                         let rules = rules.unwrap_or_default();
                         let mut attempt = 0;
                         let r = loop {
-                            match run_once(&plan, seed, rules, &id, &dir, Supervision::default()) {
+                            let sup = Supervision {
+                                pace: self.pace,
+                                ..Supervision::default()
+                            };
+                            match run_once(&plan, seed, rules, &id, &dir, sup) {
                                 Ok(r) => break r,
                                 // a run that failed on the bus (not in the learning) is run
                                 // again, up to twice, with a fresh run id; retries are reported
