@@ -1,10 +1,12 @@
 //! The fleet table: one merged Q-value per (cell, action) of a goal, and the merge rules.
 //!
-//! # Merge rules (selectable with `--merge`)
-//! - `max` (default): the fleet value is the largest value any robot reported last. A new value
-//!   replaces the fleet value when it is larger, or when it comes from the robot that set the
-//!   current one (so a robot can correct its own value downwards). With the planner's rewards
-//!   every positive learned Q-value is at most Q*, so the largest is the best estimate.
+//! # Merge rules (selectable with `--merge`; `qfleet run` and `experiment` default to the one
+//! that fits the learner, [`rule_for`])
+//! - `max` (paper learners): the fleet value is the largest value any robot reported last. A new
+//!   value replaces the fleet value when it is larger, or when it comes from the robot that set
+//!   the current one (so a robot can correct its own value downwards). With the planner's
+//!   rewards every positive learned Q-value the paper's learners learn is at most Q*, so the
+//!   largest is the best estimate.
 //! - `mean`: visit-weighted mean, `q ← q + v/(v + V)·(q_new − q)` with `v` the reporting robot's
 //!   visit count for the entry and `V` the largest visit count seen for it; values resting on
 //!   more updates weigh more, and the table still follows changes.
