@@ -432,6 +432,26 @@ impl Learner {
         self.monotone = true;
     }
 
+    /// Adds the move `a` from cell `s` to the model the sweeps back up, as if this learner had
+    /// tried it: another robot of the fleet did, and the grid is deterministic, so its
+    /// transition is known (a shared model). Returns whether it was new; false for a learner
+    /// without a model, a cell out of the grid or not free, or an action out of range.
+    pub fn add_known_move(&mut self, s: u32, a: usize) -> bool {
+        let i = s as usize;
+        if self.tried.is_empty()
+            || a >= 4
+            || i >= self.tried.len()
+            || !self.env.grid().free_flags()[i]
+            || self.tried[i] & (1 << a) != 0
+        {
+            return false;
+        }
+        self.tried[i] |= 1 << a;
+        self.seen.push(s * 4 + a as u32);
+        self.model_dirty = true;
+        true
+    }
+
     /// Values were set from outside ([`q_mut`](Self::q_mut)): the next episode's sweeps run
     /// even if this learner tried nothing new, so that they reach the pairs leading there.
     pub fn table_changed(&mut self) {

@@ -205,6 +205,9 @@ struct Phase {
     at_start: Counters,
     relays_at_start: u64,
     reported: bool,
+    /// Moves of other robots named in merged hints join this learner's sweep model (planning
+    /// learner, `min` rules).
+    shared_model: bool,
 }
 
 impl Robot<'_> {
@@ -312,12 +315,13 @@ impl Robot<'_> {
             .wrapping_add(u64::from(a.phase).wrapping_mul(0x9E37_79B9));
         let mut learner = Learner::new(&task, cfg)?;
         // min-sharing of upper bounds: a tighter fleet value must survive this robot's own
-        // backups (see `Learner::keep_values_falling`)
+        // backups (see `Learner::keep_values_falling`), and the moves other robots made join
+        // the model its sweeps back up
         let bound = qfleet_args::ValueBound::of(&cfg);
-        if self.args.share.share.hints()
+        let min_sharing = self.args.share.share.hints()
             && bound == qfleet_args::ValueBound::Upper
-            && self.args.share.apply_rule(bound) == crate::share::ApplyRule::Min
-        {
+            && self.args.share.apply_rule(bound) == crate::share::ApplyRule::Min;
+        if min_sharing {
             learner.keep_values_falling();
         }
         if let Some(q) = self.tables.get(&a.goal_id) {
@@ -354,6 +358,7 @@ impl Robot<'_> {
             at_start: self.counters(),
             relays_at_start: relays,
             reported: false,
+            shared_model: min_sharing && cfg.extras.needs_model(),
         })
     }
 
@@ -819,6 +824,15 @@ impl Robot<'_> {
                 if self.applier.counters().entries_applied != before {
                     // the planning learner's sweeps carry the new values to their predecessors
                     p.learner.table_changed();
+                    if p.shared_model {
+                        // and back up the moves other robots made, as their own
+                        let n = (m.count as usize).min(m.entries.len());
+                        for (h, &origin) in m.entries[..n].iter().zip(&m.origin_robot[..n]) {
+                            if origin != self.args.robot_id {
+                                p.learner.add_known_move(h.cell, usize::from(h.action));
+                            }
+                        }
+                    }
                 }
             }
         }
