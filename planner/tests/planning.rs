@@ -133,3 +133,39 @@ fn values_kept_falling_change_nothing_alone_and_keep_a_bound_set_from_outside() 
     let (_, raised) = bound_after(false);
     assert!(raised > 1e-6, "{raised}");
 }
+
+#[test]
+fn a_move_made_known_from_outside_is_backed_up_by_the_sweeps() {
+    // 3x3: column x = 1 is wall, so column x = 2 is free but out of the learner's reach; start
+    // (0,0), goal (0,2). Only a move made known from outside can be backed up there.
+    let free = vec![true, false, true, true, false, true, true, false, true];
+    let task = Task {
+        map_name: "split".into(),
+        grid: Grid::new(3, 3, free).expect("grid"),
+        start: Cell::new(0, 0),
+        goal: Cell::new(0, 2),
+        optimal_len: 2,
+    };
+    let run = |known: bool| {
+        let mut l = Learner::new(&task, LearnerConfig::planning(2, 1)).expect("config");
+        l.keep_values_falling();
+        if known {
+            // cell 2 = (2,0), action 1 = right: into the border
+            assert!(l.add_known_move(2, 1));
+            assert!(!l.add_known_move(2, 1), "already known");
+            assert_eq!(l.tried_pairs(), &[2 * 4 + 1]);
+        }
+        l.run_episode();
+        l.q().row(2)[1]
+    };
+    assert_eq!(run(false), 1.0, "untouched: still optimistic");
+    let v = run(true);
+    assert!((v - (-1.0 + 0.99)).abs() < 1e-6, "backed up as a collision: {v}");
+    let mut l = Learner::new(&task, LearnerConfig::planning(2, 1)).expect("config");
+    assert!(!l.add_known_move(99, 0), "outside the grid");
+    assert!(!l.add_known_move(2, 4), "no such action");
+    assert!(!l.add_known_move(1, 0), "a wall is no cell to move from");
+    // a learner without a model (the paper's) has nothing to add to
+    let mut t = Learner::new(&task, LearnerConfig::traditional(2, 1)).expect("config");
+    assert!(!t.add_known_move(2, 1));
+}
