@@ -160,7 +160,10 @@ fn a_move_made_known_from_outside_is_backed_up_by_the_sweeps() {
     };
     assert_eq!(run(false), 1.0, "untouched: still optimistic");
     let v = run(true);
-    assert!((v - (-1.0 + 0.99)).abs() < 1e-6, "backed up as a collision: {v}");
+    assert!(
+        (v - (-1.0 + 0.99)).abs() < 1e-6,
+        "backed up as a collision: {v}"
+    );
     let mut l = Learner::new(&task, LearnerConfig::planning(2, 1)).expect("config");
     assert!(!l.add_known_move(99, 0), "outside the grid");
     assert!(!l.add_known_move(2, 4), "no such action");
