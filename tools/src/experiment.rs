@@ -135,8 +135,9 @@ impl Rules {
             ValueBound::Upper => ("upper bounds of Q* (optimistic start)", "min/min"),
             ValueBound::Lower => ("lower bounds of Q* (start at 0)", "max/max"),
         };
+        let verb = if bad.len() > 1 { "do" } else { "does" };
         Some(format!(
-            "warning: {} does not fit this learner: its values are {kind}; the rules that fit are {fit} (running as asked)",
+            "warning: {} {verb} not fit this learner: its values are {kind}; the rules that fit are {fit} (running as asked)",
             bad.join(" and ")
         ))
     }
@@ -423,5 +424,34 @@ impl ExperimentCmd {
             out!("wrote {}/seed-*/result.json", out.display())?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rules_default_to_the_learners_bound_and_a_misfit_is_named() {
+        let planning = LearnerConfig::planning(10, 1);
+        let improved = LearnerConfig::improved(10, 1);
+        let auto: Rules = "auto".parse().unwrap();
+        assert_eq!(auto, Rules::default());
+        assert_eq!(auto.resolve(&planning).to_string(), "min/min");
+        assert_eq!(auto.resolve(&improved).to_string(), "max/max");
+        assert_eq!(auto.misfit(&planning), None);
+        let half: Rules = "auto/max".parse().unwrap();
+        assert_eq!(half.to_string(), "auto/max");
+        assert_eq!(half.resolve(&planning).to_string(), "min/max");
+        let w = half.misfit(&planning).unwrap();
+        assert!(w.contains("--merge max does not fit"), "{w}");
+        let both: Rules = "max/max".parse().unwrap();
+        assert!(both.misfit(&planning).unwrap().contains("do not fit"));
+        assert_eq!(both.misfit(&improved), None);
+        let min: Rules = "min/min".parse().unwrap();
+        assert!(min.misfit(&improved).unwrap().contains("max/max"));
+        assert_eq!("latest/mean".parse::<Rules>().unwrap().misfit(&planning), None);
+        assert!("min".parse::<Rules>().is_err());
+        assert!("min/most".parse::<Rules>().is_err());
     }
 }
