@@ -450,7 +450,10 @@ mod tests {
         assert_eq!(both.misfit(&improved), None);
         let min: Rules = "min/min".parse().unwrap();
         assert!(min.misfit(&improved).unwrap().contains("max/max"));
-        assert_eq!("latest/mean".parse::<Rules>().unwrap().misfit(&planning), None);
+        assert_eq!(
+            "latest/mean".parse::<Rules>().unwrap().misfit(&planning),
+            None
+        );
         assert!("min".parse::<Rules>().is_err());
         assert!("min/most".parse::<Rules>().is_err());
     }
