@@ -69,6 +69,8 @@ name = "small"
 sharing = "both"
 episodes = 60
 seeds = [5]
+[learner]
+kind = "improved"   # discoveries are pseudo targets: the planning default makes none
 [map]
 source = "builtin:paper-10"
 [[goals]]
@@ -142,6 +144,8 @@ fn discoveries_reach_a_robot_that_never_reached_that_goal() {
 sharing = "discoveries"
 episodes = 60
 seeds = [3]
+[learner]
+kind = "improved"   # discoveries are pseudo targets: the planning default makes none
 [map]
 source = "builtin:paper-10"
 [[goals]]
@@ -234,6 +238,8 @@ sharing = "both"
 episodes = 100000
 seeds = [2]
 timeout_s = 100
+[learner]
+kind = "improved"   # discoveries to lose (planning makes none), and long episodes
 [map]
 source = "builtin:paper-20"
 [robots]

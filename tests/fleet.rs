@@ -34,6 +34,7 @@ fn u(v: &Value, key: &str) -> u64 {
 #[test]
 fn four_robots_sharing_on_paper_20_all_end_optimal() {
     let id = run_id("fleet4");
+    // the improved learner: its pseudo-target discoveries exercise the discovery path too
     let (r, _) = qfleet_run(
         &id,
         &[
@@ -43,8 +44,11 @@ fn four_robots_sharing_on_paper_20_all_end_optimal() {
             "builtin:paper-20",
             "--share",
             "hints",
+            "--learner",
+            "improved",
         ],
     );
+    assert_eq!((&r["apply"], &r["merge"]), (&"max".into(), &"max".into()));
     let robots = r["robots"].as_array().expect("robots list");
     assert_eq!(robots.len(), 4);
     for x in robots {
@@ -82,6 +86,49 @@ fn four_robots_sharing_on_paper_20_all_end_optimal() {
         Vec::<std::path::PathBuf>::new(),
         "files of the run left behind"
     );
+}
+
+/// `qfleet run` with no learner or rule options: the planning learner, the `min/min` rules that
+/// fit its upper bounds (named in the result), every robot optimal; no pseudo targets, so no
+/// discoveries, and that is no failure.
+#[test]
+fn the_default_run_is_planning_with_min_rules_and_every_robot_ends_optimal() {
+    let id = run_id("fleetdef");
+    let (r, out) = qfleet_run(&id, &[]);
+    assert_eq!((&r["apply"], &r["merge"]), (&"min".into(), &"min".into()));
+    assert!(
+        !String::from_utf8_lossy(&out.stderr).contains("does not fit"),
+        "{}",
+        describe(&out)
+    );
+    let robots = r["robots"].as_array().expect("robots list");
+    assert_eq!(robots.len(), 4);
+    for x in robots {
+        assert_eq!(x["status"], "finished", "{x}");
+        assert_eq!(x["final_path_len"], x["optimal_path_len"], "{x}");
+        assert!(u(x, "hints_applied") > 0, "nothing shared: {x}");
+    }
+    assert_eq!(r["all_optimal"], true, "{r}");
+    assert_eq!(u(&r, "discoveries_sent"), 0);
+    assert_eq!(u(&r, "discoveries_received"), 0);
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+}
+
+/// A rule that does not fit the learner is run as asked, with a warning on stderr.
+#[test]
+fn a_rule_against_the_learners_bound_is_warned_about() {
+    let id = run_id("fleetwarn");
+    let (r, out) = qfleet_run(
+        &id,
+        &["--robots", "2", "--episodes", "30", "--apply", "max"],
+    );
+    assert_eq!((&r["apply"], &r["merge"]), (&"max".into(), &"min".into()));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--apply max does not fit this learner"),
+        "{err}"
+    );
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
 }
 
 #[test]

@@ -133,13 +133,17 @@ fn assert_no_discovery_lost(r: &Value) {
     );
 }
 
-const LONG: [&str; 6] = [
+// the improved learner: its pseudo-target discoveries are what these tests must not lose (the
+// planning default makes none)
+const LONG: [&str; 8] = [
     "--map",
     "builtin:paper-20",
     "--episodes",
     "300000",
     "--robots",
     "3",
+    "--learner",
+    "improved",
 ];
 
 #[test]

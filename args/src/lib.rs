@@ -11,7 +11,7 @@ pub mod share_mode;
 
 pub use manifest::{Manifest, ManifestError, Plan, load_manifest, parse_manifest};
 pub use pace::{pace_cli, parse_pace};
-pub use share_mode::ShareMode;
+pub use share_mode::{ShareMode, ValueBound};
 
 use clap::Args;
 use planner::map::{self, MapError};
@@ -107,11 +107,11 @@ impl MapArgs {
 /// Every learner parameter; unset ones take the chosen learner's defaults.
 #[derive(Debug, Clone, Args)]
 pub struct LearnerArgs {
-    /// Which learner: the paper's `traditional` ε-greedy or `improved` dynamic softmax, or
-    /// `planning` (ε-greedy with optimism and Dyna sweeps, chosen on the map suite). The
-    /// fleet's default stays `improved`: its discovery sharing relays pseudo targets, which
-    /// planning does not make; `qfleet learn` defaults to `planning`.
-    #[arg(long, default_value = "improved")]
+    /// Which learner: `planning` (ε-greedy with optimism and Dyna sweeps, chosen on the map
+    /// suite; the default everywhere), or the paper's `traditional` ε-greedy or `improved`
+    /// dynamic softmax. Planning makes no pseudo targets, so `--share discoveries` relays
+    /// nothing with it; hint sharing defaults to the `min` rules that fit its upper bounds.
+    #[arg(long, default_value = "planning")]
     pub learner: LearnerKind,
     /// Number of episodes N (also the horizon of the dynamic schedule).
     #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..))]
@@ -341,14 +341,19 @@ mod tests {
     }
 
     #[test]
-    fn the_fleet_default_stays_improved_and_planning_is_selectable() {
+    fn the_default_learner_is_planning_and_the_papers_are_selectable() {
         let cli = Cli::try_parse_from(["x"]).unwrap();
         let cfg = cli.learner.config().unwrap();
-        assert_eq!(cfg, LearnerConfig::improved(1000, 1));
-        let cli = Cli::try_parse_from(["x", "--learner", "planning"]).unwrap();
+        assert_eq!(cfg, LearnerConfig::planning(1000, 1));
+        assert_eq!(ValueBound::of(&cfg), ValueBound::Upper);
+        let cli = Cli::try_parse_from(["x", "--learner", "improved"]).unwrap();
         assert_eq!(
             cli.learner.config().unwrap(),
-            LearnerConfig::planning(1000, 1)
+            LearnerConfig::improved(1000, 1)
+        );
+        assert_eq!(
+            ValueBound::of(&cli.learner.config().unwrap()),
+            ValueBound::Lower
         );
     }
 

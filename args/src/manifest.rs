@@ -28,7 +28,7 @@
 //! policy = "round-robin"      # fixed (with goals = [goal index per robot]) | round-robin | nearest
 //!
 //! [learner]
-//! kind = "improved"           # every learner option of `qfleet learn`, e.g. alpha, remove_at
+//! kind = "planning"           # (the default) every learner option of `qfleet learn`, e.g. alpha
 //!
 //! [[phases]]                  # optional; without phases there is one
 //! episodes = 200
@@ -489,7 +489,7 @@ pub fn parse_manifest(source: &str, text: &str) -> Result<Manifest, ManifestErro
         Some(k) => k
             .parse::<LearnerKind>()
             .map_err(|e| err(s, "learner.kind", e))?,
-        None => LearnerKind::Improved,
+        None => LearnerKind::Planning,
     };
     let learner = LearnerArgs {
         learner: learner_kind,

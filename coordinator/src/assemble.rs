@@ -188,6 +188,7 @@ pub(crate) fn run_result(
         goal: task.goal.to_string(),
         wait: args.wait,
         merge: args.merge,
+        apply: None,
         all_optimal,
         discoveries_sent: robots.iter().map(|r| r.discoveries_sent).sum(),
         discoveries_received: e.disc.received(),

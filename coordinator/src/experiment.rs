@@ -264,6 +264,7 @@ fn drive(
         map: ctx.map.name.clone(),
         robots: plan.robots,
         sharing: plan.sharing.clone(),
+        rules: None,
         phases: ended.phases,
         discoveries_received: totals.discoveries,
         relays_sent: totals.relays_sent,

@@ -1,21 +1,53 @@
 //! The fleet table: one merged Q-value per (cell, action) of a goal, and the merge rules.
 //!
-//! # Merge rules (selectable with `--merge`)
-//! - `max` (default): the fleet value is the largest value any robot reported last. A new value
-//!   replaces the fleet value when it is larger, or when it comes from the robot that set the
-//!   current one (so a robot can correct its own value downwards). With the planner's rewards
-//!   every positive learned Q-value is at most Q*, so the largest is the best estimate.
+//! # Merge rules (selectable with `--merge`; `qfleet run` and `experiment` default to the one
+//! that fits the learner, [`rule_for`])
+//! - `max` (paper learners): the fleet value is the largest value any robot reported last. A new
+//!   value replaces the fleet value when it is larger, or when it comes from the robot that set
+//!   the current one (so a robot can correct its own value downwards). With the planner's
+//!   rewards every positive learned Q-value the paper's learners learn is at most Q*, so the
+//!   largest is the best estimate.
 //! - `mean`: visit-weighted mean, `q ← q + v/(v + V)·(q_new − q)` with `v` the reporting robot's
 //!   visit count for the entry and `V` the largest visit count seen for it; values resting on
 //!   more updates weigh more, and the table still follows changes.
 //! - `latest`: the newest report wins.
+//! - `min`: the smallest value any robot ever reported; a larger report (the owner's
+//!   included) changes nothing. For learners whose every value is an upper bound of Q*
+//!   ([`ValueBound::Upper`](qfleet_args::ValueBound): the planning learner's optimistic start,
+//!   replay and sweeps): the minimum of upper bounds is still one, and the tightest the fleet
+//!   has. A robot's value can rise again after it took a lower fleet value (its next backup
+//!   reads its own, looser neighbours), but the smaller report stays a true bound, so there is
+//!   nothing to correct.
+//!
+//! [`rule_for`] picks the rule that fits a learner's bound (`max` for lower bounds, `min` for
+//! upper ones); [`fits`] says whether a rule suits it.
 //!
 //! An entry that changes is queued for the next `MergedHintBatch` with the origin time and robot
 //! of the update that changed it (the end-to-end latency is measured from there).
 
 use bus::bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, ROBOT_ID_ALL};
 
+use qfleet_args::ValueBound;
 pub use report::run::MergeRule;
+
+/// The merge rule that fits a learner whose values keep `bound`: `max` for lower bounds (the
+/// paper's learners), `min` for upper bounds (the planning learner).
+pub fn rule_for(bound: ValueBound) -> MergeRule {
+    match bound {
+        ValueBound::Lower => MergeRule::Max,
+        ValueBound::Upper => MergeRule::Min,
+    }
+}
+
+/// Whether `rule` is sound for values that keep `bound`: `max` raises upper bounds to stale
+/// optimism, `min` lowers lower bounds to whichever robot knows least; `mean` and `latest`
+/// make no use of a bound and fit neither better nor worse.
+pub fn fits(rule: MergeRule, bound: ValueBound) -> bool {
+    !matches!(
+        (rule, bound),
+        (MergeRule::Max, ValueBound::Upper) | (MergeRule::Min, ValueBound::Lower)
+    )
+}
 
 /// `owner` of an entry no robot has reported yet.
 const NO_OWNER: u32 = u32::MAX;
@@ -100,6 +132,12 @@ impl FleetTable {
             MergeRule::Latest => {
                 e.q = h.q;
                 e.owner = robot;
+            }
+            MergeRule::Min => {
+                if fresh || h.q < e.q {
+                    e.q = h.q;
+                    e.owner = robot;
+                }
             }
         }
         e.visits = e.visits.max(h.visits);
@@ -224,6 +262,53 @@ mod tests {
         t.merge(0, &h(1, 2, 0.1, 1), 50);
         t.merge(0, &h(99, 0, 1.0, 1), 50);
         assert_eq!(t.pending(), 0);
+    }
+
+    #[test]
+    fn min_keeps_the_smallest_upper_bound_and_nobody_raises_it() {
+        let mut t = FleetTable::new(4, MergeRule::Min);
+        t.merge(0, &h(1, 2, 0.9, 1), 10);
+        assert_eq!(t.get(1, 2), Some(0.9), "the first report sets the entry");
+        t.merge(1, &h(1, 2, 0.6, 1), 20);
+        assert_eq!(
+            t.get(1, 2),
+            Some(0.6),
+            "a tighter bound from another robot wins"
+        );
+        // the owner's value rose again (its backup read looser neighbours): the smaller
+        // report is still a true upper bound, so it stays
+        t.merge(1, &h(1, 2, 0.8, 2), 30);
+        assert_eq!(t.get(1, 2), Some(0.6));
+        t.merge(0, &h(1, 2, 0.95, 2), 40);
+        assert_eq!(t.get(1, 2), Some(0.6));
+        // negative values (collisions) are bounds too and merge the same way
+        t.merge(0, &h(2, 0, -0.2, 1), 50);
+        t.merge(1, &h(2, 0, -0.01, 1), 60);
+        assert_eq!(t.get(2, 0), Some(-0.2));
+        let mut m = MergedHintBatch::ZEROED;
+        assert_eq!(t.take_into(&mut m), 2);
+        // the queued entry carries the value and origin of its oldest change
+        assert_eq!(
+            (m.entries[0].q, m.origin_ns[0], m.origin_robot[0]),
+            (0.6, 10, 0)
+        );
+        // nothing lower: nothing queued
+        t.merge(0, &h(1, 2, 0.6, 3), 70);
+        assert_eq!(t.pending(), 0);
+        t.merge(1, &h(1, 2, 0.5, 3), 80);
+        assert_eq!((t.pending(), t.get(1, 2)), (1, Some(0.5)));
+    }
+
+    #[test]
+    fn the_rule_follows_the_learners_bound() {
+        assert_eq!(rule_for(ValueBound::Lower), MergeRule::Max);
+        assert_eq!(rule_for(ValueBound::Upper), MergeRule::Min);
+        for b in [ValueBound::Lower, ValueBound::Upper] {
+            assert!(fits(rule_for(b), b));
+            assert!(fits(MergeRule::Mean, b) && fits(MergeRule::Latest, b));
+        }
+        assert!(!fits(MergeRule::Max, ValueBound::Upper));
+        assert!(!fits(MergeRule::Min, ValueBound::Lower));
     }
 
     #[test]

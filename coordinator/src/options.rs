@@ -39,7 +39,9 @@ pub struct CoordArgs {
     /// Hybrid: microseconds to keep spinning after the last message before blocking.
     #[arg(long, default_value_t = 200)]
     pub spin_us: u64,
-    /// How Q hints are merged into the fleet table.
+    /// How Q hints are merged into the fleet table (`qfleet run` and `experiment` always pass
+    /// the rule that fits the learner, `min` for planning; this default is for a coordinator
+    /// started by hand with the paper's learners).
     #[arg(long, value_enum, default_value_t = MergeRule::Max)]
     pub merge: MergeRule,
     /// Directory for result.json and the .hgrm latency files.

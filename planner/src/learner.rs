@@ -326,11 +326,15 @@ pub struct Learner {
     stamp: Vec<u32>,
     stamp_gen: u32,
     // The model of sweeps and replay: per cell a bit per action tried, the (state·4 + action)
-    // pairs in the order first tried, this episode's pairs, whether anything new was tried.
+    // pairs in the order first tried, this episode's pairs, whether anything new was tried,
+    // whether the last planning changed a value.
     tried: Vec<u8>,
     seen: Vec<u32>,
     trail: Vec<u32>,
     model_dirty: bool,
+    planned: bool,
+    // Updates never raise a value (see `keep_values_falling`).
+    monotone: bool,
 }
 
 impl Learner {
@@ -371,6 +375,8 @@ impl Learner {
                 Vec::new()
             },
             model_dirty: false,
+            planned: false,
+            monotone: false,
             optimal_len: task.optimal_len,
             max_steps,
             episode: 0,
@@ -409,9 +415,54 @@ impl Learner {
         &self.q
     }
 
-    /// The Q-table, for applying values learned elsewhere (e.g. a fleet's merged hints).
+    /// The Q-table, for applying values learned elsewhere (e.g. a fleet's merged hints); call
+    /// [`table_changed`](Self::table_changed) when something was changed.
     pub fn q_mut(&mut self) -> &mut QTable {
         &mut self.q
+    }
+
+    /// From now on no update (step, replay, sweep) raises a value: each takes the smaller of
+    /// the value held and its new target. For a learner whose values are upper bounds of Q*
+    /// (optimistic start, see `qfleet_args::ValueBound`) both are upper bounds, so the smaller
+    /// is one too. Alone such a learner never raises a value anyway (from an optimistic start
+    /// every backup is at most the value it replaces), so this changes nothing there; in a
+    /// fleet it keeps a tighter bound set from outside (a merged hint, `min` rule) from being
+    /// raised again by the next backup from this robot's own, looser neighbours.
+    pub fn keep_values_falling(&mut self) {
+        self.monotone = true;
+    }
+
+    /// Adds the move `a` from cell `s` to the model the sweeps back up, as if this learner had
+    /// tried it: another robot of the fleet did, and the grid is deterministic, so its
+    /// transition is known (a shared model). Returns whether it was new; false for a learner
+    /// without a model, a cell out of the grid or not free, or an action out of range.
+    pub fn add_known_move(&mut self, s: u32, a: usize) -> bool {
+        let i = s as usize;
+        if self.tried.is_empty()
+            || a >= 4
+            || i >= self.tried.len()
+            || !self.env.grid().free_flags()[i]
+            || self.tried[i] & (1 << a) != 0
+        {
+            return false;
+        }
+        self.tried[i] |= 1 << a;
+        self.seen.push(s * 4 + a as u32);
+        self.model_dirty = true;
+        true
+    }
+
+    /// Values were set from outside ([`q_mut`](Self::q_mut)): the next episode's sweeps run
+    /// even if this learner tried nothing new, so that they reach the pairs leading there.
+    pub fn table_changed(&mut self) {
+        self.model_dirty = true;
+    }
+
+    /// The (state·4 + action) pairs tried so far, in the order first tried (empty for a learner
+    /// without replay or sweeps): what a fleet robot offers to share after planning changed
+    /// their values.
+    pub fn tried_pairs(&self) -> &[u32] {
+        &self.seen
     }
 
     /// Episodes finished so far.
@@ -499,7 +550,10 @@ impl Learner {
             r + self.cfg.gamma * max4(self.q.row(next as usize))
         };
         let row = self.q.row_mut(s as usize);
-        let q = row[a] + self.cfg.alpha * (target - row[a]);
+        let mut q = row[a] + self.cfg.alpha * (target - row[a]);
+        if self.monotone {
+            q = q.min(row[a]);
+        }
         row[a] = q;
         self.steps += 1;
         self.collisions += (t == Transition::Collided) as u32;
@@ -601,6 +655,7 @@ impl Learner {
             r + self.cfg.gamma * max4(self.q.row(next as usize))
         };
         let row = self.q.row_mut(s);
+        let v = if self.monotone { v.min(row[a]) } else { v };
         let changed = row[a] != v;
         row[a] = v;
         changed
@@ -611,10 +666,11 @@ impl Learner {
     /// model has not changed since a sweep that changed nothing.
     fn plan(&mut self) {
         let x = self.cfg.extras;
+        self.planned = false;
         if x.replay {
             for i in (0..self.trail.len()).rev() {
                 let sa = self.trail[i];
-                self.backup(sa);
+                self.planned |= self.backup(sa);
             }
         }
         if x.sweeps == 0 || !self.model_dirty {
@@ -631,11 +687,18 @@ impl Learner {
                     changed |= self.backup(self.seen[i]);
                 }
             }
+            self.planned |= changed;
             if !changed {
                 self.model_dirty = false;
                 return;
             }
         }
+    }
+
+    /// Whether the replay or sweeps after the last episode changed any value (what a fleet
+    /// robot then offers to share, see [`tried_pairs`](Self::tried_pairs)).
+    pub fn planned(&self) -> bool {
+        self.planned
     }
 
     fn discover_pseudo_targets(&mut self) {

@@ -43,6 +43,8 @@ pub enum MergeRule {
     Mean,
     /// Newest value wins.
     Latest,
+    /// Smallest value ever reported (for learners whose values are upper bounds of Q*).
+    Min,
 }
 
 impl std::fmt::Display for MergeRule {
@@ -51,6 +53,7 @@ impl std::fmt::Display for MergeRule {
             MergeRule::Max => "max",
             MergeRule::Mean => "mean",
             MergeRule::Latest => "latest",
+            MergeRule::Min => "min",
         })
     }
 }
@@ -255,6 +258,10 @@ pub struct RunResult {
     pub wait: WaitStrategy,
     /// Merge rule.
     pub merge: MergeRule,
+    /// The robots' apply rule (`--apply`), filled in by `qfleet run` (the coordinator does not
+    /// know it); with `merge`, the resolved sharing rules of the run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub apply: Option<String>,
     /// One entry per robot id.
     pub robots: Vec<RobotEntry>,
     /// Whether every robot ended on a shortest path.
@@ -395,6 +402,10 @@ pub struct ExperimentResult {
     pub robots: u32,
     /// Sharing mode.
     pub sharing: String,
+    /// Resolved sharing rules `APPLY/MERGE` (e.g. `min/min`), filled in by `qfleet
+    /// experiment` (the coordinator knows only the merge rule).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rules: Option<String>,
     /// Phases.
     pub phases: Vec<PhaseResult>,
     /// Discoveries received (distinct).

@@ -119,7 +119,7 @@ pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, Agent
             robot_id: args.robot_id,
             robots: args.robots,
             goal_id: 0,
-            rule: args.share.apply,
+            rule: args.share.apply_rule(qfleet_args::ValueBound::of(&cfg)),
         }),
         bus,
         base,
@@ -205,6 +205,9 @@ struct Phase {
     at_start: Counters,
     relays_at_start: u64,
     reported: bool,
+    /// Moves of other robots named in merged hints join this learner's sweep model (planning
+    /// learner, `min` rules).
+    shared_model: bool,
 }
 
 impl Robot<'_> {
@@ -311,6 +314,16 @@ impl Robot<'_> {
             .seed
             .wrapping_add(u64::from(a.phase).wrapping_mul(0x9E37_79B9));
         let mut learner = Learner::new(&task, cfg)?;
+        // min-sharing of upper bounds: a tighter fleet value must survive this robot's own
+        // backups (see `Learner::keep_values_falling`), and the moves other robots made join
+        // the model its sweeps back up
+        let bound = qfleet_args::ValueBound::of(&cfg);
+        let min_sharing = self.args.share.share.hints()
+            && bound == qfleet_args::ValueBound::Upper
+            && self.args.share.apply_rule(bound) == crate::share::ApplyRule::Min;
+        if min_sharing {
+            learner.keep_values_falling();
+        }
         if let Some(q) = self.tables.get(&a.goal_id) {
             *learner.q_mut() = q.clone();
         }
@@ -345,6 +358,7 @@ impl Robot<'_> {
             at_start: self.counters(),
             relays_at_start: relays,
             reported: false,
+            shared_model: min_sharing && cfg.extras.needs_model(),
         })
     }
 
@@ -397,6 +411,12 @@ impl Robot<'_> {
                     let rec = p.learner.end_episode(info.transition);
                     p.last_episode_steps = rec.steps;
                     p.records.push(rec);
+                    if share && p.learner.planned() {
+                        self.offer_planned(p);
+                        // the merged batches that piled up during replay and sweeps: drained
+                        // now, before the latest-wins buffer overwrites them
+                        self.poll(Some(p))?;
+                    }
                     break;
                 }
             }
@@ -418,6 +438,23 @@ impl Robot<'_> {
         p.learn_s = p.t0.elapsed().as_secs_f64();
         p.own_final = p.learner.greedy_path_len();
         Ok(())
+    }
+
+    /// After an episode whose replay or sweeps changed values no step noted: offers every tried
+    /// pair's value to the batcher (unchanged ones are skipped there) and sends the batch.
+    fn offer_planned(&mut self, p: &mut Phase) {
+        for i in 0..p.learner.tried_pairs().len() {
+            let sa = p.learner.tried_pairs()[i];
+            let (s, a) = (sa >> 2, (sa & 3) as u8);
+            let q = p.learner.q().row(s as usize)[a as usize];
+            if p.batcher.offer(s, a, q, p.steps, monotonic_ns) {
+                self.send_hints(p);
+            }
+        }
+        // what planning learned goes out now, not `--hint-flush-steps` later
+        if !p.batcher.is_empty() {
+            self.send_hints(p);
+        }
     }
 
     /// A `--pace` pause: sleeps what the pacer says, then shows where the robot is, shares what
@@ -781,8 +818,22 @@ impl Robot<'_> {
                 record(&mut self.merged_hist, now - m.send_time_ns);
             }
             if share && let Some(p) = phase.as_deref_mut() {
+                let before = self.applier.counters().entries_applied;
                 self.applier
                     .apply(m, p.learner.q_mut(), p.batcher.visits(), now);
+                if self.applier.counters().entries_applied != before {
+                    // the planning learner's sweeps carry the new values to their predecessors
+                    p.learner.table_changed();
+                    if p.shared_model {
+                        // and back up the moves other robots made, as their own
+                        let n = (m.count as usize).min(m.entries.len());
+                        for (h, &origin) in m.entries[..n].iter().zip(&m.origin_robot[..n]) {
+                            if origin != self.args.robot_id {
+                                p.learner.add_known_move(h.cell, usize::from(h.action));
+                            }
+                        }
+                    }
+                }
             }
         }
         // discoveries of other robots, relayed by the coordinator (lossless: always drained)

@@ -9,7 +9,11 @@
 //! Entries whose origin is this robot are skipped (they are its own values coming back). The
 //! others are applied by [`ApplyRule`]:
 //!
-//! - `max` (default): `q_local = max(q_local, q_hint)` for positive `q_hint` only. With the
+//! The default is the rule that fits the learner's [`ValueBound`]: `max` for the paper's
+//! learners (lower bounds), `min` for the planning learner (upper bounds); `--apply` overrides
+//! it ([`ApplyRule::for_bound`], [`ApplyRule::fits`]).
+//!
+//! - `max` (paper learners): `q_local = max(q_local, q_hint)` for positive `q_hint` only. With the
 //!   planner's rewards (goal > 0, plain moves 0, collisions < 0) and pseudo-target values below
 //!   the goal's discounted value, every positive Q-value a robot learns is at most the optimal
 //!   Q*, so the maximum over robots is a better estimate of Q* than any single robot's and
@@ -24,6 +28,15 @@
 //!   behind a wall is worth far more than its true Q*, and after the targets are removed those
 //!   overestimates must decay — under `max` every robot's decayed value is raised again by the
 //!   fleet's stale maximum. Pair it with the coordinator's `--merge latest`.
+//! - `min` (planning learner): `q_local = min(q_local, q_hint)`, positive or negative. Its
+//!   values start optimistic and every update keeps them at or above Q*, so the smaller of two
+//!   upper bounds is the better one: an action another robot has tried loses its optimism
+//!   here, and this robot's own exploration goes where no robot has been (shared
+//!   exploration). Pair it with the coordinator's `--merge min`.
+//!
+//! A learner that plans (backward replay, Dyna sweeps) changes many values after an episode
+//! that no step noted; the robot offers its tried pairs' values to the batcher then
+//! ([`HintBatcher::offer`]), so the fleet gets its planned values, not only its step updates.
 //!
 //! Every applied foreign entry also gives one sample of the end-to-end loop latency: the
 //! monotonic time of the oldest robot update merged into it (`origin_ns`) to the moment this
@@ -34,7 +47,7 @@ use bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, QHintBatch, ROBOT_ID_AL
 use clap::{Args, ValueEnum};
 use hdrhistogram::Histogram;
 use planner::QTable;
-pub use qfleet_args::ShareMode;
+pub use qfleet_args::{ShareMode, ValueBound};
 pub use report::ApplyCounters;
 use serde::Serialize;
 
@@ -50,6 +63,28 @@ pub enum ApplyRule {
     Blend,
     /// Take the hint as is (can lower values): one shared table, delayed by a batch.
     Latest,
+    /// Lower to the hint: `q = min(q, q_hint)` (upper-bound learners: planning).
+    Min,
+}
+
+impl ApplyRule {
+    /// The rule that fits a learner whose values keep `bound`: `max` for lower bounds, `min`
+    /// for upper bounds.
+    pub fn for_bound(bound: ValueBound) -> ApplyRule {
+        match bound {
+            ValueBound::Lower => ApplyRule::Max,
+            ValueBound::Upper => ApplyRule::Min,
+        }
+    }
+
+    /// Whether the rule is sound for values that keep `bound` (`max` raises upper bounds to
+    /// stale optimism, `min` lowers lower bounds; `blend` and `latest` use no bound).
+    pub fn fits(self, bound: ValueBound) -> bool {
+        !matches!(
+            (self, bound),
+            (ApplyRule::Max, ValueBound::Upper) | (ApplyRule::Min, ValueBound::Lower)
+        )
+    }
 }
 
 impl std::fmt::Display for ApplyRule {
@@ -58,6 +93,7 @@ impl std::fmt::Display for ApplyRule {
             ApplyRule::Max => "max",
             ApplyRule::Blend => "blend",
             ApplyRule::Latest => "latest",
+            ApplyRule::Min => "min",
         })
     }
 }
@@ -69,9 +105,10 @@ pub struct ShareArgs {
     /// (`discoveries`), both (`both`), or learn alone (`none`).
     #[arg(long, value_enum, default_value_t = ShareMode::Hints)]
     pub share: ShareMode,
-    /// How merged hints are applied to the local Q-table.
-    #[arg(long, value_enum, default_value_t = ApplyRule::Max)]
-    pub apply: ApplyRule,
+    /// How merged hints are applied to the local Q-table (default: the rule that fits the
+    /// learner, `min` for planning and `max` for the paper's learners).
+    #[arg(long, value_enum)]
+    pub apply: Option<ApplyRule>,
     /// Publish the robot's state every k-th step (counted over the whole run, not per episode).
     #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..))]
     pub state_every: u32,
@@ -94,7 +131,7 @@ impl Default for ShareArgs {
     fn default() -> Self {
         ShareArgs {
             share: ShareMode::Hints,
-            apply: ApplyRule::Max,
+            apply: None,
             state_every: 256,
             poll_every: 64,
             hint_batch: HINT_BATCH_CAP as u32,
@@ -121,13 +158,19 @@ impl ShareArgs {
         Ok(())
     }
 
-    /// The options as command-line words, to forward to a robot-agent.
+    /// The apply rule: the one given, else the one that fits the learner's `bound`.
+    pub fn apply_rule(&self, bound: ValueBound) -> ApplyRule {
+        self.apply.unwrap_or(ApplyRule::for_bound(bound))
+    }
+
+    /// The options as command-line words, to forward to a robot-agent (`--apply` only when
+    /// set: the robot resolves the default from its learner the same way).
     pub fn to_cli(&self) -> Vec<String> {
-        vec![
-            "--share".into(),
-            self.share.to_string(),
-            "--apply".into(),
-            self.apply.to_string(),
+        let mut v: Vec<String> = vec!["--share".into(), self.share.to_string()];
+        if let Some(a) = self.apply {
+            v.extend(["--apply".into(), a.to_string()]);
+        }
+        v.extend([
             "--state-every".into(),
             self.state_every.to_string(),
             "--poll-every".into(),
@@ -138,7 +181,8 @@ impl ShareArgs {
             self.hint_flush_steps.to_string(),
             "--hint-min-change".into(),
             self.hint_min_change.to_string(),
-        ]
+        ]);
+        v
     }
 }
 
@@ -192,11 +236,41 @@ impl HintBatcher {
         step: u64,
         now_ns: impl FnOnce() -> u64,
     ) -> bool {
+        self.put(state, action, q, step, now_ns, true)
+    }
+
+    /// Offers a value the learner changed outside a step (replay, sweeps): queued like
+    /// [`note`](Self::note) when it moved enough since last shared, but not counted as a visit
+    /// (a sweep is not an experience). Returns true when the batch is full.
+    #[inline]
+    pub fn offer(
+        &mut self,
+        state: u32,
+        action: u8,
+        q: f32,
+        step: u64,
+        now_ns: impl FnOnce() -> u64,
+    ) -> bool {
+        self.put(state, action, q, step, now_ns, false)
+    }
+
+    #[inline(always)]
+    fn put(
+        &mut self,
+        state: u32,
+        action: u8,
+        q: f32,
+        step: u64,
+        now_ns: impl FnOnce() -> u64,
+        visit: bool,
+    ) -> bool {
         let idx = state as usize * 4 + (action as usize & 3);
         let Some(v) = self.visits.get_mut(idx) else {
             return false;
         };
-        *v = v.saturating_add(1);
+        if visit {
+            *v = v.saturating_add(1);
+        }
         let visits = *v;
         let last = self.last_shared[idx];
         if (q - last).abs() <= self.min_change * q.abs().max(last.abs()) {
@@ -376,6 +450,7 @@ impl MergedApplier {
                     local + vh / (vh + vl) * (h.q - local)
                 }
                 ApplyRule::Latest => h.q,
+                ApplyRule::Min => local.min(h.q),
             };
             if new != local && q.set_checked(cell, action, new) {
                 c.entries_applied += 1;
@@ -501,6 +576,80 @@ mod tests {
         a.set_goal(4);
         a.apply(&bad, &mut q, &[0; 32], 1100);
         assert_eq!(a.counters().batches_rejected, 2);
+    }
+
+    #[test]
+    fn min_rule_lowers_to_tighter_upper_bounds_only() {
+        let g = grid();
+        let mut q = QTable::new(&g);
+        for c in 0..8 {
+            *q.row_mut(c) = [1.0; 4]; // the planning learner's optimistic start
+        }
+        q.set_checked(1, 0, 0.5); // tried here already: tighter than the hint below
+        let ctx = ApplyCtx {
+            robot_id: 0,
+            robots: 2,
+            goal_id: 0,
+            rule: ApplyRule::Min,
+        };
+        let mut a = MergedApplier::new(ctx);
+        let m = merged(&[
+            (1, 0, 0.7, 1),            // looser: kept local
+            (2, 1, 0.3, 1),            // an action robot 1 tried: loses its optimism here
+            (3, 2, -0.5, 1),           // a collision bound: taken too
+            (4, 0, 0.1, 0),            // own value coming back: skipped
+            (5, 0, f32::NAN, 1),       // still validated
+            (6, 3, 0.4, ROBOT_ID_ALL), // fleet resend
+        ]);
+        a.apply(&m, &mut q, &[0; 32], 1100);
+        assert_eq!(q.row(1)[0], 0.5);
+        assert_eq!(q.row(2), &[1.0, 0.3, 1.0, 1.0]);
+        assert_eq!(q.row(3)[2], -0.5);
+        assert_eq!(q.row(4)[0], 1.0);
+        assert_eq!(q.row(5)[0], 1.0);
+        assert_eq!(q.row(6)[3], 0.4);
+        let c = a.counters();
+        assert_eq!(
+            (c.entries_applied, c.entries_own, c.entries_rejected),
+            (3, 1, 1)
+        );
+    }
+
+    #[test]
+    fn the_default_rule_follows_the_learners_bound_and_a_flag_wins() {
+        use planner::LearnerConfig;
+        let planning = ValueBound::of(&LearnerConfig::planning(10, 1));
+        let improved = ValueBound::of(&LearnerConfig::improved(10, 1));
+        let s = ShareArgs::default();
+        assert_eq!(s.apply_rule(planning), ApplyRule::Min);
+        assert_eq!(s.apply_rule(improved), ApplyRule::Max);
+        assert!(!s.to_cli().contains(&"--apply".to_string()));
+        let s = ShareArgs {
+            apply: Some(ApplyRule::Latest),
+            ..ShareArgs::default()
+        };
+        assert_eq!(s.apply_rule(planning), ApplyRule::Latest);
+        assert!(s.to_cli().windows(2).any(|w| w == ["--apply", "latest"]));
+        assert!(ApplyRule::Min.fits(planning) && !ApplyRule::Max.fits(planning));
+        assert!(ApplyRule::Max.fits(improved) && !ApplyRule::Min.fits(improved));
+        assert!(ApplyRule::Blend.fits(planning) && ApplyRule::Latest.fits(improved));
+    }
+
+    #[test]
+    fn offered_planned_values_are_shared_but_not_counted_as_visits() {
+        let mut b = HintBatcher::new(8, 4, 1e-3);
+        assert!(!b.note(1, 2, 0.9, 1, || 5));
+        assert!(!b.offer(1, 2, 0.5, 2, || 5)); // a sweep lowered it: newest value queued
+        assert!(!b.offer(3, 0, 0.25, 3, || 5));
+        assert!(!b.offer(4, 0, 0.0, 3, || 5)); // unchanged since (never) shared: skipped
+        assert_eq!(b.len(), 2);
+        assert_eq!((b.visits()[6], b.visits()[12]), (1, 0));
+        let mut out = QHintBatch::ZEROED;
+        assert_eq!(b.fill(&mut out), 2);
+        assert_eq!((out.entries[0].q, out.entries[0].visits), (0.5, 1));
+        assert_eq!((out.entries[1].q, out.entries[1].visits), (0.25, 0));
+        assert!(!b.offer(3, 0, 0.25, 4, || 5));
+        assert!(b.is_empty(), "already shared");
     }
 
     #[test]

@@ -18,7 +18,8 @@ use coordinator::output::{OutDir, OutFile};
 use launcher::out::{OutDir as LaunchDir, OutError, inventory};
 use launcher::spawn::sibling;
 use launcher::{Exit, Fleet, RestartPolicy, supervise};
-use qfleet_args::{Plan, ShareMode, load_manifest};
+use planner::LearnerConfig;
+use qfleet_args::{Plan, ShareMode, ValueBound, load_manifest};
 use robot_agent::ApplyRule;
 
 use crate::term::{self, out};
@@ -75,42 +76,105 @@ pub struct ExperimentCmd {
 }
 
 /// The two rules of Q-hint sharing: how the coordinator merges robots' values into the fleet
-/// table, and how a robot applies the fleet's values to its own table.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Args)]
+/// table, and how a robot applies the fleet's values to its own table. A rule not given is the
+/// one that fits the learner ([`Rules::resolve`]): `min` for the planning learner, whose values
+/// are upper bounds of Q*, `max` for the paper's learners, whose values are lower bounds.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Args)]
 pub struct Rules {
-    /// How a robot applies merged hints (robot-agent `--apply`).
-    #[arg(long, value_enum, default_value_t = ApplyRule::Max)]
+    /// How a robot applies merged hints (robot-agent `--apply`; default: min for planning,
+    /// max for the paper's learners).
+    #[arg(long, value_enum)]
+    pub apply: Option<ApplyRule>,
+    /// How the coordinator merges hints into the fleet table (default: min for planning, max
+    /// for the paper's learners).
+    #[arg(long, value_enum)]
+    pub merge: Option<MergeRule>,
+}
+
+/// Both rules, decided.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Resolved {
+    /// Robot side.
     pub apply: ApplyRule,
-    /// How the coordinator merges hints into the fleet table.
-    #[arg(long, value_enum, default_value_t = MergeRule::Max)]
+    /// Coordinator side.
     pub merge: MergeRule,
 }
 
-impl Default for Rules {
-    fn default() -> Self {
-        Rules {
-            apply: ApplyRule::Max,
-            merge: MergeRule::Max,
-        }
-    }
-}
-
-impl std::fmt::Display for Rules {
+impl std::fmt::Display for Resolved {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(f, "{}/{}", self.apply, self.merge)
     }
 }
 
+impl Rules {
+    /// The rules for a learner: those given, and for the others the one that fits the bound
+    /// its values keep.
+    pub fn resolve(self, cfg: &LearnerConfig) -> Resolved {
+        let b = ValueBound::of(cfg);
+        Resolved {
+            apply: self.apply.unwrap_or(ApplyRule::for_bound(b)),
+            merge: self.merge.unwrap_or(coordinator::merge::rule_for(b)),
+        }
+    }
+
+    /// A warning when a rule given does not fit the learner (`max` with upper bounds, `min`
+    /// with lower bounds). Not an error: measuring the wrong pairing is a legitimate ablation.
+    pub fn misfit(self, cfg: &LearnerConfig) -> Option<String> {
+        let b = ValueBound::of(cfg);
+        let mut bad = Vec::new();
+        if let Some(a) = self.apply.filter(|a| !a.fits(b)) {
+            bad.push(format!("--apply {a}"));
+        }
+        if let Some(m) = self.merge.filter(|m| !coordinator::merge::fits(*m, b)) {
+            bad.push(format!("--merge {m}"));
+        }
+        if bad.is_empty() {
+            return None;
+        }
+        let (kind, fit) = match b {
+            ValueBound::Upper => ("upper bounds of Q* (optimistic start)", "min/min"),
+            ValueBound::Lower => ("lower bounds of Q* (start at 0)", "max/max"),
+        };
+        let verb = if bad.len() > 1 { "do" } else { "does" };
+        Some(format!(
+            "warning: {} {verb} not fit this learner: its values are {kind}; the rules that fit are {fit} (running as asked)",
+            bad.join(" and ")
+        ))
+    }
+}
+
+impl std::fmt::Display for Rules {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let a = self.apply.map_or("auto".to_string(), |a| a.to_string());
+        let m = self.merge.map_or("auto".to_string(), |m| m.to_string());
+        write!(f, "{a}/{m}")
+    }
+}
+
 impl std::str::FromStr for Rules {
     type Err = String;
-    /// `APPLY/MERGE`, e.g. `max/max` or `latest/latest`.
+    /// `APPLY/MERGE`, e.g. `max/max` or `min/min`; `auto` (alone or for either side) is the
+    /// rule that fits the learner.
     fn from_str(s: &str) -> Result<Self, String> {
+        if s == "auto" {
+            return Ok(Rules::default());
+        }
         let (a, m) = s
             .split_once('/')
-            .ok_or_else(|| format!("{s:?}: expected APPLY/MERGE, e.g. latest/latest"))?;
+            .ok_or_else(|| format!("{s:?}: expected APPLY/MERGE, e.g. min/min, or auto"))?;
         Ok(Rules {
-            apply: ApplyRule::from_str(a, true).map_err(|e| format!("apply rule {a:?}: {e}"))?,
-            merge: MergeRule::from_str(m, true).map_err(|e| format!("merge rule {m:?}: {e}"))?,
+            apply: match a {
+                "auto" => None,
+                _ => Some(
+                    ApplyRule::from_str(a, true).map_err(|e| format!("apply rule {a:?}: {e}"))?,
+                ),
+            },
+            merge: match m {
+                "auto" => None,
+                _ => Some(
+                    MergeRule::from_str(m, true).map_err(|e| format!("merge rule {m:?}: {e}"))?,
+                ),
+            },
         })
     }
 }
@@ -182,6 +246,7 @@ pub fn run_once(
     )?;
     crate::catch_interrupts()?;
     let m = &plan.manifest;
+    let rules = rules.resolve(&m.learner.config().context(Exit::BadInput)?);
     // the coordinator waits for a lost robot while the launcher may still restart it
     let restarts = match sup.policy {
         RestartPolicy::Never => 0,
@@ -268,9 +333,12 @@ pub fn run_once(
         )
         .context(supervised.exit));
     }
-    let result: ExperimentResult = dir
+    let mut result: ExperimentResult = dir
         .read_json(OutFile::Result)
         .context("the coordinator wrote no result")?;
+    // the coordinator knows only the merge rule: the result names both
+    result.rules = Some(rules.to_string());
+    dir.write_json(OutFile::Result, &result)?;
     Ok(result)
 }
 
@@ -309,6 +377,17 @@ impl ExperimentCmd {
                 e => anyhow!(e).context(Exit::BadInput),
             })?;
         let out = out_dir.path().to_path_buf();
+        let cfg = plan.manifest.learner.config().context(Exit::BadInput)?;
+        if let Some(w) = self.rules.misfit(&cfg) {
+            term::warn(&w);
+        }
+        if !self.json {
+            out!(
+                "learner {}, sharing rules {} (apply/merge)",
+                plan.manifest.learner.learner,
+                self.rules.resolve(&cfg)
+            )?;
+        }
         let mut results = Vec::new();
         for &seed in &plan.manifest.seeds.clone() {
             let id = make_run_id(self.run_id.as_deref(), &format!("s{seed}"));
@@ -356,5 +435,37 @@ impl ExperimentCmd {
             out!("wrote {}/seed-*/result.json", out.display())?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rules_default_to_the_learners_bound_and_a_misfit_is_named() {
+        let planning = LearnerConfig::planning(10, 1);
+        let improved = LearnerConfig::improved(10, 1);
+        let auto: Rules = "auto".parse().unwrap();
+        assert_eq!(auto, Rules::default());
+        assert_eq!(auto.resolve(&planning).to_string(), "min/min");
+        assert_eq!(auto.resolve(&improved).to_string(), "max/max");
+        assert_eq!(auto.misfit(&planning), None);
+        let half: Rules = "auto/max".parse().unwrap();
+        assert_eq!(half.to_string(), "auto/max");
+        assert_eq!(half.resolve(&planning).to_string(), "min/max");
+        let w = half.misfit(&planning).unwrap();
+        assert!(w.contains("--merge max does not fit"), "{w}");
+        let both: Rules = "max/max".parse().unwrap();
+        assert!(both.misfit(&planning).unwrap().contains("do not fit"));
+        assert_eq!(both.misfit(&improved), None);
+        let min: Rules = "min/min".parse().unwrap();
+        assert!(min.misfit(&improved).unwrap().contains("max/max"));
+        assert_eq!(
+            "latest/mean".parse::<Rules>().unwrap().misfit(&planning),
+            None
+        );
+        assert!("min".parse::<Rules>().is_err());
+        assert!("min/most".parse::<Rules>().is_err());
     }
 }

@@ -45,9 +45,10 @@ pub struct RunCmd {
     /// Hybrid wait: microseconds of spinning after the last message before blocking.
     #[arg(long, default_value_t = 200)]
     spin_us: u64,
-    /// How the coordinator merges Q hints.
-    #[arg(long, value_enum, default_value_t = MergeRule::Max)]
-    merge: MergeRule,
+    /// How the coordinator merges Q hints (default: the rule that fits the learner, `min` for
+    /// planning, `max` for the paper's learners; see `--apply`).
+    #[arg(long, value_enum)]
+    merge: Option<MergeRule>,
     /// Run id (default: derived from the process id and the time).
     #[arg(long)]
     run_id: Option<String>,
@@ -91,9 +92,22 @@ pub struct RunCmd {
 
 impl RunCmd {
     /// Runs the command.
-    pub fn run(self) -> Result<()> {
+    pub fn run(mut self) -> Result<()> {
         // check everything before starting any process: bad input is exit code 2
         let (task, cfg, grace, time_limit, run_id) = self.check().context(Exit::BadInput)?;
+        // the sharing rules: those given, the ones that fit the learner for the others
+        let rules = crate::experiment::Rules {
+            apply: self.share.apply,
+            merge: self.merge,
+        };
+        if self.share.share.hints()
+            && let Some(w) = rules.misfit(&cfg)
+        {
+            term::warn(&w);
+        }
+        let rules = rules.resolve(&cfg);
+        self.share.apply = Some(rules.apply);
+        self.merge = Some(rules.merge);
         // the run id is ours alone from here until this process ends, however it ends
         let claim = crate::launch::claim(&run_id)?;
         let coord_bin = sibling("qfleet-coordinator")?;
@@ -116,7 +130,7 @@ impl RunCmd {
             ("map_args".into(), self.map.to_cli().join(" ")),
             ("learner_args".into(), self.learner.to_cli().join(" ")),
             ("share_args".into(), self.share.to_cli().join(" ")),
-            ("merge".into(), self.merge.to_string()),
+            ("merge".into(), rules.merge.to_string()),
             ("wait".into(), self.wait.to_string()),
             ("pace".into(), qfleet_args::pace_cli(self.pace).join(" ")),
         ];
@@ -143,9 +157,19 @@ impl RunCmd {
         let quit = crate::live::finish(watch);
         // whatever happened: no file of the run may stay behind
         crate::launch::clean_up(&run_id);
-        let result = std::fs::read_to_string(out.join("result.json"))
+        let mut result = std::fs::read_to_string(out.join("result.json"))
             .ok()
             .and_then(|t| serde_json::from_str::<RunResult>(&t).ok());
+        // the coordinator knows only the merge rule: the result names the apply rule too
+        if let Some(r) = &mut result {
+            r.apply = Some(rules.apply.to_string());
+            let dir = coordinator::output::OutDir::new(&out);
+            if let Err(e) = dir.write_json(coordinator::output::OutFile::Result, r) {
+                term::warn(&format!(
+                    "warning: adding the apply rule to result.json: {e}"
+                ));
+            }
+        }
         if result.is_some()
             && !out_dir.is_temp()
             && let Err(e) = crate::runplots::write(&out)
@@ -195,6 +219,11 @@ impl RunCmd {
             inventory(&kept)
         )
         .context(exit))
+    }
+
+    /// The merge rule, once `run` resolved it (`max` before).
+    fn merge_rule(&self) -> MergeRule {
+        self.merge.unwrap_or(MergeRule::Max)
     }
 
     /// Validates every option; the task, learner config, grace, time limit and run id.
@@ -263,7 +292,7 @@ impl RunCmd {
                     "--spin-us",
                     &self.spin_us.to_string(),
                 ])
-                .args(["--merge", &self.merge.to_string(), "--progress"])
+                .args(["--merge", &self.merge_rule().to_string(), "--progress"])
                 .args(["--hang-ms", &self.hang_ms.to_string()])
                 .args(["--restarts", &restarts.to_string()])
                 .args(["--timeout", &timeout.to_string()])
@@ -350,13 +379,14 @@ fn fmt_us(ns: u64) -> String {
 
 fn print_human(r: &RunResult, out: &Path, temp_out: bool) -> Result<()> {
     out!(
-        "run {}: {} robots on {} ({} → {}), wait {}, merge {}",
+        "run {}: {} robots on {} ({} → {}), wait {}, apply {}, merge {}",
         r.run_id,
         r.robots.len(),
         r.map,
         r.start,
         r.goal,
         r.wait,
+        r.apply.as_deref().unwrap_or("?"),
         r.merge
     )?;
     for x in &r.robots {

@@ -39,9 +39,21 @@ pub struct SweepCmd {
     #[arg(long, value_delimiter = ',')]
     baseline_seeds: Vec<u64>,
     /// Sharing rules `APPLY/MERGE` to compare for the modes that share hints (apply: max,
-    /// blend, latest; merge: max, mean, latest); modes without hints run once.
-    #[arg(long, value_delimiter = ',', default_value = "max/max")]
+    /// min, blend, latest; merge: max, min, mean, latest; `auto` = the rules that fit the
+    /// learner: min/min for planning, max/max for the paper's learners); modes without hints
+    /// run once.
+    #[arg(long, value_delimiter = ',', default_value = "auto")]
     rules: Vec<Rules>,
+    /// Learner of every run, overriding the manifests' `[learner] kind` (its other options
+    /// stay).
+    #[arg(long)]
+    learner: Option<planner::LearnerKind>,
+    /// Slow every robot to this many environment steps per second (robot-agent `--pace`), so
+    /// that the robots of a run learn at the same time: unpaced, a planning robot reaches its
+    /// optimum within a few scheduler time slices, and N robots on 2 cores learn mostly one
+    /// after another (the later ones warm-started from the earlier ones' fleet table).
+    #[arg(long, value_name = "STEPS_PER_S", value_parser = qfleet_args::parse_pace)]
+    pace: Option<f64>,
     /// Directory for the runs' files, sweep.json and sweep.md.
     #[arg(long, default_value = "results/sweep")]
     out: PathBuf,
@@ -151,7 +163,12 @@ impl SweepCmd {
         let mut skipped = Vec::new();
         for file in &self.files {
             let base = match load_plan(file) {
-                Ok(p) => p,
+                Ok(mut p) => {
+                    if let Some(k) = self.learner {
+                        p.manifest.learner.learner = k;
+                    }
+                    p
+                }
                 Err(e) => {
                     term::warn(&format!("sweep: skipping {}: {e:#}", file.display()));
                     skipped.push(format!("{}: {e:#}", file.display()));
@@ -180,7 +197,12 @@ impl SweepCmd {
                     } else {
                         &self.seeds
                     };
-                    let label = match rules {
+                    let learner_cfg = base.manifest.learner.config()?;
+                    if let Some(w) = rules.and_then(|r| r.misfit(&learner_cfg)) {
+                        term::warn(&format!("sweep: {map}: {w}"));
+                    }
+                    let resolved = rules.map(|r| r.resolve(&learner_cfg));
+                    let label = match resolved {
                         Some(r) => format!("{}-{}-{}", mode.as_cli(), r.apply, r.merge),
                         None => mode.as_cli().to_string(),
                     };
@@ -209,15 +231,11 @@ impl SweepCmd {
                         let rules = rules.unwrap_or_default();
                         let mut attempt = 0;
                         let r = loop {
-                            match run_once(
-                                &plan,
-                                seed,
-                                rules,
-                                &id,
-                                &dir,
-                                Supervision::default(),
-                                None,
-                            ) {
+                            let sup = Supervision {
+                                pace: self.pace,
+                                ..Supervision::default()
+                            };
+                            match run_once(&plan, seed, rules, &id, &dir, sup, None) {
                                 Ok(r) => break r,
                                 // a run that failed on the bus (not in the learning) is run
                                 // again, up to twice, with a fresh run id; retries are reported
@@ -290,7 +308,7 @@ impl SweepCmd {
                         map: map.clone(),
                         robots: n,
                         sharing: mode.as_cli().into(),
-                        rules: rules.map_or("-".into(), |r| r.to_string()),
+                        rules: resolved.map_or("-".into(), |r| r.to_string()),
                         runs: seeds.len(),
                         retries,
                         robots_optimal: ok,
