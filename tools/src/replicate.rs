@@ -169,7 +169,7 @@ fn variants(ablation: bool) -> Vec<Variant> {
             },
             Variant {
                 name: "imp-pseudo-half",
-                what: "our default with pseudo targets kept until N/2",
+                what: "the improved learner with pseudo targets kept until N/2",
                 cfg: |n| LearnerConfig {
                     pseudo: Some(PseudoConfig {
                         remove_at: 0.5,
@@ -180,7 +180,7 @@ fn variants(ablation: bool) -> Vec<Variant> {
             },
             Variant {
                 name: "imp-no-pseudo",
-                what: "our default without pseudo targets",
+                what: "the improved learner without pseudo targets",
                 cfg: |n| LearnerConfig {
                     pseudo: None,
                     ..LearnerConfig::improved(n, 0)
