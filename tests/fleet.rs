@@ -106,8 +106,12 @@ fn the_default_run_is_planning_with_min_rules_and_every_robot_ends_optimal() {
     for x in robots {
         assert_eq!(x["status"], "finished", "{x}");
         assert_eq!(x["final_path_len"], x["optimal_path_len"], "{x}");
-        assert!(u(x, "hints_applied") > 0, "nothing shared: {x}");
+        assert!(u(x, "hints_received") > 0, "nothing reached robot: {x}");
     }
+    // under `min` a robot applies only values below its own: one that learned ahead of the
+    // others may apply none (seen once in a loaded full run), but the fleet shares
+    let applied: u64 = robots.iter().map(|x| u(x, "hints_applied")).sum();
+    assert!(applied > 0, "nothing shared: {r}");
     assert_eq!(r["all_optimal"], true, "{r}");
     assert_eq!(u(&r, "discoveries_sent"), 0);
     assert_eq!(u(&r, "discoveries_received"), 0);
