@@ -3,6 +3,7 @@
 mod bench;
 mod clean;
 mod experiment;
+mod join;
 mod learn;
 mod plots;
 mod replicate;
@@ -37,6 +38,8 @@ enum Command {
     Sweep(sweep::SweepCmd),
     /// Benchmark the update loop against raw iceoryx2, Unix sockets and crossbeam; fleet scale.
     Bench(bench::BenchCmd),
+    /// Run robots of a run whose coordinator is on another host (`qfleet run … --listen`).
+    Join(join::JoinCmd),
 }
 
 fn main() {
@@ -49,6 +52,7 @@ fn main() {
         Command::Bench(c) => c.run(),
         Command::Experiment(c) => c.run(),
         Command::Sweep(c) => c.run(),
+        Command::Join(c) => c.run(),
     };
     if let Err(e) = result {
         eprintln!("qfleet: error: {}", report(&e));

@@ -71,9 +71,11 @@ pub struct RunCmd {
     /// A running robot silent this many ms is reported hung (and restarted with the policy).
     #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..))]
     hang_ms: u64,
+    #[command(flatten)]
+    remote: crate::join::RemoteArgs,
 }
 
-fn sibling(name: &str) -> Result<PathBuf> {
+pub(crate) fn sibling(name: &str) -> Result<PathBuf> {
     let exe = std::env::current_exe().context("cannot locate the qfleet executable")?;
     let dir = exe
         .parent()
@@ -142,6 +144,8 @@ impl RunCmd {
         // a result from an earlier run in the same directory must not be mistaken for ours
         let _ = std::fs::remove_file(out.join("result.json"));
 
+        let fleet = self.remote.total(self.robots)?; // issue 12: robots on other hosts
+        let hub = (self.remote).start_hub(&run_id, self.robots, &self.map, &self.learner, &self.share)?;
         let interrupts = Arc::new(AtomicU32::new(0));
         {
             let i = Arc::clone(&interrupts);
@@ -161,7 +165,12 @@ impl RunCmd {
             time_limit,
             &task,
             cfg.episodes,
+            fleet,
         );
+        let hosts = crate::join::finish_hub(hub, &out, self.robots).unwrap_or_else(|e| {
+            eprintln!("qfleet: warning: {e:#}");
+            None
+        });
         // whatever happened: no file of the run may stay behind
         let cleaned = bus::clean_stale(&bus_schema::names::iceoryx_prefix(&run_id));
         let leftovers = bus::leftover_files(&bus_schema::names::iceoryx_prefix(&run_id));
@@ -183,7 +192,7 @@ impl RunCmd {
             eprintln!("qfleet: warning: files of run {run_id} left behind: {leftovers:?}");
         }
         match &result {
-            Some(r) if self.json => println!("{}", serde_json::to_string(r)?),
+            Some(r) if self.json => println!("{}", crate::join::with_hosts(r, &hosts, self.robots)?),
             Some(r) => print_human(r, &out, temp_out),
             None => {}
         }
@@ -208,6 +217,7 @@ impl RunCmd {
         time_limit: Duration,
         task: &planner::task::Task,
         episodes: u32,
+        fleet: u32,
     ) -> Result<Vec<String>> {
         let restarts = match self.restart {
             RestartPolicy::Never => 0,
@@ -215,7 +225,7 @@ impl RunCmd {
         };
         let coordinator = || -> Result<Command> {
             let mut cmd = Command::new(coord_bin);
-            cmd.args(["--run-id", run_id, "--robots", &self.robots.to_string()])
+            cmd.args(["--run-id", run_id, "--robots", &fleet.to_string()])
                 .args(self.map.to_cli())
                 .args([
                     "--wait",
@@ -224,7 +234,7 @@ impl RunCmd {
                     &self.spin_us.to_string(),
                 ])
                 .args(["--merge", &self.merge.to_string(), "--progress"])
-                .args(["--hang-ms", &self.hang_ms.to_string()])
+                .args(["--hang-ms", &self.remote.hang_ms(self.hang_ms).to_string()])
                 .args(["--restarts", &restarts.to_string()])
                 .arg("--out")
                 .arg(out)
@@ -236,7 +246,7 @@ impl RunCmd {
         let robot = |id: u32| -> Result<Command> {
             let mut cmd = Command::new(robot_bin);
             cmd.args(["--run-id", run_id, "--robot-id", &id.to_string()])
-                .args(["--robots", &self.robots.to_string()])
+                .args(["--robots", &fleet.to_string()])
                 .args(self.map.to_cli())
                 .args(self.learner.to_cli())
                 .args([
