@@ -63,7 +63,7 @@ impl Outgoing {
             self.last_send = Some(now);
         }
         self.kept.push_back((seq, build(seq)));
-        Ok(&self.kept.back().map_or(&[][..], |(_, f)| f.as_slice()))
+        Ok(self.kept.back().map_or(&[][..], |(_, f)| f.as_slice()))
     }
 
     /// The peer has every frame with seq `< acked`: forget them.
@@ -158,7 +158,7 @@ mod tests {
         let mut out = Outgoing::default();
         let mut inc = Incoming::default();
         let mut delivered = Vec::new();
-        let mut wire = |f: &[u8], up: bool, inc: &mut Incoming, got: &mut Vec<u64>| {
+        let wire = |f: &[u8], up: bool, inc: &mut Incoming, got: &mut Vec<u64>| {
             if up && inc.arrive(seq_of(f)) == Arrival::Next {
                 got.push(seq_of(f));
             }

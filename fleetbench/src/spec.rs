@@ -131,8 +131,6 @@ pub enum RoleSpec {
         /// Where to write the latency histogram.
         hist_path: PathBuf,
     },
-    /// A lightweight robot of the scale benchmark: emits hint batches as fast as the
-    /// coordinator's buffer allows and applies the fleet's merged hints.
     /// Cross-host floor: TCP echo on the coordinator's host.
     TcpEcho {
         /// `ADDR:PORT` to listen on.
@@ -199,6 +197,8 @@ pub enum RoleSpec {
         /// Zenoh's low-latency transport.
         lowlatency: bool,
     },
+    /// A lightweight robot of the scale benchmark: emits hint batches as fast as the
+    /// coordinator's buffer allows and applies the fleet's merged hints.
     ScaleRobot {
         /// Run id.
         run_id: String,

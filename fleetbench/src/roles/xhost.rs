@@ -185,7 +185,7 @@ pub fn zenoh_ping(
         deadline.reset();
         loop {
             match sub.try_recv() {
-                Ok(Some(s)) if s.payload().to_bytes()[..8] == i.to_le_bytes() => break,
+                Ok(Some(s)) if s.payload().to_bytes().get(..8) == Some(&i.to_le_bytes()[..]) => break,
                 Ok(Some(_)) => {}
                 _ => {
                     deadline.check()?;
@@ -255,7 +255,7 @@ pub fn bridged_robots(
         std::thread::spawn(move || -> Result<(), String> {
             let j = bridge::Joiner::new(session, jplan, clock, "bench-robots", tuning)
                 .map_err(|e| e.to_string());
-            let _ = ready_tx.send(j.as_ref().map(drop).map_err(Clone::clone));
+            let _ = ready_tx.send(j.as_ref().map(|_| ()).map_err(Clone::clone));
             let mut j = j?;
             // iceoryx2 ports belong to the thread that made them: serve here
             if let Some(&cpu) = crate::cpu::assigned_cpus().get(1) {
