@@ -103,18 +103,26 @@ impl TwoHosts {
     /// private tmpfs on /dev/shm and /tmp/iceoryx2.
     fn command(&self, host: Host, program: &Path, args: &[&str]) -> Command {
         let mut c = Command::new("ip");
-        c.args(["netns", "exec", self.ns(host), "unshare", "-m", "--propagation", "private"])
-            .args([
-                "sh",
-                "-c",
-                "mount -t tmpfs qfleet-shm /dev/shm && mkdir -p /tmp/iceoryx2 && \
+        c.args([
+            "netns",
+            "exec",
+            self.ns(host),
+            "unshare",
+            "-m",
+            "--propagation",
+            "private",
+        ])
+        .args([
+            "sh",
+            "-c",
+            "mount -t tmpfs qfleet-shm /dev/shm && mkdir -p /tmp/iceoryx2 && \
                  mount -t tmpfs qfleet-iox /tmp/iceoryx2 && exec \"$0\" \"$@\"",
-            ])
-            .arg(program)
-            .args(args)
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped());
+        ])
+        .arg(program)
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
         c
     }
 
@@ -155,24 +163,48 @@ impl Drop for TwoHosts {
 }
 
 /// `qfleet run` on host A with `local` robots and `remote` robots to come from host B.
-fn start_a(hosts: &TwoHosts, id: &str, out: &Path, local: u32, remote: u32, extra: &[&str]) -> Child {
+fn start_a(
+    hosts: &TwoHosts,
+    id: &str,
+    out: &Path,
+    local: u32,
+    remote: u32,
+    extra: &[&str],
+) -> Child {
     let (l, r) = (local.to_string(), remote.to_string());
     let out = out.display().to_string();
     let mut args = vec![
-        "run", "--run-id", id, "--robots", &l, "--remote-robots", &r, "--listen", ENDPOINT,
-        "--out", &out,
+        "run",
+        "--run-id",
+        id,
+        "--robots",
+        &l,
+        "--remote-robots",
+        &r,
+        "--listen",
+        ENDPOINT,
+        "--out",
+        &out,
     ];
     args.extend_from_slice(extra);
-    hosts.command(Host::A, &bin("qfleet"), &args).spawn().expect("spawn qfleet run")
+    hosts
+        .command(Host::A, &bin("qfleet"), &args)
+        .spawn()
+        .expect("spawn qfleet run")
 }
 
 /// `qfleet join` on host B.
 fn start_b(hosts: &TwoHosts, robots: u32, out: &Path, extra: &[&str]) -> Child {
     let n = robots.to_string();
     let out = out.display().to_string();
-    let mut args = vec!["join", ENDPOINT, "--robots", &n, "--name", "host-b", "--out", &out];
+    let mut args = vec![
+        "join", ENDPOINT, "--robots", &n, "--name", "host-b", "--out", &out,
+    ];
     args.extend_from_slice(extra);
-    hosts.command(Host::B, &bin("qfleet"), &args).spawn().expect("spawn qfleet join")
+    hosts
+        .command(Host::B, &bin("qfleet"), &args)
+        .spawn()
+        .expect("spawn qfleet join")
 }
 
 fn result(dir: &Path, out: &Output) -> Value {
@@ -196,7 +228,10 @@ fn assert_complete(r: &Value, robots: u64) {
         assert_eq!(x["discoveries_acked"], x["discoveries_sent"], "{x}");
     }
     assert_eq!(r["discoveries_received"], r["discoveries_sent"], "{r}");
-    assert!(r["discoveries_sent"].as_u64().unwrap_or(0) > 0, "nothing crossed: {r}");
+    assert!(
+        r["discoveries_sent"].as_u64().unwrap_or(0) > 0,
+        "nothing crossed: {r}"
+    );
 }
 
 fn host_b(r: &Value) -> &Value {
@@ -211,7 +246,10 @@ fn host_b(r: &Value) -> &Value {
 /// logs to exist and a little learning time).
 fn wait_joined(dir_b: &Path, ids: &[u32]) {
     let deadline = Instant::now() + Duration::from_secs(60);
-    while ids.iter().any(|id| !dir_b.join(format!("robot-{id}.log")).exists()) {
+    while ids
+        .iter()
+        .any(|id| !dir_b.join(format!("robot-{id}.log")).exists())
+    {
         assert!(Instant::now() < deadline, "host B never started its robots");
         std::thread::sleep(Duration::from_millis(50));
     }
@@ -227,7 +265,9 @@ const LONG: [&str; 4] = ["--map", "builtin:paper-20", "--episodes", "150000"];
 
 #[test]
 fn a_run_across_two_hosts_completes_with_every_discovery_delivered() {
-    let Some(hosts) = TwoHosts::new("run") else { return };
+    let Some(hosts) = TwoHosts::new("run") else {
+        return;
+    };
     let _ = bin("qfleet");
     let id = run_id("mh-run");
     let (da, db) = scratch_pair(&id);
@@ -254,7 +294,9 @@ fn a_run_across_two_hosts_completes_with_every_discovery_delivered() {
 
 #[test]
 fn the_link_down_for_two_seconds_loses_nothing_and_counts_a_reconnect() {
-    let Some(hosts) = TwoHosts::new("link-down") else { return };
+    let Some(hosts) = TwoHosts::new("link-down") else {
+        return;
+    };
     let _ = bin("qfleet");
     let id = run_id("mh-down");
     let (da, db) = scratch_pair(&id);
@@ -271,7 +313,10 @@ fn the_link_down_for_two_seconds_loses_nothing_and_counts_a_reconnect() {
     let r = result(&da, &out_a);
     assert_complete(&r, 3);
     let b = host_b(&r);
-    assert!(b["reconnects"].as_u64() >= Some(1), "no reconnect counted: {b}");
+    assert!(
+        b["reconnects"].as_u64() >= Some(1),
+        "no reconnect counted: {b}"
+    );
     assert!(b["down_ms"].as_u64() >= Some(1000), "{b}");
     eprintln!("after 2 s down: {b}");
     let _ = std::fs::remove_dir_all(&da);
@@ -280,11 +325,20 @@ fn the_link_down_for_two_seconds_loses_nothing_and_counts_a_reconnect() {
 
 #[test]
 fn a_killed_joining_host_has_its_robots_reported_lost_and_the_run_completes() {
-    let Some(hosts) = TwoHosts::new("host-killed") else { return };
+    let Some(hosts) = TwoHosts::new("host-killed") else {
+        return;
+    };
     let _ = bin("qfleet");
     let id = run_id("mh-kill");
     let (da, db) = scratch_pair(&id);
-    let a = start_a(&hosts, &id, &da, 1, 2, &[&LONG[..], &["--host-deadline", "3"]].concat());
+    let a = start_a(
+        &hosts,
+        &id,
+        &da,
+        1,
+        2,
+        &[&LONG[..], &["--host-deadline", "3"]].concat(),
+    );
     let b = start_b(&hosts, 2, &db, &[]);
     wait_joined(&db, &[1, 2]);
     hosts.kill_all(Host::B);
@@ -304,18 +358,27 @@ fn a_killed_joining_host_has_its_robots_reported_lost_and_the_run_completes() {
 
 #[test]
 fn a_join_with_another_schema_version_is_refused_clearly_on_both_hosts() {
-    let Some(hosts) = TwoHosts::new("schema") else { return };
+    let Some(hosts) = TwoHosts::new("schema") else {
+        return;
+    };
     let _ = bin("qfleet");
     let id = run_id("mh-schema");
     let (da, db) = scratch_pair(&id);
     let a = start_a(&hosts, &id, &da, 1, 1, &SHORT);
     let b = start_b(&hosts, 1, &db, &["--schema-version-override", "999"]);
     let out_b = wait_bounded(b, LIMIT);
-    assert!(!out_b.status.success(), "host B joined: {}", describe(&out_b));
+    assert!(
+        !out_b.status.success(),
+        "host B joined: {}",
+        describe(&out_b)
+    );
     let eb = String::from_utf8_lossy(&out_b.stderr);
     let ours = format!("v{}", bus_schema::SCHEMA_VERSION);
     assert!(
-        eb.contains("join refused") && eb.contains("schema version mismatch") && eb.contains("v999") && eb.contains(&ours),
+        eb.contains("join refused")
+            && eb.contains("schema version mismatch")
+            && eb.contains("v999")
+            && eb.contains(&ours),
         "{eb}"
     );
     // host A goes on waiting for a robot that can join: stop it as a user would

@@ -182,7 +182,11 @@ mod tests {
     fn silence_takes_the_link_down_then_lost_and_a_heartbeat_brings_it_back() {
         let t0 = Instant::now();
         let mut w = LinkWatch::new(t0, 500 * MS, 5000 * MS);
-        assert_eq!(w.tick(t0 + 10_000 * MS), None, "not joined: no deadline yet");
+        assert_eq!(
+            w.tick(t0 + 10_000 * MS),
+            None,
+            "not joined: no deadline yet"
+        );
         assert_eq!(w.heard(t0), Some(LinkEvent::Joined));
         assert_eq!(w.tick(t0 + 400 * MS), None);
         assert_eq!(w.tick(t0 + 600 * MS), Some(LinkEvent::WentDown));

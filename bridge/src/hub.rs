@@ -152,7 +152,11 @@ struct Host {
     report: HostReport,
 }
 
-fn run(session: &zenoh::Session, opts: &HubOptions, stop: &AtomicBool) -> Result<HubReport, BridgeError> {
+fn run(
+    session: &zenoh::Session,
+    opts: &HubOptions,
+    stop: &AtomicBool,
+) -> Result<HubReport, BridgeError> {
     let plan = &opts.plan;
     let zerr = |what: &str| {
         let what = what.to_string();
@@ -250,10 +254,7 @@ fn answer_join(
             eprintln!("qfleet: warning: answering a join: {e}");
         }
     };
-    let req: JoinRequest = match q
-        .payload()
-        .map(|p| serde_json::from_slice(&p.to_bytes()))
-    {
+    let req: JoinRequest = match q.payload().map(|p| serde_json::from_slice(&p.to_bytes())) {
         Some(Ok(r)) => r,
         other => {
             let reason = match other {
@@ -291,7 +292,12 @@ fn answer_join(
         robot_ids: ids.clone().collect(),
         robot_args: ids
             .clone()
-            .map(|id| plan.robot_args.get(id as usize).cloned().unwrap_or_default())
+            .map(|id| {
+                plan.robot_args
+                    .get(id as usize)
+                    .cloned()
+                    .unwrap_or_default()
+            })
             .collect(),
         files: plan.files.clone(),
         hint_buffer: plan.hint_buffer,
@@ -365,7 +371,10 @@ impl Host {
             }
         };
         if let Some(LinkEvent::CameBack) = self.watch.heard(now) {
-            eprintln!("qfleet: host {} is back; resending what it missed", self.name);
+            eprintln!(
+                "qfleet: host {} is back; resending what it missed",
+                self.name
+            );
             self.resend(now, true);
         }
         match h.kind {
@@ -449,7 +458,13 @@ impl Host {
         if !self.proxies.contains_key(&id) {
             match RobotBus::open(cfg, id, Duration::from_millis(200)) {
                 Ok(bus) => {
-                    self.proxies.insert(id, Proxy { bus, wake: [false; 5] });
+                    self.proxies.insert(
+                        id,
+                        Proxy {
+                            bus,
+                            wake: [false; 5],
+                        },
+                    );
                 }
                 Err(BusError::Timeout { .. }) => return Put::Later,
                 Err(e) => {
@@ -595,7 +610,11 @@ impl Host {
             let hb = Heartbeat {
                 t_ns: t,
                 echo_ns: self.echo.0,
-                hold_ns: if self.echo.0 == 0 { 0 } else { t.saturating_sub(self.echo.1) },
+                hold_ns: if self.echo.0 == 0 {
+                    0
+                } else {
+                    t.saturating_sub(self.echo.1)
+                },
                 acked: self.inc.acked(),
                 sent: self.out.next_seq(),
                 gone: Vec::new(),

@@ -175,7 +175,10 @@ mod tests {
         assert_eq!(a.admit(&req(3)), Ok((0, 2..5)));
         assert_eq!(a.open_slots(), 1);
         let e = a.admit(&req(2)).unwrap_err();
-        assert!(e.contains("offers 2 robots but the run waits for 1 more"), "{e}");
+        assert!(
+            e.contains("offers 2 robots but the run waits for 1 more"),
+            "{e}"
+        );
         assert_eq!(a.admit(&req(1)), Ok((1, 5..6)));
         assert_eq!(a.open_slots(), 0);
     }

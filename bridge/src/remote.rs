@@ -63,8 +63,8 @@ pub fn request(
             let sample = reply.into_result().map_err(|e| {
                 BridgeError::Join(format!("{endpoint} answered with an error: {e:?}"))
             })?;
-            let answer: JoinReply = serde_json::from_slice(&sample.payload().to_bytes())
-                .map_err(|e| {
+            let answer: JoinReply =
+                serde_json::from_slice(&sample.payload().to_bytes()).map_err(|e| {
                     BridgeError::Join(format!(
                         "unreadable answer from {endpoint} ({e}): another qfleet version?"
                     ))
@@ -430,7 +430,11 @@ impl Joiner {
         let hb = Heartbeat {
             t_ns: t,
             echo_ns: self.echo.0,
-            hold_ns: if self.echo.0 == 0 { 0 } else { t.saturating_sub(self.echo.1) },
+            hold_ns: if self.echo.0 == 0 {
+                0
+            } else {
+                t.saturating_sub(self.echo.1)
+            },
             acked: self.inc.acked(),
             sent: self.out.next_seq(),
             gone: self.gone.iter().copied().collect(),
@@ -453,7 +457,8 @@ impl Joiner {
                 self.gone.insert(*id);
             }
         }
-        self.seen.extend(alive.iter().filter(|id| !self.gone.contains(id)));
+        self.seen
+            .extend(alive.iter().filter(|id| !self.gone.contains(id)));
         Ok(())
     }
 }

@@ -120,7 +120,8 @@ pub fn data_frame<T: Message>(msg: &T, seq: u64) -> Vec<u8> {
     // SAFETY: `T: Message` is a `#[repr(C)]` bus-schema type whose padding is spelled out as
     // zeroed fields (checked by bus-schema's layout test), so all `size_of::<T>()` bytes are
     // initialised and may be read as `u8`.
-    let bytes = unsafe { std::slice::from_raw_parts((msg as *const T).cast::<u8>(), size_of::<T>()) };
+    let bytes =
+        unsafe { std::slice::from_raw_parts((msg as *const T).cast::<u8>(), size_of::<T>()) };
     out.extend_from_slice(bytes);
     out
 }
@@ -138,7 +139,11 @@ pub fn read_into<T: Message>(payload: &[u8], dst: &mut T) -> Result<(), FrameErr
     // value (bus-schema types hold only integers, floats and arrays of them), the sizes match,
     // and `dst` is an exclusive reference, so the regions do not overlap.
     unsafe {
-        std::ptr::copy_nonoverlapping(payload.as_ptr(), (dst as *mut T).cast::<u8>(), payload.len());
+        std::ptr::copy_nonoverlapping(
+            payload.as_ptr(),
+            (dst as *mut T).cast::<u8>(),
+            payload.len(),
+        );
     }
     Ok(())
 }
@@ -243,7 +248,10 @@ mod tests {
         };
         let f = data_frame(&d, 77);
         let h = header(&f).unwrap();
-        assert_eq!((h.kind, h.topic, h.seq), (Kind::Lossless, Topic::Discovery, 77));
+        assert_eq!(
+            (h.kind, h.topic, h.seq),
+            (Kind::Lossless, Topic::Discovery, 77)
+        );
         let mut back = PseudoTargetDiscovery::ZEROED;
         read_into(&f[HEADER..], &mut back).unwrap();
         assert_eq!(back, d);
@@ -264,7 +272,10 @@ mod tests {
         f[1] = 200;
         assert_eq!(header(&f), Err(FrameError::Topic(200)));
         let mut r = Register::ZEROED;
-        assert!(matches!(read_into(&[1, 2, 3], &mut r), Err(FrameError::Size { got: 3, .. })));
+        assert!(matches!(
+            read_into(&[1, 2, 3], &mut r),
+            Err(FrameError::Size { got: 3, .. })
+        ));
     }
 
     #[test]
@@ -276,16 +287,27 @@ mod tests {
         m.origin_ns[2] = 500; // beyond count: untouched
         m.send_time_ns = 1000;
         m.shift(-50);
-        assert_eq!((m.origin_ns[0], m.origin_ns[1], m.origin_ns[2]), (50, 0, 500));
+        assert_eq!(
+            (m.origin_ns[0], m.origin_ns[1], m.origin_ns[2]),
+            (50, 0, 500)
+        );
         assert_eq!((m.send_time_ns, m.oldest_origin_ns), (950, 0));
-        let mut c = Control { time_ns: 10, ..Control::ZEROED };
+        let mut c = Control {
+            time_ns: 10,
+            ..Control::ZEROED
+        };
         c.shift(-100);
         assert_eq!(c.time_ns, 1, "a time never becomes 0 (= no time) or wraps");
     }
 
     #[test]
     fn a_heartbeat_round_trips_through_json() {
-        let hb = Heartbeat { t_ns: 5, acked: 3, gone: vec![4], ..Heartbeat::default() };
+        let hb = Heartbeat {
+            t_ns: 5,
+            acked: 3,
+            gone: vec![4],
+            ..Heartbeat::default()
+        };
         let f = heartbeat_frame(&hb);
         assert_eq!(header(&f).unwrap().kind, Kind::Heartbeat);
         let back: Heartbeat = serde_json::from_slice(&f[HEADER..]).unwrap();

@@ -19,10 +19,10 @@ use std::time::Duration;
 use bus::bus_schema::QHintBatch;
 use coordinator::WaitStrategy;
 
+use crate::BenchError;
 use crate::harness::{Launcher, Options, row_timeout, spawn_on};
 use crate::report::{ProcessCpu, Row};
 use crate::spec::RoleSpec;
-use crate::BenchError;
 
 /// The cross-host rows, in the order they run.
 pub const XHOST_LABELS: [&str; 5] = [
@@ -93,7 +93,15 @@ impl Pair {
     /// `launcher` run inside namespace `i` with private shared memory.
     fn launcher(&self, i: usize, inner: &Launcher) -> Launcher {
         let mut args: Vec<String> = [
-            "netns", "exec", &self.ns[i], "unshare", "-m", "--propagation", "private", "sh", "-c",
+            "netns",
+            "exec",
+            &self.ns[i],
+            "unshare",
+            "-m",
+            "--propagation",
+            "private",
+            "sh",
+            "-c",
             MOUNTS,
         ]
         .iter()
@@ -116,7 +124,10 @@ impl Drop for Pair {
                 .output()
                 .map(|o| String::from_utf8_lossy(&o.stdout).into_owned())
                 .unwrap_or_default();
-            for pid in pids.split_whitespace().filter_map(|p| p.parse::<i32>().ok()) {
+            for pid in pids
+                .split_whitespace()
+                .filter_map(|p| p.parse::<i32>().ok())
+            {
                 // SAFETY: kill(2) on a process of our own namespace
                 unsafe { libc::kill(pid, libc::SIGKILL) };
             }

@@ -147,7 +147,9 @@ impl Options {
 /// Runs the benchmarks `opts` asks for, starting child processes with `launcher`.
 pub fn run(opts: &Options, launcher: &Launcher) -> Result<Report, BenchError> {
     for o in &opts.only {
-        if !ROW_LABELS.contains(&o.as_str()) && !crate::crosshost::XHOST_LABELS.contains(&o.as_str()) {
+        if !ROW_LABELS.contains(&o.as_str())
+            && !crate::crosshost::XHOST_LABELS.contains(&o.as_str())
+        {
             return Err(BenchError::Input(format!(
                 "unknown row {o:?}; rows are {}",
                 ROW_LABELS.join(", ")
@@ -177,7 +179,9 @@ fn run_in(opts: &Options, launcher: &Launcher, tmp: &Path) -> Result<Report, Ben
         scale: Vec::new(),
     };
     if opts.cross_host {
-        report.rows.extend(crate::crosshost::rows(opts, launcher, tmp)?);
+        report
+            .rows
+            .extend(crate::crosshost::rows(opts, launcher, tmp)?);
     }
     if opts.rows {
         for label in ROW_LABELS.iter().filter(|l| opts.wants(l)) {
@@ -342,7 +346,11 @@ fn spawn(launcher: &Launcher, spec: &RoleSpec) -> Result<Child, BenchError> {
     spawn_on(launcher, spec, None)
 }
 
-pub(crate) fn spawn_on(launcher: &Launcher, spec: &RoleSpec, cpus: Option<&str>) -> Result<Child, BenchError> {
+pub(crate) fn spawn_on(
+    launcher: &Launcher,
+    spec: &RoleSpec,
+    cpus: Option<&str>,
+) -> Result<Child, BenchError> {
     let json = serde_json::to_string(spec).map_err(|e| BenchError::Spec(e.to_string()))?;
     let role = json.split('"').nth(3).unwrap_or("child").to_string();
     let mut cmd = Command::new(&launcher.program);

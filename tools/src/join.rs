@@ -76,8 +76,12 @@ impl RemoteArgs {
         let (Some(listen), true) = (&self.listen, self.remote_robots > 0) else {
             return Ok(None);
         };
-        let deadline = Duration::try_from_secs_f64(self.host_deadline)
-            .map_err(|_| anyhow!("--host-deadline must be seconds >= 0, got {}", self.host_deadline))?;
+        let deadline = Duration::try_from_secs_f64(self.host_deadline).map_err(|_| {
+            anyhow!(
+                "--host-deadline must be seconds >= 0, got {}",
+                self.host_deadline
+            )
+        })?;
         let total = self.total(local)?;
         let mut files = BTreeMap::new();
         let map_cli = ship_files(map.to_cli(), &mut files)?;
@@ -85,7 +89,10 @@ impl RemoteArgs {
             .map(|id| {
                 let mut v = map_cli.clone();
                 v.extend(learner.to_cli());
-                v.extend(["--seed".into(), learner.seed.wrapping_add(u64::from(id)).to_string()]);
+                v.extend([
+                    "--seed".into(),
+                    learner.seed.wrapping_add(u64::from(id)).to_string(),
+                ]);
                 v.extend(share.to_cli());
                 v
             })
@@ -219,7 +226,10 @@ impl JoinCmd {
         if let Some(v) = self.schema_version_override {
             req.schema_version = v;
         }
-        eprintln!("qfleet join: asking {} for {} robot(s)…", self.endpoint, self.robots);
+        eprintln!(
+            "qfleet join: asking {} for {} robot(s)…",
+            self.endpoint, self.robots
+        );
         let (session, plan, clock) =
             bridge::request(&self.endpoint, &req, timeout, Tuning::default())?;
         let ids = plan.robot_ids.clone();
@@ -236,8 +246,11 @@ impl JoinCmd {
         let (out, temp_out) = match &self.out {
             Some(d) => (d.clone(), false),
             None => (
-                std::env::temp_dir()
-                    .join(format!("qfleet-join-{}-{}", plan.run_id, std::process::id())),
+                std::env::temp_dir().join(format!(
+                    "qfleet-join-{}-{}",
+                    plan.run_id,
+                    std::process::id()
+                )),
                 true,
             ),
         };
@@ -390,6 +403,11 @@ fn hosts_json(report: &HubReport, local: u32) -> serde_json::Value {
     let mut hosts = vec![serde_json::json!({
         "host": "local", "robots": (0..local).collect::<Vec<_>>(), "state": "local",
     })];
-    hosts.extend(report.hosts.iter().filter_map(|h| serde_json::to_value(h).ok()));
+    hosts.extend(
+        report
+            .hosts
+            .iter()
+            .filter_map(|h| serde_json::to_value(h).ok()),
+    );
     serde_json::Value::Array(hosts)
 }

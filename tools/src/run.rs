@@ -145,7 +145,8 @@ impl RunCmd {
         let _ = std::fs::remove_file(out.join("result.json"));
 
         let fleet = self.remote.total(self.robots)?; // issue 12: robots on other hosts
-        let hub = (self.remote).start_hub(&run_id, self.robots, &self.map, &self.learner, &self.share)?;
+        let hub =
+            (self.remote).start_hub(&run_id, self.robots, &self.map, &self.learner, &self.share)?;
         let interrupts = Arc::new(AtomicU32::new(0));
         {
             let i = Arc::clone(&interrupts);
@@ -192,7 +193,9 @@ impl RunCmd {
             eprintln!("qfleet: warning: files of run {run_id} left behind: {leftovers:?}");
         }
         match &result {
-            Some(r) if self.json => println!("{}", crate::join::with_hosts(r, &hosts, self.robots)?),
+            Some(r) if self.json => {
+                println!("{}", crate::join::with_hosts(r, &hosts, self.robots)?)
+            }
             Some(r) => print_human(r, &out, temp_out),
             None => {}
         }

@@ -76,7 +76,10 @@ pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
             timeout_ms,
         } => xhost::zenoh_pong(
             &listen,
-            bridge::Tuning { express, lowlatency },
+            bridge::Tuning {
+                express,
+                lowlatency,
+            },
             Duration::from_millis(timeout_ms),
         )?,
         RoleSpec::ZenohPing {
@@ -88,7 +91,10 @@ pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
             hist_path,
         } => xhost::zenoh_ping(
             &endpoint,
-            bridge::Tuning { express, lowlatency },
+            bridge::Tuning {
+                express,
+                lowlatency,
+            },
             &plan,
             peer_pid,
             &hist_path,
@@ -98,13 +104,27 @@ pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
             listen,
             express,
             lowlatency,
-        } => xhost::bridged_coordinator(&inner, &listen, bridge::Tuning { express, lowlatency })?,
+        } => xhost::bridged_coordinator(
+            &inner,
+            &listen,
+            bridge::Tuning {
+                express,
+                lowlatency,
+            },
+        )?,
         RoleSpec::BridgedRobots {
             inner,
             endpoint,
             express,
             lowlatency,
-        } => xhost::bridged_robots(&inner, &endpoint, bridge::Tuning { express, lowlatency })?,
+        } => xhost::bridged_robots(
+            &inner,
+            &endpoint,
+            bridge::Tuning {
+                express,
+                lowlatency,
+            },
+        )?,
     };
     let line = serde_json::to_string(&report).map_err(|e| BenchError::Spec(e.to_string()))?;
     println!("{REPORT_PREFIX}{line}");

@@ -36,7 +36,9 @@ fn zerr(what: &str) -> impl Fn(zenoh::Error) -> BenchError + '_ {
 /// TCP echo: accepts one connection and answers every 64-byte message until it closes.
 pub fn tcp_echo(addr: &str, timeout: Duration) -> Result<ChildReport, BenchError> {
     let listener = TcpListener::bind(addr).map_err(io("bind the TCP echo"))?;
-    listener.set_nonblocking(true).map_err(io("set non-blocking"))?;
+    listener
+        .set_nonblocking(true)
+        .map_err(io("set non-blocking"))?;
     let until = Instant::now() + timeout;
     let mut conn = loop {
         match listener.accept() {
@@ -115,8 +117,13 @@ const PING_KEY: &str = "qfleet/bench/ping";
 const PONG_KEY: &str = "qfleet/bench/pong";
 
 /// Zenoh pong: listens on `listen`, answers every ping on the pong key; an empty message ends.
-pub fn zenoh_pong(listen: &str, tuning: Tuning, timeout: Duration) -> Result<ChildReport, BenchError> {
-    let session = bridge::link::listen(listen, tuning).map_err(|e| BenchError::Input(e.to_string()))?;
+pub fn zenoh_pong(
+    listen: &str,
+    tuning: Tuning,
+    timeout: Duration,
+) -> Result<ChildReport, BenchError> {
+    let session =
+        bridge::link::listen(listen, tuning).map_err(|e| BenchError::Input(e.to_string()))?;
     let publisher = bridge::link::publisher(&session, PONG_KEY.into(), tuning)
         .map_err(|e| BenchError::Input(e.to_string()))?;
     let sub = session
@@ -185,7 +192,9 @@ pub fn zenoh_ping(
         deadline.reset();
         loop {
             match sub.try_recv() {
-                Ok(Some(s)) if s.payload().to_bytes().get(..8) == Some(&i.to_le_bytes()[..]) => break,
+                Ok(Some(s)) if s.payload().to_bytes().get(..8) == Some(&i.to_le_bytes()[..]) => {
+                    break;
+                }
                 Ok(Some(_)) => {}
                 _ => {
                     deadline.check()?;
