@@ -261,7 +261,7 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
     let m = m?;
     p?;
     drop(pair);
-    let hist = robot_agent::hist::read_binary(&hist_path)?;
+    let hist = ::report::hist::read_binary(&hist_path)?;
     let mut processes = vec![ProcessCpu {
         name: names[0].to_string(),
         cpu_pct: crate::cpu::pct(m.self_cpu_ns, m.wall_ns),

@@ -241,7 +241,7 @@ impl JoinCmd {
         let grace = Duration::try_from_secs_f64(self.grace)
             .map_err(|_| anyhow!("--grace must be seconds >= 0, got {}", self.grace))?;
         bridge::link::check_endpoint(&self.endpoint)?;
-        let robot_bin = crate::run::sibling("robot-agent")?;
+        let robot_bin = launcher::spawn::sibling("robot-agent")?;
         let host = self.name.clone().unwrap_or_else(hostname);
         let mut req = JoinRequest::new(host.clone(), self.robots, 0);
         if let Some(v) = self.schema_version_override {

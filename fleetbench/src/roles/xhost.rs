@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use bridge::{JoinRequest, Tuning};
 use bus::monotonic_ns;
-use robot_agent::hist::new_hist;
+use ::report::hist::new_hist;
 use zenoh::Wait;
 use zenoh::handlers::FifoChannel;
 
