@@ -270,7 +270,10 @@ fn scratch_pair(id: &str) -> (Scratch, Scratch) {
 /// Nothing of run `id` in the outer system's shared memory (each host had its own).
 fn assert_no_leftovers(id: &str) {
     let left = leftovers(id);
-    assert!(left.is_empty(), "files of {id} in the outer system: {left:?}");
+    assert!(
+        left.is_empty(),
+        "files of {id} in the outer system: {left:?}"
+    );
 }
 
 // the improved learner explicitly: its discoveries are what the link must carry (the fleet's
@@ -423,6 +426,92 @@ fn a_join_with_another_schema_version_is_refused_clearly_on_both_hosts() {
         ea.contains("refused the join of host host-b") && ea.contains("v999"),
         "{ea}"
     );
+    drop(hosts);
+    assert_no_leftovers(&id);
+}
+
+#[test]
+fn an_experiment_across_two_hosts_runs_every_phase_with_the_remote_robots() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(hosts) = TwoHosts::new("experiment") else {
+        return;
+    };
+    let _ = bin("qfleet");
+    // a short prefix: the experiment adds the seed, its pid and the time (48 characters at most)
+    let id = format!("mhx{}", std::process::id());
+    let (da, db) = scratch_pair(&id);
+    // two goals, two phases: the phase change (a control message) must cross the link too
+    let manifest = da.join("m.toml");
+    std::fs::write(
+        &manifest,
+        r#"
+name = "across hosts"
+sharing = "both"
+episodes = 300
+seeds = [5]
+[map]
+source = "builtin:paper-10"
+[[goals]]
+cell = [9, 9]
+[[goals]]
+cell = [9, 0]
+[robots]
+count = 3
+start = [0, 0]
+[learner]
+kind = "improved"
+[[phases]]
+[[phases]]
+rotate = 1
+episodes = 200
+"#,
+    )
+    .expect("write the manifest");
+    let out = da.join("out");
+    let (m, o) = (manifest.display().to_string(), out.display().to_string());
+    let a = hosts
+        .command(
+            Host::A,
+            &bin("qfleet"),
+            &[
+                "experiment",
+                &m,
+                "--run-id",
+                &id,
+                "--remote-robots",
+                "2",
+                "--listen",
+                ENDPOINT,
+                "--out",
+                &o,
+            ],
+        )
+        .spawn()
+        .expect("spawn qfleet experiment");
+    let b = start_b(&hosts, 2, &db, &[]);
+    let out_b = wait_bounded(b, LIMIT);
+    let out_a = wait_bounded(a, LIMIT);
+    assert!(out_a.status.success(), "host A: {}", describe(&out_a));
+    assert!(out_b.status.success(), "host B: {}", describe(&out_b));
+    let seed = out.join("seed-5");
+    let r = result(&seed, &out_a);
+    let phases = r["phases"].as_array().expect("phases");
+    assert_eq!(phases.len(), 2, "{r}");
+    for (p, phase) in phases.iter().enumerate() {
+        let robots = phase["robots"].as_array().expect("robots");
+        assert_eq!(robots.len(), 3, "phase {p}: {phase}");
+        for x in robots {
+            assert_eq!(x["status"], "finished", "phase {p}: {x}");
+            // round-robin over the two goals, shifted by one in phase 1: the remote robots
+            // got their new goal across the link
+            let rid = x["robot_id"].as_u64().unwrap();
+            assert_eq!(x["goal"].as_u64().unwrap(), (rid + p as u64) % 2, "{x}");
+        }
+    }
+    assert!(r["discoveries_received"].as_u64() > Some(0), "{r}");
+    let b = host_b(&r);
+    assert_eq!(b["robots"], serde_json::json!([1, 2]), "{b}");
+    assert_eq!(b["state"], "up", "{b}");
     drop(hosts);
     assert_no_leftovers(&id);
 }

@@ -455,26 +455,21 @@ impl Host {
         if self.gone.contains(&id) {
             return Put::Rejected;
         }
-        if !self.proxies.contains_key(&id) {
-            match RobotBus::open(cfg, id, Duration::from_millis(200)) {
-                Ok(bus) => {
-                    self.proxies.insert(
-                        id,
-                        Proxy {
-                            bus,
-                            wake: [false; 5],
-                        },
-                    );
-                }
-                Err(BusError::Timeout { .. }) => return Put::Later,
-                Err(e) => {
-                    eprintln!("qfleet: warning: cannot stand in for remote robot {id}: {e}");
-                    return Put::Later;
+        let proxy = match self.proxies.entry(id) {
+            std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::btree_map::Entry::Vacant(e) => {
+                match RobotBus::open(cfg, id, Duration::from_millis(200)) {
+                    Ok(bus) => e.insert(Proxy {
+                        bus,
+                        wake: [false; 5],
+                    }),
+                    Err(BusError::Timeout { .. }) => return Put::Later,
+                    Err(err) => {
+                        eprintln!("qfleet: warning: cannot stand in for remote robot {id}: {err}");
+                        return Put::Later;
+                    }
                 }
             }
-        }
-        let Some(proxy) = self.proxies.get_mut(&id) else {
-            return Put::Later;
         };
         let lossless = T::TOPIC.delivery() == bus::bus_schema::Delivery::Lossless;
         match T::outbox(&proxy.bus).send(&m) {

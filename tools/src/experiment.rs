@@ -211,7 +211,11 @@ pub fn run_once(
             .arg(&plan_file)
             .args(["--merge", &rules.merge.to_string()])
             .args(["--restarts", &restarts.to_string()])
-            .args(hang_ms.iter().flat_map(|h| ["--hang-ms".to_string(), h.to_string()]))
+            .args(
+                hang_ms
+                    .iter()
+                    .flat_map(|h| ["--hang-ms".to_string(), h.to_string()]),
+            )
             .arg("--out")
             .arg(out);
         cmd

@@ -147,7 +147,15 @@ impl RunCmd {
         );
 
         let outcome = self.supervise(
-            &run_id, &out, &coord_bin, &robot, fleet, grace, time_limit, &task, cfg.episodes,
+            &run_id,
+            &out,
+            &coord_bin,
+            &robot,
+            fleet,
+            grace,
+            time_limit,
+            &task,
+            cfg.episodes,
         );
         let quit = crate::live::finish(watch);
         // the hub's proxies are nodes of this run: gone before its files are removed

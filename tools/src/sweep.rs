@@ -209,7 +209,15 @@ impl SweepCmd {
                         let rules = rules.unwrap_or_default();
                         let mut attempt = 0;
                         let r = loop {
-                            match run_once(&plan, seed, rules, &id, &dir, Supervision::default(), None) {
+                            match run_once(
+                                &plan,
+                                seed,
+                                rules,
+                                &id,
+                                &dir,
+                                Supervision::default(),
+                                None,
+                            ) {
                                 Ok(r) => break r,
                                 // a run that failed on the bus (not in the learning) is run
                                 // again, up to twice, with a fresh run id; retries are reported

@@ -9,9 +9,9 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use ::report::hist::new_hist;
 use bridge::{JoinRequest, Tuning};
 use bus::monotonic_ns;
-use ::report::hist::new_hist;
 use zenoh::Wait;
 use zenoh::handlers::FifoChannel;
 
