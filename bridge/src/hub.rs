@@ -190,6 +190,9 @@ fn run(
         opts.listen, opts.listen
     );
     let mut idle_since = Instant::now();
+    // a frame that ended an idle wait, handled first in the next round
+    let mut woken: Option<Sample> = None;
+    link::tighten_timer_slack();
     loop {
         let mut busy = false;
         let now = Instant::now();
@@ -200,7 +203,7 @@ fn run(
         }
         // frames from the joined hosts
         for _ in 0..4096 {
-            let Ok(Some(sample)) = frames.try_recv() else {
+            let Some(sample) = woken.take().or_else(|| frames.try_recv().ok().flatten()) else {
                 break;
             };
             busy = true;
@@ -222,11 +225,12 @@ fn run(
         if stop.load(Ordering::SeqCst) {
             break;
         }
-        // idle: spin a little (a reply is often on its way), then sleep in short slices
+        // idle: spin a little (a reply is often on its way), then wait in short slices for
+        // the next frame (a frame ends the wait at once; the bus is looked at between slices)
         if busy {
             idle_since = now;
         } else if now.duration_since(idle_since) > Duration::from_micros(100) {
-            std::thread::sleep(Duration::from_micros(200));
+            woken = frames.recv_timeout(link::IDLE_WAIT).ok().flatten();
         } else {
             std::thread::yield_now();
         }

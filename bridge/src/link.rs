@@ -133,3 +133,17 @@ pub const SUBSCRIBER_DEPTH: usize = 1 << 14;
 pub fn put(publisher: &zenoh::pubsub::Publisher<'static>, frame: &[u8]) -> bool {
     publisher.put(frame.to_vec()).wait().is_ok()
 }
+
+/// How long an idle bridge loop waits for the next frame before it looks at its host's bus
+/// again (what a message from a local process may wait for the bridge, at most).
+pub const IDLE_WAIT: Duration = Duration::from_micros(100);
+
+/// Makes this thread's timed waits end on time: Linux lets a sleeping thread's wakeup slip by
+/// its timer slack (50 µs by default), which the bridge's short idle waits would pay on every
+/// hop. Best effort: without it the waits are only later.
+pub fn tighten_timer_slack() {
+    // SAFETY: prctl(PR_SET_TIMERSLACK) changes only the calling thread's timer slack
+    unsafe {
+        libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong);
+    }
+}

@@ -195,12 +195,18 @@ impl Joiner {
         let mut last_list = Instant::now();
         let mut idle_since = Instant::now();
         let mut done_at: Option<Instant> = None;
+        // a frame that ended an idle wait, handled first in the next round
+        let mut woken: Option<Sample> = None;
+        link::tighten_timer_slack();
         let ending = loop {
             let now = Instant::now();
             let mut busy = false;
             let mut over = false;
             for _ in 0..4096 {
-                let Ok(Some(sample)) = self.frames.try_recv() else {
+                let Some(sample) = woken
+                    .take()
+                    .or_else(|| self.frames.try_recv().ok().flatten())
+                else {
                     break;
                 };
                 busy = true;
@@ -245,7 +251,8 @@ impl Joiner {
             if busy {
                 idle_since = now;
             } else if now.duration_since(idle_since) > Duration::from_micros(100) {
-                std::thread::sleep(Duration::from_micros(200));
+                // a frame ends the wait at once; the bus is looked at between slices
+                woken = self.frames.recv_timeout(link::IDLE_WAIT).ok().flatten();
             } else {
                 std::thread::yield_now();
             }
