@@ -162,7 +162,7 @@ fn run(
         let what = what.to_string();
         move |e: zenoh::Error| BridgeError::Zenoh {
             what: what.clone(),
-            detail: e.to_string(),
+            detail: crate::zenoh_text(&e),
         }
     };
     let mut cfg = BusConfig::new(plan.run_id.clone(), plan.robots_total)?;

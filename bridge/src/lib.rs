@@ -98,3 +98,13 @@ pub enum BridgeError {
     #[error("bridge thread: {0}")]
     Thread(String),
 }
+
+/// Zenoh's error text without the source location it appends (` at /…/src/lib.rs:62.`), which
+/// means nothing to a user.
+pub(crate) fn zenoh_text(e: &impl std::fmt::Display) -> String {
+    let s = e.to_string();
+    match s.find(" at /") {
+        Some(i) => s[..i].to_string(),
+        None => s,
+    }
+}

@@ -39,7 +39,7 @@ fn base_config(tuning: Tuning) -> Result<zenoh::Config, BridgeError> {
     let mut set = |k: &str, v: &str| {
         c.insert_json5(k, v).map_err(|e| BridgeError::Zenoh {
             what: format!("setting {k} = {v}"),
-            detail: e.to_string(),
+            detail: crate::zenoh_text(&e),
         })
     };
     set("mode", "\"peer\"")?;
@@ -60,7 +60,7 @@ pub fn check_endpoint(endpoint: &str) -> Result<(), BridgeError> {
         .map(drop)
         .map_err(|e| BridgeError::Endpoint {
             endpoint: endpoint.to_string(),
-            detail: e.to_string(),
+            detail: crate::zenoh_text(&e),
         })
 }
 
@@ -72,11 +72,11 @@ pub fn listen(endpoint: &str, tuning: Tuning) -> Result<zenoh::Session, BridgeEr
     c.insert_json5("listen/endpoints", &list)
         .map_err(|e| BridgeError::Endpoint {
             endpoint: endpoint.to_string(),
-            detail: e.to_string(),
+            detail: crate::zenoh_text(&e),
         })?;
     zenoh::open(c).wait().map_err(|e| BridgeError::Zenoh {
         what: format!("listening on {endpoint}"),
-        detail: e.to_string(),
+        detail: crate::zenoh_text(&e),
     })
 }
 
@@ -98,12 +98,12 @@ pub fn connect(
     ] {
         c.insert_json5(k, v).map_err(|e| BridgeError::Zenoh {
             what: format!("setting {k} = {v}"),
-            detail: e.to_string(),
+            detail: crate::zenoh_text(&e),
         })?;
     }
     zenoh::open(c).wait().map_err(|e| BridgeError::Zenoh {
         what: format!("connecting to {endpoint} (is `qfleet run … --listen {endpoint}` running there, and reachable?)"),
-        detail: e.to_string(),
+        detail: crate::zenoh_text(&e),
     })
 }
 
@@ -122,7 +122,7 @@ pub fn publisher(
         .wait()
         .map_err(|e| BridgeError::Zenoh {
             what: format!("declaring a publisher on {key}"),
-            detail: e.to_string(),
+            detail: crate::zenoh_text(&e),
         })
 }
 

@@ -56,7 +56,7 @@ pub fn request(
             .wait()
             .map_err(|e| BridgeError::Zenoh {
                 what: format!("asking {endpoint} to join"),
-                detail: e.to_string(),
+                detail: crate::zenoh_text(&e),
             })?;
         if let Ok(reply) = replies.recv() {
             let got = monotonic_ns();
@@ -144,7 +144,7 @@ impl Joiner {
             .wait()
             .map_err(|e| BridgeError::Zenoh {
                 what: "subscribing to the coordinator's host".into(),
-                detail: e.to_string(),
+                detail: crate::zenoh_text(&e),
             })?;
         let now = Instant::now();
         let mut watch = LinkWatch::new(

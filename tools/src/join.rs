@@ -17,6 +17,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, anyhow, bail};
 use bridge::{Ending, Hub, HubOptions, HubReport, JoinRequest, RemotePlan, Tuning};
 use clap::Args;
+use launcher::Exit;
 
 /// Options of `qfleet run` (and `experiment`) for robots on other hosts.
 #[derive(Debug, Clone, Args)]
@@ -236,11 +237,14 @@ fn hostname() -> String {
 impl JoinCmd {
     /// Runs the command.
     pub fn run(self) -> Result<()> {
+        // bad input is exit code 2, before anything connects
         let timeout = Duration::try_from_secs_f64(self.timeout)
-            .map_err(|_| anyhow!("--timeout must be seconds >= 0, got {}", self.timeout))?;
+            .map_err(|_| anyhow!("--timeout must be seconds >= 0, got {}", self.timeout))
+            .context(Exit::BadInput)?;
         let grace = Duration::try_from_secs_f64(self.grace)
-            .map_err(|_| anyhow!("--grace must be seconds >= 0, got {}", self.grace))?;
-        bridge::link::check_endpoint(&self.endpoint)?;
+            .map_err(|_| anyhow!("--grace must be seconds >= 0, got {}", self.grace))
+            .context(Exit::BadInput)?;
+        bridge::link::check_endpoint(&self.endpoint).context(Exit::BadInput)?;
         let robot_bin = launcher::spawn::sibling("robot-agent")?;
         let host = self.name.clone().unwrap_or_else(hostname);
         let mut req = JoinRequest::new(host.clone(), self.robots, 0);
