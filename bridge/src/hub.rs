@@ -1,7 +1,7 @@
 //! The coordinator's side: admit joining hosts, stand in for their robots on this host's bus,
 //! and carry every message across.
 //!
-//! The hub is a thread of `qfleet run`. For each remote robot it holds a **proxy**: a
+//! The hub is a thread of `qfleet run` (and of `qfleet experiment`). For each remote robot it holds a **proxy**: a
 //! [`RobotBus`] opened under the robot's own id, so its iceoryx2 node is named
 //! `qfleet-robot-<id>` like the robot's would be. The coordinator therefore needs no change: it
 //! admits, acks and watches remote robots exactly as local ones. A proxy publishes what its

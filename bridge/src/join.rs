@@ -94,7 +94,8 @@ pub struct RemotePlan {
     pub robots_total: u32,
     /// The first robot id served by other hosts (ids `first_remote..robots_total`).
     pub first_remote: u32,
-    /// Options of every robot id (index = robot id; local ones may be empty).
+    /// Every robot id's whole robot-agent command line except `--out` (index = robot id;
+    /// local ones may be empty).
     pub robot_args: Vec<Vec<String>>,
     /// Files the options name.
     pub files: BTreeMap<String, String>,

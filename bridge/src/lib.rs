@@ -2,7 +2,7 @@
 //!
 //! Each host keeps iceoryx2 zero-copy shared memory for its own processes; this crate carries a
 //! run's topics between hosts over one Zenoh session per joined host. The coordinator's host
-//! runs a [`Hub`] (a thread of `qfleet run … --remote-robots K --listen ENDPOINT`); every other
+//! runs a [`Hub`] (a thread of `qfleet run|experiment … --remote-robots K --listen ENDPOINT`); every other
 //! host runs a [`Joiner`] (`qfleet join ENDPOINT --robots N`), which receives the whole
 //! configuration at the join ([`join`]) and starts its robots.
 //!
