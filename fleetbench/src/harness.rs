@@ -80,6 +80,8 @@ pub struct Options {
     pub min_window_ms: u64,
     /// Print progress lines on stderr.
     pub progress: bool,
+    /// Measure the cross-host rows (`crate::crosshost`, needs root) instead of the others.
+    pub cross_host: bool,
 }
 
 impl Options {
@@ -105,6 +107,7 @@ impl Options {
             min_window_ms: 2_000,
             pin: std::thread::available_parallelism().is_ok_and(|n| n.get() >= 2),
             progress: true,
+            cross_host: false,
         }
     }
 
@@ -123,7 +126,7 @@ impl Options {
         }
     }
 
-    fn plan(&self) -> Plan {
+    pub(crate) fn plan(&self) -> Plan {
         Plan {
             warmup: self.warmup,
             samples: self.samples,
@@ -134,6 +137,9 @@ impl Options {
     }
 
     fn wants(&self, label: &str) -> bool {
+        if self.cross_host {
+            return false;
+        }
         self.only.is_empty() || self.only.iter().any(|o| o == label)
     }
 }
@@ -141,7 +147,9 @@ impl Options {
 /// Runs the benchmarks `opts` asks for, starting child processes with `launcher`.
 pub fn run(opts: &Options, launcher: &Launcher) -> Result<Report, BenchError> {
     for o in &opts.only {
-        if !ROW_LABELS.contains(&o.as_str()) {
+        if !ROW_LABELS.contains(&o.as_str())
+            && !crate::crosshost::XHOST_LABELS.contains(&o.as_str())
+        {
             return Err(BenchError::Input(format!(
                 "unknown row {o:?}; rows are {}",
                 ROW_LABELS.join(", ")
@@ -170,6 +178,11 @@ fn run_in(opts: &Options, launcher: &Launcher, tmp: &Path) -> Result<Report, Ben
         rows: Vec::new(),
         scale: Vec::new(),
     };
+    if opts.cross_host {
+        report
+            .rows
+            .extend(crate::crosshost::rows(opts, launcher, tmp)?);
+    }
     if opts.rows {
         for label in ROW_LABELS.iter().filter(|l| opts.wants(l)) {
             if opts.progress {
@@ -255,19 +268,19 @@ fn write_open_map(dir: &Path, cells: usize) -> Result<String, BenchError> {
 }
 
 /// A started child process, its stdout collected by a thread.
-struct Child {
+pub(crate) struct Child {
     role: String,
     child: std::process::Child,
     stdout: Option<std::thread::JoinHandle<String>>,
 }
 
 impl Child {
-    fn id(&self) -> u32 {
+    pub(crate) fn id(&self) -> u32 {
         self.child.id()
     }
 
     /// Waits up to `timeout` for the child to exit (kills it after) and parses its report.
-    fn wait(mut self, timeout: Duration) -> Result<ChildReport, BenchError> {
+    pub(crate) fn wait(mut self, timeout: Duration) -> Result<ChildReport, BenchError> {
         let deadline = Instant::now() + timeout;
         let status = loop {
             match self.child.try_wait() {
@@ -333,7 +346,11 @@ fn spawn(launcher: &Launcher, spec: &RoleSpec) -> Result<Child, BenchError> {
     spawn_on(launcher, spec, None)
 }
 
-fn spawn_on(launcher: &Launcher, spec: &RoleSpec, cpus: Option<&str>) -> Result<Child, BenchError> {
+pub(crate) fn spawn_on(
+    launcher: &Launcher,
+    spec: &RoleSpec,
+    cpus: Option<&str>,
+) -> Result<Child, BenchError> {
     let json = serde_json::to_string(spec).map_err(|e| BenchError::Spec(e.to_string()))?;
     let role = json.split('"').nth(3).unwrap_or("child").to_string();
     let mut cmd = Command::new(&launcher.program);
@@ -382,7 +399,7 @@ fn check_clean(label: &str, run_id: &str) -> Result<(), BenchError> {
     }
 }
 
-fn row_timeout(plan: &Plan) -> Duration {
+pub(crate) fn row_timeout(plan: &Plan) -> Duration {
     // the slowest rows take ~100 µs a round trip; allow ten times that plus start-up
     Duration::from_millis(60_000 + plan.idle_ms + (plan.warmup + plan.samples) / 5)
 }

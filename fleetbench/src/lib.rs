@@ -16,6 +16,7 @@
 #![deny(missing_docs)]
 
 pub mod cpu;
+pub mod crosshost;
 pub mod harness;
 pub mod machine;
 pub mod plot;

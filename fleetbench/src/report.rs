@@ -241,6 +241,22 @@ impl Report {
                 met: None,
             }),
         }
+        // issue 12: the update loop across hosts against the Zenoh floor with the bridge's own
+        // settings (express); only when the cross-host rows ran
+        if let (Some(l), Some(z)) = (self.row("xhost-loop"), self.row("xhost-zenoh")) {
+            let p50 = ratio(l.p50_ns, z.p50_ns);
+            g.push(Goal {
+                goal: "across hosts: loop p50 ≤ 1.5× the Zenoh ping-pong".into(),
+                measured: format!("{} / {} µs = {p50:.2}×", us(l.p50_ns), us(z.p50_ns)),
+                met: Some(p50 <= 1.5),
+            });
+            let p999 = ratio(l.p999_ns, z.p999_ns);
+            g.push(Goal {
+                goal: "across hosts: loop p99.9 ≤ 3× the Zenoh ping-pong".into(),
+                measured: format!("{} / {} µs = {p999:.2}×", us(l.p999_ns), us(z.p999_ns)),
+                met: Some(p999 <= 3.0),
+            });
+        }
         match (self.row("loop-hybrid"), self.row("uds-loop-blocking")) {
             (Some(h), Some(u)) => g.push(Goal {
                 goal: "hybrid: loop p50 below the blocking Unix-socket loop".into(),

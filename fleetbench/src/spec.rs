@@ -131,6 +131,72 @@ pub enum RoleSpec {
         /// Where to write the latency histogram.
         hist_path: PathBuf,
     },
+    /// Cross-host floor: TCP echo on the coordinator's host.
+    TcpEcho {
+        /// `ADDR:PORT` to listen on.
+        addr: String,
+        /// Give up after this long without a peer, ms.
+        timeout_ms: u64,
+    },
+    /// Cross-host floor: TCP ping (measures) on the robots' host.
+    TcpPing {
+        /// The echo's `ADDR:PORT`.
+        addr: String,
+        /// Samples and limits.
+        plan: Plan,
+        /// The echo's pid.
+        peer_pid: u32,
+        /// Where to write the latency histogram.
+        hist_path: PathBuf,
+    },
+    /// Cross-host floor: Zenoh pong on the coordinator's host.
+    ZenohPong {
+        /// Zenoh endpoint to listen on.
+        listen: String,
+        /// Publish express.
+        express: bool,
+        /// Zenoh's low-latency transport.
+        lowlatency: bool,
+        /// Give up after this long without a ping, ms.
+        timeout_ms: u64,
+    },
+    /// Cross-host floor: Zenoh ping (measures) on the robots' host.
+    ZenohPing {
+        /// The pong's endpoint.
+        endpoint: String,
+        /// Publish express.
+        express: bool,
+        /// Zenoh's low-latency transport.
+        lowlatency: bool,
+        /// Samples and limits.
+        plan: Plan,
+        /// The pong's pid.
+        peer_pid: u32,
+        /// Where to write the latency histogram.
+        hist_path: PathBuf,
+    },
+    /// Cross-host loop: the real coordinator plus a bridge hub listening on `listen`.
+    BridgedCoordinator {
+        /// The coordinator's own spec ([`RoleSpec::Coordinator`]).
+        inner: Box<RoleSpec>,
+        /// Zenoh endpoint the hub listens on.
+        listen: String,
+        /// Publish express.
+        express: bool,
+        /// Zenoh's low-latency transport.
+        lowlatency: bool,
+    },
+    /// Cross-host loop: the loop robots plus a joining bridge (measures).
+    BridgedRobots {
+        /// The robots' own spec ([`RoleSpec::LoopRobots`]).
+        inner: Box<RoleSpec>,
+        /// The hub's endpoint.
+        endpoint: String,
+        /// Publish express.
+        express: bool,
+        /// Zenoh's low-latency transport.
+        lowlatency: bool,
+    },
     /// A lightweight robot of the scale benchmark: emits hint batches as fast as the
     /// coordinator's buffer allows and applies the fleet's merged hints.
     ScaleRobot {

@@ -49,6 +49,10 @@ pub struct BenchCmd {
     /// Scale robots: notify the coordinator at most once per this many µs (0 = every batch).
     #[arg(long, default_value_t = 0)]
     notify_gap_us: u64,
+    /// Only the cross-host rows (needs root): TCP and Zenoh ping-pong floors and the update
+    /// loop across two network namespaces joined by a veth pair (BENCHMARKS.md "Across machines").
+    #[arg(long, conflicts_with = "scale")]
+    cross_host: bool,
     /// Internal: run one child process of the harness (JSON role spec).
     #[arg(long, hide = true)]
     role: Option<String>,
@@ -72,6 +76,9 @@ impl BenchCmd {
             opts.scale = false;
         }
         opts.only = self.only;
+        if self.cross_host {
+            (opts.cross_host, opts.rows, opts.scale) = (true, false, false);
+        }
         if !opts.only.is_empty() && !self.scale {
             opts.scale = false;
         }

@@ -73,6 +73,10 @@ pub struct ExperimentCmd {
     /// a person can follow them with `--live`.
     #[arg(long, value_name = "STEPS_PER_S", value_parser = qfleet_args::parse_pace)]
     pace: Option<f64>,
+    /// Robots on other hosts: the last `--remote-robots` of the manifest's robots join with
+    /// `qfleet join ENDPOINT --robots N` there (every seed's run waits for them again).
+    #[command(flatten)]
+    remote: crate::join::RemoteArgs,
 }
 
 /// The two rules of Q-hint sharing: how the coordinator merges robots' values into the fleet
@@ -184,6 +188,10 @@ pub fn make_run_id(prefix: Option<&str>, tag: &str) -> String {
     launcher::run_id::generate(&format!("{}-{tag}", prefix.unwrap_or("exp")))
 }
 
+/// The coordinator's `--hang-ms` default, raised for remote robots (see
+/// [`crate::join::RemoteArgs::hang_ms`]).
+const DEFAULT_HANG_MS: u64 = 2000;
+
 /// Loads a manifest and resolves it relative to its directory.
 pub fn load_plan(file: &Path) -> Result<Plan> {
     let m = load_manifest(file)?;
@@ -218,7 +226,8 @@ impl Default for Supervision {
 /// Runs one repetition of `plan` with `seed` and the sharing `rules` in `out`: claims the run
 /// id, writes the seed's plan, starts and supervises the coordinator and the robots (after
 /// `watch`, the live view / recorder, has joined), finishes the watch, cleans up, and returns
-/// the coordinator's result.
+/// the coordinator's result. With `remote` (`--remote-robots K --listen …`) the last K robots
+/// of the manifest are started by other hosts that join over the bridge.
 pub fn run_once(
     plan: &Plan,
     seed: u64,
@@ -227,6 +236,7 @@ pub fn run_once(
     out: &Path,
     sup: Supervision,
     watch: Option<crate::live::Hook>,
+    remote: Option<&crate::join::RemoteArgs>,
 ) -> Result<ExperimentResult> {
     let _claim = crate::launch::claim(run_id)?;
     // iceoryx2 root usable, no other user's file in the prefix, room in /dev/shm
@@ -247,6 +257,15 @@ pub fn run_once(
     crate::catch_interrupts()?;
     let m = &plan.manifest;
     let rules = rules.resolve(&m.learner.config().context(Exit::BadInput)?);
+    let remote_robots = remote.map_or(0, |r| r.remote_robots);
+    let local = m.robots.checked_sub(remote_robots).filter(|&l| l > 0).ok_or_else(|| {
+        anyhow!(
+            "--remote-robots {remote_robots} must be fewer than the manifest's {} robots (at least one runs on this host)",
+            m.robots
+        )
+        .context(Exit::BadInput)
+    })?;
+    let hang_ms = remote.map(|r| r.hang_ms(DEFAULT_HANG_MS));
     // the coordinator waits for a lost robot while the launcher may still restart it
     let restarts = match sup.policy {
         RestartPolicy::Never => 0,
@@ -259,6 +278,11 @@ pub fn run_once(
             .arg(&plan_file)
             .args(["--merge", &rules.merge.to_string()])
             .args(["--restarts", &restarts.to_string()])
+            .args(
+                hang_ms
+                    .iter()
+                    .flat_map(|h| ["--hang-ms".to_string(), h.to_string()]),
+            )
             .arg("--out")
             .arg(out);
         cmd
@@ -292,10 +316,17 @@ pub fn run_once(
         }
         cmd
     };
+    // the bridge to other hosts: remote robots get the options a local robot of their id would
+    let hub = match remote {
+        Some(r) => r
+            .start_hub(run_id, local, crate::join::merged_buffer(m.robots), &robot)
+            .context(Exit::BadInput)?,
+        None => None,
+    };
     let fleet = Fleet {
         coordinator: Some(&coordinator),
         robot: &robot,
-        robots: m.robots,
+        robots: local,
         policy: sup.policy,
         max_restarts: sup.max_restarts,
         grace: sup.grace,
@@ -312,6 +343,10 @@ pub fn run_once(
     let supervised = supervise(&fleet, &crate::INTERRUPTS, |_, _, _, _| {}, term::warn);
     // the watch leaves the run before its files are removed (its node is one of them)
     let watched = watch.map(crate::live::finish).transpose();
+    // the hub's proxies are nodes of this run: gone before its files are removed
+    if let Err(e) = crate::join::finish_hub(hub, out, local) {
+        term::warn(&format!("warning: {e:#}"));
+    }
     // whatever happened: no file of the run may stay behind
     crate::launch::clean_up(run_id);
     watched?;
@@ -412,7 +447,16 @@ impl ExperimentCmd {
                 rec,
                 Box::new(crate::request_stop),
             )?;
-            let r = run_once(&plan, seed, self.rules, &id, &dir, sup, Some(watch));
+            let r = run_once(
+                &plan,
+                seed,
+                self.rules,
+                &id,
+                &dir,
+                sup,
+                Some(watch),
+                Some(&self.remote),
+            );
             let r = match r {
                 Ok(r) => r,
                 Err(e) => {

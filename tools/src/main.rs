@@ -4,6 +4,7 @@ mod bench;
 mod clean;
 mod eval;
 mod experiment;
+mod join;
 mod launch;
 mod learn;
 mod live;
@@ -48,6 +49,8 @@ enum Command {
     Eval(eval::EvalCmd),
     /// Benchmark the update loop against raw iceoryx2, Unix sockets and crossbeam; fleet scale.
     Bench(bench::BenchCmd),
+    /// Run robots of a run whose coordinator is on another host (`qfleet run … --listen`).
+    Join(join::JoinCmd),
     /// Look at a live run from outside: its topics, every message as JSON, message rates.
     Topic(topic::TopicCmd),
     /// Read a recording (`run --record FILE.mcap`) back: per-topic summary, or the live view.
@@ -87,6 +90,7 @@ fn main() {
         Command::Eval(c) => c.run(),
         Command::Topic(c) => c.run(),
         Command::Replay(c) => c.run(),
+        Command::Join(c) => c.run(),
     };
     let code = match result {
         Ok(()) => Exit::Ok,

@@ -88,6 +88,8 @@ pub struct RunCmd {
     /// a person can follow them with `--live`; a paced robot also shows its cell at every pause.
     #[arg(long, value_name = "STEPS_PER_S", value_parser = qfleet_args::parse_pace)]
     pace: Option<f64>,
+    #[command(flatten)]
+    remote: crate::join::RemoteArgs,
 }
 
 impl RunCmd {
@@ -108,6 +110,9 @@ impl RunCmd {
         let rules = rules.resolve(&cfg);
         self.share.apply = Some(rules.apply);
         self.merge = Some(rules.merge);
+        // robots on other hosts (issue 12): the coordinator waits for `fleet` robots, the
+        // launcher starts the first `--robots` of them here
+        let fleet = self.remote.total(self.robots).context(Exit::BadInput)?;
         // the run id is ours alone from here until this process ends, however it ends
         let claim = crate::launch::claim(&run_id)?;
         let coord_bin = sibling("qfleet-coordinator")?;
@@ -134,6 +139,18 @@ impl RunCmd {
             ("wait".into(), self.wait.to_string()),
             ("pace".into(), qfleet_args::pace_cli(self.pace).join(" ")),
         ];
+        // the bridge to other hosts starts before the run's processes (the coordinator's
+        // registration wait is the joining hosts' window) and stops after they all ended
+        let robot = self.robot_command(&run_id, &out, &robot_bin, fleet);
+        let hub = self
+            .remote
+            .start_hub(
+                &run_id,
+                self.robots,
+                crate::join::merged_buffer(fleet),
+                &robot,
+            )
+            .context(Exit::BadInput)?;
         let watch = crate::live::start(
             &run_id,
             &task,
@@ -147,7 +164,8 @@ impl RunCmd {
             &run_id,
             &out,
             &coord_bin,
-            &robot_bin,
+            &robot,
+            fleet,
             grace,
             time_limit,
             &task,
@@ -155,6 +173,11 @@ impl RunCmd {
             &watch,
         );
         let quit = crate::live::finish(watch);
+        // the hub's proxies are nodes of this run: gone before its files are removed
+        let hosts = crate::join::finish_hub(hub, &out, self.robots).unwrap_or_else(|e| {
+            term::warn(&format!("warning: {e:#}"));
+            None
+        });
         // whatever happened: no file of the run may stay behind
         crate::launch::clean_up(&run_id);
         let mut result = std::fs::read_to_string(out.join("result.json"))
@@ -178,8 +201,11 @@ impl RunCmd {
         }
         let done = outcome?;
         match &result {
-            Some(r) if self.json => out!("{}", serde_json::to_string(r)?)?,
-            Some(r) => print_human(r, &out, out_dir.is_temp())?,
+            Some(r) if self.json => out!("{}", crate::join::with_hosts(r, &hosts, self.robots)?)?,
+            Some(r) => {
+                print_human(r, &out, out_dir.is_temp())?;
+                crate::join::print_hosts(&hosts, self.robots)?;
+            }
             None => {}
         }
         let mut failures = done.failures;
@@ -259,51 +285,28 @@ impl RunCmd {
         bus::validate_run_id(&run_id)?;
         // iceoryx2 root usable, no other user's file in the run's prefix, room in /dev/shm:
         // an error here, before any process exists, not an opaque failure in every process
-        bus::preflight(&bus::BusConfig::new(run_id.clone(), self.robots)?)?;
+        bus::preflight(&bus::BusConfig::new(
+            run_id.clone(),
+            self.remote.total(self.robots)?,
+        )?)?;
         Ok((task, cfg, grace, time_limit, run_id))
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn supervise(
-        &self,
-        run_id: &str,
-        out: &Path,
-        coord_bin: &Path,
-        robot_bin: &Path,
-        grace: Duration,
-        time_limit: Duration,
-        task: &planner::task::Task,
-        episodes: u32,
-        watch: &crate::live::Hook,
-    ) -> Result<launcher::Supervised> {
-        let restarts = match self.restart {
-            RestartPolicy::Never => 0,
-            RestartPolicy::OnFailure => self.max_restarts,
-        };
+    /// Robot `id`'s command, for the launcher (local robots) and the hub (remote robots: the
+    /// same options, sent to their host at the join).
+    fn robot_command<'a>(
+        &'a self,
+        run_id: &'a str,
+        out: &'a Path,
+        robot_bin: &'a Path,
+        fleet: u32,
+    ) -> impl Fn(u32) -> Command + Sync + 'a {
         // start-up waits that grow with the fleet (both sides wait the same)
-        let timeout = launcher::timeouts::startup_timeout_s(self.robots);
-        let coordinator = || -> Command {
-            let mut cmd = Command::new(coord_bin);
-            cmd.args(["--run-id", run_id, "--robots", &self.robots.to_string()])
-                .args(self.map.to_cli())
-                .args([
-                    "--wait",
-                    &self.wait.to_string(),
-                    "--spin-us",
-                    &self.spin_us.to_string(),
-                ])
-                .args(["--merge", &self.merge_rule().to_string(), "--progress"])
-                .args(["--hang-ms", &self.hang_ms.to_string()])
-                .args(["--restarts", &restarts.to_string()])
-                .args(["--timeout", &timeout.to_string()])
-                .arg("--out")
-                .arg(out);
-            cmd
-        };
-        let robot = |id: u32| -> Command {
+        let timeout = launcher::timeouts::startup_timeout_s(fleet);
+        move |id: u32| -> Command {
             let mut cmd = Command::new(robot_bin);
             cmd.args(["--run-id", run_id, "--robot-id", &id.to_string()])
-                .args(["--robots", &self.robots.to_string()])
+                .args(["--robots", &fleet.to_string()])
                 .args(self.map.to_cli())
                 .args(self.learner.to_cli())
                 .args([
@@ -316,10 +319,50 @@ impl RunCmd {
                 .arg("--out")
                 .arg(out);
             cmd
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn supervise(
+        &self,
+        run_id: &str,
+        out: &Path,
+        coord_bin: &Path,
+        robot: &(dyn Fn(u32) -> Command + Sync),
+        fleet_size: u32,
+        grace: Duration,
+        time_limit: Duration,
+        task: &planner::task::Task,
+        episodes: u32,
+        watch: &crate::live::Hook,
+    ) -> Result<launcher::Supervised> {
+        let restarts = match self.restart {
+            RestartPolicy::Never => 0,
+            RestartPolicy::OnFailure => self.max_restarts,
+        };
+        // start-up waits that grow with the fleet (both sides wait the same)
+        let timeout = launcher::timeouts::startup_timeout_s(fleet_size);
+        let coordinator = || -> Command {
+            let mut cmd = Command::new(coord_bin);
+            cmd.args(["--run-id", run_id, "--robots", &fleet_size.to_string()])
+                .args(self.map.to_cli())
+                .args([
+                    "--wait",
+                    &self.wait.to_string(),
+                    "--spin-us",
+                    &self.spin_us.to_string(),
+                ])
+                .args(["--merge", &self.merge_rule().to_string(), "--progress"])
+                .args(["--hang-ms", &self.remote.hang_ms(self.hang_ms).to_string()])
+                .args(["--restarts", &restarts.to_string()])
+                .args(["--timeout", &timeout.to_string()])
+                .arg("--out")
+                .arg(out);
+            cmd
         };
         let fleet = Fleet {
             coordinator: Some(&coordinator),
-            robot: &robot,
+            robot,
             robots: self.robots,
             policy: self.restart,
             max_restarts: self.max_restarts,
@@ -332,7 +375,7 @@ impl RunCmd {
                 )
             }),
         };
-        let total = u64::from(self.robots) * u64::from(episodes);
+        let total = u64::from(fleet_size) * u64::from(episodes);
         let bar = ProgressBar::new(total);
         if self.live {
             bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
@@ -344,7 +387,7 @@ impl RunCmd {
             .unwrap_or_else(|_| ProgressStyle::default_bar())
             .progress_chars("=> "),
         );
-        bar.set_message(format!("{} robots on {}", self.robots, task.map_name));
+        bar.set_message(format!("{fleet_size} robots on {}", task.map_name));
         let done = supervise(
             &fleet,
             &crate::INTERRUPTS,

@@ -235,7 +235,7 @@ impl SweepCmd {
                                 pace: self.pace,
                                 ..Supervision::default()
                             };
-                            match run_once(&plan, seed, rules, &id, &dir, sup, None) {
+                            match run_once(&plan, seed, rules, &id, &dir, sup, None, None) {
                                 Ok(r) => break r,
                                 // a run that failed on the bus (not in the learning) is run
                                 // again, up to twice, with a fresh run id; retries are reported

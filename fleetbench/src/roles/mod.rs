@@ -16,6 +16,7 @@ pub mod crossbeam_pp;
 pub mod fleet;
 pub mod raw;
 pub mod uds;
+pub mod xhost;
 
 /// Runs the role described by `spec_json` (a serialized [`RoleSpec`]) in this process and
 /// prints its report; what `qfleet bench --role …` calls.
@@ -59,6 +60,71 @@ pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
             hist_path,
         } => uds::client(&path, spin, cells, &plan, peer_pid, &hist_path)?,
         RoleSpec::Crossbeam { plan, hist_path } => crossbeam_pp::run(&plan, &hist_path)?,
+        RoleSpec::TcpEcho { addr, timeout_ms } => {
+            xhost::tcp_echo(&addr, Duration::from_millis(timeout_ms))?
+        }
+        RoleSpec::TcpPing {
+            addr,
+            plan,
+            peer_pid,
+            hist_path,
+        } => xhost::tcp_ping(&addr, &plan, peer_pid, &hist_path)?,
+        RoleSpec::ZenohPong {
+            listen,
+            express,
+            lowlatency,
+            timeout_ms,
+        } => xhost::zenoh_pong(
+            &listen,
+            bridge::Tuning {
+                express,
+                lowlatency,
+            },
+            Duration::from_millis(timeout_ms),
+        )?,
+        RoleSpec::ZenohPing {
+            endpoint,
+            express,
+            lowlatency,
+            plan,
+            peer_pid,
+            hist_path,
+        } => xhost::zenoh_ping(
+            &endpoint,
+            bridge::Tuning {
+                express,
+                lowlatency,
+            },
+            &plan,
+            peer_pid,
+            &hist_path,
+        )?,
+        RoleSpec::BridgedCoordinator {
+            inner,
+            listen,
+            express,
+            lowlatency,
+        } => xhost::bridged_coordinator(
+            &inner,
+            &listen,
+            bridge::Tuning {
+                express,
+                lowlatency,
+            },
+        )?,
+        RoleSpec::BridgedRobots {
+            inner,
+            endpoint,
+            express,
+            lowlatency,
+        } => xhost::bridged_robots(
+            &inner,
+            &endpoint,
+            bridge::Tuning {
+                express,
+                lowlatency,
+            },
+        )?,
     };
     let line = serde_json::to_string(&report).map_err(|e| BenchError::Spec(e.to_string()))?;
     println!("{REPORT_PREFIX}{line}");

@@ -1,0 +1,662 @@
+//! The coordinator's side: admit joining hosts, stand in for their robots on this host's bus,
+//! and carry every message across.
+//!
+//! The hub is a thread of `qfleet run` (and of `qfleet experiment`). For each remote robot it holds a **proxy**: a
+//! [`RobotBus`] opened under the robot's own id, so its iceoryx2 node is named
+//! `qfleet-robot-<id>` like the robot's would be. The coordinator therefore needs no change: it
+//! admits, acks and watches remote robots exactly as local ones. A proxy publishes what its
+//! robot sends over the link, and its subscribers receive what the coordinator sends; the hub
+//! forwards that to the robot's host (control and acks only to the host whose robot is
+//! addressed, broadcasts once per host). A proxy is dropped — its node disappears, and the
+//! coordinator's liveness check reports the robot `lost` unless its final report came first —
+//! when the joining host says the robot's process is gone, or when the host stays silent past
+//! the deadline.
+
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::ops::Range;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use bus::bus_schema::{
+    Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
+    QHintBatch, ROBOT_ID_ALL, Register, RobotState, Topic,
+};
+use bus::{BusConfig, BusError, RobotBus, monotonic_ns};
+use hdrhistogram::Histogram;
+use serde::Serialize;
+use zenoh::Wait;
+use zenoh::handlers::{FifoChannel, FifoChannelHandler};
+use zenoh::pubsub::{Publisher, Subscriber};
+use zenoh::query::{Query, Queryable};
+use zenoh::sample::Sample;
+
+use crate::health::{ClockSync, LinkEvent, LinkState, LinkWatch};
+use crate::join::{Admission, JOIN_KEY, JoinPlan, JoinReply, JoinRequest, RemotePlan};
+use crate::link::{self, Tuning};
+use crate::reliable::{Arrival, Incoming, Outgoing};
+use crate::stats::{HostReport, Percentiles, new_hist, record};
+use crate::topics::{FromRobot, ToRobot};
+use crate::wire::{self, HEADER, Heartbeat, Kind};
+use crate::{BridgeError, HEARTBEAT_EVERY, down_key, up_key_all};
+
+/// How the hub runs.
+#[derive(Debug, Clone)]
+pub struct HubOptions {
+    /// Zenoh endpoint to listen on, e.g. `tcp/10.0.0.1:7447`.
+    pub listen: String,
+    /// The run's side of the join.
+    pub plan: RemotePlan,
+    /// Heartbeat silence after which a host's link counts as down.
+    pub down_after: Duration,
+    /// Silence after which a host is lost: its robots are reported lost, the run goes on.
+    pub deadline: Duration,
+    /// Zenoh settings.
+    pub tuning: Tuning,
+}
+
+/// What the hub saw, for the run's result.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct HubReport {
+    /// The endpoint it listened on.
+    pub listen: String,
+    /// Remote robots the run waited for.
+    pub remote_robots: u32,
+    /// Remote robots that joined.
+    pub joined_robots: u32,
+    /// Joins refused, with their reasons.
+    pub refused: Vec<String>,
+    /// One entry per joined host.
+    pub hosts: Vec<HostReport>,
+}
+
+/// The running hub; [`Hub::finish`] stops it and returns its report.
+#[derive(Debug)]
+pub struct Hub {
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<Result<HubReport, BridgeError>>>,
+}
+
+impl Hub {
+    /// Listens on `opts.listen` (an error at once if it cannot) and starts the hub thread.
+    pub fn start(opts: HubOptions) -> Result<Hub, BridgeError> {
+        let session = link::listen(&opts.listen, opts.tuning)?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let flag = Arc::clone(&stop);
+        let thread = std::thread::Builder::new()
+            .name("qfleet-hub".into())
+            .spawn(move || {
+                let r = run(&session, &opts, &flag);
+                let _ = session.close().wait();
+                r
+            })
+            .map_err(|e| BridgeError::Thread(e.to_string()))?;
+        Ok(Hub {
+            stop,
+            thread: Some(thread),
+        })
+    }
+
+    /// Tells the joined hosts the run is over, drops every proxy and returns the report.
+    pub fn finish(mut self) -> Result<HubReport, BridgeError> {
+        self.stop.store(true, Ordering::SeqCst);
+        match self.thread.take() {
+            Some(t) => t
+                .join()
+                .map_err(|_| BridgeError::Thread("the hub thread panicked".into()))?,
+            None => Ok(HubReport::default()),
+        }
+    }
+}
+
+impl Drop for Hub {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// A remote robot's stand-in on this host, and which of its topics need a wakeup.
+struct Proxy {
+    bus: RobotBus,
+    wake: [bool; 5],
+}
+
+/// One joined host.
+struct Host {
+    name: String,
+    ids: Range<u32>,
+    publisher: Publisher<'static>,
+    out: Outgoing,
+    inc: Incoming,
+    watch: LinkWatch,
+    clock: ClockSync,
+    /// The last heartbeat's `t_ns` and when it arrived (our clock), to echo.
+    echo: (u64, u64),
+    last_beat: Instant,
+    /// Lossless frames in order, waiting to be written into this host's bus.
+    deliver: VecDeque<Vec<u8>>,
+    proxies: BTreeMap<u32, Proxy>,
+    /// Robots the host reported gone, applied once every frame it sent before is delivered.
+    gone_after: Vec<(u64, Vec<u32>)>,
+    gone: BTreeSet<u32>,
+    last_control: Option<u64>,
+    last_relay: Option<u64>,
+    left: bool,
+    deadline: Duration,
+    rtt: Histogram<u64>,
+    one_way: Histogram<u64>,
+    report: HostReport,
+}
+
+fn run(
+    session: &zenoh::Session,
+    opts: &HubOptions,
+    stop: &AtomicBool,
+) -> Result<HubReport, BridgeError> {
+    let plan = &opts.plan;
+    let zerr = |what: &str| {
+        let what = what.to_string();
+        move |e: zenoh::Error| BridgeError::Zenoh {
+            what: what.clone(),
+            detail: crate::zenoh_text(&e),
+        }
+    };
+    let mut cfg = BusConfig::new(plan.run_id.clone(), plan.robots_total)?;
+    cfg.hint_buffer = plan.hint_buffer;
+    cfg.merged_buffer = plan.merged_buffer;
+    let joins: Queryable<FifoChannelHandler<Query>> = session
+        .declare_queryable(JOIN_KEY)
+        .wait()
+        .map_err(zerr("declaring the join queryable"))?;
+    let frames: Subscriber<FifoChannelHandler<Sample>> = session
+        .declare_subscriber(up_key_all(&plan.run_id))
+        .with(FifoChannel::new(link::SUBSCRIBER_DEPTH))
+        .wait()
+        .map_err(zerr("subscribing to the joined hosts"))?;
+    let remote = plan.robots_total - plan.first_remote;
+    let mut admission = Admission::new(plan.first_remote, plan.robots_total);
+    let mut hosts: Vec<Host> = Vec::new();
+    let mut report = HubReport {
+        listen: opts.listen.clone(),
+        remote_robots: remote,
+        ..HubReport::default()
+    };
+    eprintln!(
+        "qfleet: waiting for {remote} robot(s) from other hosts on {}: run `qfleet join {} --robots N` there",
+        opts.listen, opts.listen
+    );
+    let mut idle_since = Instant::now();
+    // a frame that ended an idle wait, handled first in the next round
+    let mut woken: Option<Sample> = None;
+    link::tighten_timer_slack();
+    loop {
+        let mut busy = false;
+        let now = Instant::now();
+        // joins
+        while let Ok(Some(q)) = joins.try_recv() {
+            busy = true;
+            answer_join(session, &q, opts, &mut admission, &mut hosts, &mut report);
+        }
+        // frames from the joined hosts
+        for _ in 0..4096 {
+            let Some(sample) = woken.take().or_else(|| frames.try_recv().ok().flatten()) else {
+                break;
+            };
+            busy = true;
+            let key = sample.key_expr().as_str();
+            let Some(h) = key.rsplit('/').next().and_then(|s| s.parse::<usize>().ok()) else {
+                continue;
+            };
+            if let Some(host) = hosts.get_mut(h) {
+                host.on_frame(&sample.payload().to_bytes(), now, &cfg);
+            }
+        }
+        for host in &mut hosts {
+            busy |= host.deliver_in_order(&cfg);
+            host.apply_gone();
+            busy |= host.forward_down(now);
+            host.tick(now);
+            host.wake();
+        }
+        if stop.load(Ordering::SeqCst) {
+            break;
+        }
+        // idle: spin a little (a reply is often on its way), then wait in short slices for
+        // the next frame (a frame ends the wait at once; the bus is looked at between slices)
+        if busy {
+            idle_since = now;
+        } else if now.duration_since(idle_since) > Duration::from_micros(100) {
+            woken = frames.recv_timeout(link::IDLE_WAIT).ok().flatten();
+        } else {
+            std::thread::yield_now();
+        }
+    }
+    for host in &mut hosts {
+        let _ = link::put(&host.publisher, &wire::goodbye_frame());
+    }
+    report.joined_robots = hosts.iter().map(|h| h.ids.len() as u32).sum();
+    report.hosts = hosts.into_iter().map(Host::into_report).collect();
+    Ok(report)
+}
+
+fn answer_join(
+    session: &zenoh::Session,
+    q: &Query,
+    opts: &HubOptions,
+    admission: &mut Admission,
+    hosts: &mut Vec<Host>,
+    report: &mut HubReport,
+) {
+    let plan = &opts.plan;
+    let reply = |r: &JoinReply| {
+        let body = serde_json::to_vec(r).unwrap_or_default();
+        if let Err(e) = q.reply(JOIN_KEY, body).wait() {
+            eprintln!("qfleet: warning: answering a join: {e}");
+        }
+    };
+    let req: JoinRequest = match q.payload().map(|p| serde_json::from_slice(&p.to_bytes())) {
+        Some(Ok(r)) => r,
+        other => {
+            let reason = match other {
+                Some(Err(e)) => format!("unreadable join request ({e}): another qfleet version?"),
+                _ => "empty join request".to_string(),
+            };
+            eprintln!("qfleet: refused a join: {reason}");
+            report.refused.push(reason.clone());
+            reply(&JoinReply::Refused { reason });
+            return;
+        }
+    };
+    let (index, ids) = match admission.admit(&req) {
+        Ok(x) => x,
+        Err(reason) => {
+            eprintln!("qfleet: refused the join of host {}: {reason}", req.host);
+            report.refused.push(reason.clone());
+            reply(&JoinReply::Refused { reason });
+            return;
+        }
+    };
+    let publisher = match link::publisher(session, down_key(&plan.run_id, index), opts.tuning) {
+        Ok(p) => p,
+        Err(e) => {
+            let reason = format!("the coordinator's host could not open the link: {e}");
+            reply(&JoinReply::Refused { reason });
+            return;
+        }
+    };
+    let now = Instant::now();
+    let accepted = JoinPlan {
+        run_id: plan.run_id.clone(),
+        host_index: index,
+        robots_total: plan.robots_total,
+        robot_ids: ids.clone().collect(),
+        robot_args: ids
+            .clone()
+            .map(|id| {
+                plan.robot_args
+                    .get(id as usize)
+                    .cloned()
+                    .unwrap_or_default()
+            })
+            .collect(),
+        files: plan.files.clone(),
+        hint_buffer: plan.hint_buffer,
+        merged_buffer: plan.merged_buffer,
+        down_after_ms: opts.down_after.as_millis() as u64,
+        deadline_ms: opts.deadline.as_millis() as u64,
+        t_ns: monotonic_ns(),
+    };
+    reply(&JoinReply::Accepted(accepted));
+    eprintln!(
+        "qfleet: host {} joined with robots {}..{} ({} of {} remote robots now)",
+        req.host,
+        ids.start,
+        ids.end - 1,
+        plan.robots_total - plan.first_remote - admission.open_slots(),
+        plan.robots_total - plan.first_remote
+    );
+    let mut watch = LinkWatch::new(now, opts.down_after, opts.deadline);
+    watch.heard(now);
+    hosts.push(Host {
+        report: HostReport {
+            host: req.host.clone(),
+            robots: ids.clone().collect(),
+            ..HostReport::default()
+        },
+        name: req.host,
+        ids,
+        publisher,
+        out: Outgoing::default(),
+        inc: Incoming::default(),
+        watch,
+        clock: ClockSync::default(),
+        echo: (0, 0),
+        last_beat: now - HEARTBEAT_EVERY,
+        deliver: VecDeque::new(),
+        proxies: BTreeMap::new(),
+        gone_after: Vec::new(),
+        gone: BTreeSet::new(),
+        last_control: None,
+        last_relay: None,
+        left: false,
+        deadline: opts.deadline,
+        rtt: new_hist(),
+        one_way: new_hist(),
+    });
+}
+
+/// What became of a message written into the bus.
+enum Put {
+    Done,
+    /// Try again later (the coordinator's buffer is full, or it is not there yet).
+    Later,
+    Rejected,
+}
+
+impl Host {
+    fn lost(&self) -> bool {
+        self.watch.state() == LinkState::Lost
+    }
+
+    fn on_frame(&mut self, frame: &[u8], now: Instant, cfg: &BusConfig) {
+        if self.lost() {
+            return;
+        }
+        self.report.frames_in += 1;
+        let h = match wire::header(frame) {
+            Ok(h) => h,
+            Err(_) => {
+                self.report.rejected += 1;
+                return;
+            }
+        };
+        if let Some(LinkEvent::CameBack) = self.watch.heard(now) {
+            eprintln!(
+                "qfleet: host {} is back; resending what it missed",
+                self.name
+            );
+            self.resend(now, true);
+        }
+        match h.kind {
+            Kind::Heartbeat => {
+                let Ok(hb) = serde_json::from_slice::<Heartbeat>(&frame[HEADER..]) else {
+                    self.report.rejected += 1;
+                    return;
+                };
+                let t = monotonic_ns();
+                if let Some(rtt) = self.clock.sample(hb.t_ns, hb.echo_ns, hb.hold_ns, t) {
+                    record(&mut self.rtt, rtt);
+                }
+                self.echo = (hb.t_ns, t);
+                self.out.ack(hb.acked, now);
+                if !hb.gone.is_empty() {
+                    self.gone_after.push((hb.sent, hb.gone));
+                }
+            }
+            Kind::Lossless => match self.inc.arrive(h.seq) {
+                Arrival::Next => self.deliver.push_back(frame.to_vec()),
+                Arrival::Duplicate | Arrival::Gap => {}
+            },
+            Kind::Latest => {
+                let _ = self.put(h.topic, &frame[HEADER..], cfg);
+            }
+            Kind::Goodbye => {
+                self.left = true;
+                let ids: Vec<u32> = self.ids.clone().collect();
+                self.gone_after.push((self.inc.acked(), ids));
+            }
+        }
+    }
+
+    /// Writes the in-order lossless frames into the bus until one has to wait.
+    fn deliver_in_order(&mut self, cfg: &BusConfig) -> bool {
+        let mut any = false;
+        while let Some(frame) = self.deliver.front() {
+            let Ok(h) = wire::header(frame) else {
+                self.deliver.pop_front();
+                continue;
+            };
+            let frame = frame.clone();
+            match self.put(h.topic, &frame[HEADER..], cfg) {
+                Put::Done | Put::Rejected => {
+                    self.deliver.pop_front();
+                    any = true;
+                }
+                Put::Later => break,
+            }
+        }
+        any
+    }
+
+    fn put(&mut self, topic: Topic, payload: &[u8], cfg: &BusConfig) -> Put {
+        match topic {
+            Topic::Register => self.put_as::<Register>(payload, cfg, 0),
+            Topic::RobotState => self.put_as::<RobotState>(payload, cfg, 1),
+            Topic::Discovery => self.put_as::<PseudoTargetDiscovery>(payload, cfg, 2),
+            Topic::Hints => self.put_as::<QHintBatch>(payload, cfg, 3),
+            Topic::Report => self.put_as::<FinalReport>(payload, cfg, 4),
+            // coordinator topics never come from a joined host
+            _ => {
+                self.report.rejected += 1;
+                Put::Rejected
+            }
+        }
+    }
+
+    fn put_as<T: FromRobot>(&mut self, payload: &[u8], cfg: &BusConfig, slot: usize) -> Put {
+        let mut m = T::default();
+        if wire::read_into(payload, &mut m).is_err() || !self.ids.contains(&m.robot_id()) {
+            // a robot of another host (or of this one) cannot be impersonated from there
+            self.report.rejected += 1;
+            return Put::Rejected;
+        }
+        m.shift(self.clock.to_local());
+        let id = m.robot_id();
+        if self.gone.contains(&id) {
+            return Put::Rejected;
+        }
+        let proxy = match self.proxies.entry(id) {
+            std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::btree_map::Entry::Vacant(e) => {
+                match RobotBus::open(cfg, id, Duration::from_millis(200)) {
+                    Ok(bus) => e.insert(Proxy {
+                        bus,
+                        wake: [false; 5],
+                    }),
+                    Err(BusError::Timeout { .. }) => return Put::Later,
+                    Err(err) => {
+                        eprintln!("qfleet: warning: cannot stand in for remote robot {id}: {err}");
+                        return Put::Later;
+                    }
+                }
+            }
+        };
+        let lossless = T::TOPIC.delivery() == bus::bus_schema::Delivery::Lossless;
+        match T::outbox(&proxy.bus).send(&m) {
+            Ok(_) => {
+                proxy.wake[slot] = true;
+                let t = monotonic_ns();
+                let sent = m.send_ns();
+                if sent != 0 && sent <= t {
+                    record(&mut self.one_way, t - sent);
+                }
+                Put::Done
+            }
+            Err(_) if lossless => Put::Later,
+            Err(_) => {
+                self.report.dropped += 1;
+                Put::Rejected
+            }
+        }
+    }
+
+    /// Drops proxies of robots the host reported gone, once their last frames are delivered.
+    fn apply_gone(&mut self) {
+        let delivered = self.inc.acked() - self.deliver.len() as u64;
+        let mut i = 0;
+        while i < self.gone_after.len() {
+            if self.gone_after[i].0 <= delivered {
+                let (_, ids) = self.gone_after.swap_remove(i);
+                for id in ids {
+                    if self.gone.insert(id) {
+                        self.proxies.remove(&id);
+                    }
+                }
+            } else {
+                i += 1;
+            }
+        }
+    }
+
+    /// Reads what the coordinator sent through the proxies and publishes it to the host.
+    fn forward_down(&mut self, now: Instant) -> bool {
+        if self.proxies.is_empty() || self.lost() {
+            return false;
+        }
+        let mut frames: Vec<(bool, Vec<u8>)> = Vec::new();
+        let ids = self.ids.clone();
+        let (mut last_control, mut last_relay) = (self.last_control, self.last_relay);
+        for (i, proxy) in self.proxies.values().enumerate() {
+            let reader = i == 0;
+            drain::<Control>(&proxy.bus, |c| {
+                let mine = c.robot_id == ROBOT_ID_ALL || ids.contains(&c.robot_id);
+                if mine && last_control.is_none_or(|s| c.seq > s) {
+                    last_control = Some(c.seq);
+                    frames.push((true, wire::data_frame(c, 0)));
+                }
+            });
+            drain::<DiscoveryRelay>(&proxy.bus, |r| {
+                if last_relay.is_none_or(|s| r.relay_seq > s) {
+                    last_relay = Some(r.relay_seq);
+                    frames.push((true, wire::data_frame(r, 0)));
+                }
+            });
+            drain::<MergedHintBatch>(&proxy.bus, |m| {
+                if reader {
+                    frames.push((false, wire::data_frame(m, 0)));
+                }
+            });
+            drain::<DiscoveryAck>(&proxy.bus, |a| {
+                if reader && ids.contains(&a.robot_id) {
+                    frames.push((false, wire::data_frame(a, 0)));
+                }
+            });
+        }
+        (self.last_control, self.last_relay) = (last_control, last_relay);
+        let any = !frames.is_empty();
+        for (lossless, mut f) in frames {
+            if lossless {
+                let pushed = self.out.push(now, |seq| {
+                    f[8..16].copy_from_slice(&seq.to_le_bytes());
+                    f
+                });
+                match pushed {
+                    Ok(f) => {
+                        let f = f.to_vec();
+                        self.send(&f);
+                    }
+                    Err(e) => eprintln!("qfleet: warning: host {}: {e}", self.name),
+                }
+            } else {
+                self.send(&f);
+            }
+        }
+        any
+    }
+
+    fn send(&mut self, frame: &[u8]) {
+        if self.watch.state() == LinkState::Up && link::put(&self.publisher, frame) {
+            self.report.frames_out += 1;
+        }
+    }
+
+    fn resend(&mut self, now: Instant, force: bool) {
+        let due: Vec<Vec<u8>> = self.out.due(now, force).map(<[u8]>::to_vec).collect();
+        for f in due {
+            self.send(&f);
+        }
+    }
+
+    /// Heartbeat, resends, and the link's state.
+    fn tick(&mut self, now: Instant) {
+        if self.lost() {
+            return;
+        }
+        match self.watch.tick(now) {
+            Some(LinkEvent::WentDown) => eprintln!(
+                "qfleet: host {} is silent; its robots' lossless messages are kept for it",
+                self.name
+            ),
+            Some(LinkEvent::Lost) => {
+                let ids: Vec<u32> = self.ids.clone().collect();
+                eprintln!(
+                    "qfleet: host {} silent for {:?}: given up, its robots {ids:?} are reported lost",
+                    self.name, self.deadline
+                );
+                self.proxies.clear();
+                self.gone.extend(ids);
+                return;
+            }
+            _ => {}
+        }
+        if now.duration_since(self.last_beat) >= HEARTBEAT_EVERY {
+            self.last_beat = now;
+            let t = monotonic_ns();
+            let hb = Heartbeat {
+                t_ns: t,
+                echo_ns: self.echo.0,
+                hold_ns: if self.echo.0 == 0 {
+                    0
+                } else {
+                    t.saturating_sub(self.echo.1)
+                },
+                acked: self.inc.acked(),
+                sent: self.out.next_seq(),
+                gone: Vec::new(),
+            };
+            // heartbeats go even while the link looks down: they are how it comes back
+            if link::put(&self.publisher, &wire::heartbeat_frame(&hb)) {
+                self.report.frames_out += 1;
+            }
+        }
+        self.resend(now, false);
+    }
+
+    fn wake(&mut self) {
+        for p in self.proxies.values_mut() {
+            let b = &p.bus;
+            let w = std::mem::take(&mut p.wake);
+            let r = [
+                w[0].then(|| b.register.notify()),
+                w[1].then(|| b.state.notify()),
+                w[2].then(|| b.discovery.notify()),
+                w[3].then(|| b.hints.notify()),
+                w[4].then(|| b.report.notify()),
+            ];
+            drop(r);
+        }
+    }
+
+    fn into_report(self) -> HostReport {
+        let mut r = self.report;
+        r.state = Some(self.watch.state());
+        r.reconnects = self.watch.reconnects;
+        r.down_ms = self.watch.down_for.as_millis() as u64;
+        r.clock_offset_ns = self.clock.offset_ns();
+        r.best_rtt_ns = self.clock.best_rtt_ns().unwrap_or(0);
+        r.rtt_ns = Percentiles::of(&self.rtt);
+        r.one_way_in_ns = Percentiles::of(&self.one_way);
+        r.resent = self.out.resent;
+        r.duplicates = self.inc.duplicates;
+        r
+    }
+}
+
+/// Takes every message waiting in a proxy's inbox of `T`.
+fn drain<T: ToRobot>(bus: &RobotBus, mut f: impl FnMut(&T)) {
+    let _ = T::inbox(bus).drain(usize::MAX, |m| f(m));
+}

@@ -1,0 +1,110 @@
+//! # bridge — a qfleet run across machines, over Zenoh
+//!
+//! Each host keeps iceoryx2 zero-copy shared memory for its own processes; this crate carries a
+//! run's topics between hosts over one Zenoh session per joined host. The coordinator's host
+//! runs a [`Hub`] (a thread of `qfleet run|experiment … --remote-robots K --listen ENDPOINT`); every other
+//! host runs a [`Joiner`] (`qfleet join ENDPOINT --robots N`), which receives the whole
+//! configuration at the join ([`join`]) and starts its robots.
+//!
+//! Neither the coordinator nor the robots know about the link: on the coordinator's host the hub
+//! holds a proxy node per remote robot named as that robot's node, and on a joining host the
+//! joiner's node is the robots' `qfleet-coordinator`. Lossless topics stay lossless across the
+//! link ([`reliable`]: link sequence numbers, acks in heartbeats, go-back-N resends); latest-wins
+//! topics are sent once. Heartbeats also tell when the link is down, came back (counted as a
+//! reconnect) or is lost past a deadline ([`health`]), and estimate the two clocks' offset so
+//! every time stamp is moved onto the receiving host's clock ([`wire`]).
+//!
+//! Not here: a transport (Zenoh is the transport), process spawning (the `qfleet` CLI), the
+//! coordinator's or the robots' logic.
+
+#![deny(missing_docs)]
+
+pub mod health;
+pub mod hub;
+pub mod join;
+pub mod link;
+pub mod reliable;
+pub mod remote;
+pub mod stats;
+pub mod topics;
+pub mod wire;
+
+use std::time::Duration;
+
+pub use health::{ClockSync, LinkState, LinkWatch};
+pub use hub::{Hub, HubOptions, HubReport};
+pub use join::{JoinPlan, JoinReply, JoinRequest, RemotePlan};
+pub use link::Tuning;
+pub use remote::{Ending, Joiner, request};
+pub use stats::{HostReport, Percentiles};
+
+/// How often each side sends a heartbeat (acks, clock echo, robots gone).
+pub const HEARTBEAT_EVERY: Duration = Duration::from_millis(50);
+
+/// Default heartbeat silence after which a link counts as down (then a reconnect is counted
+/// when it is heard again).
+pub const DEFAULT_DOWN_AFTER: Duration = Duration::from_millis(500);
+
+/// Default silence after which a host is given up on.
+pub const DEFAULT_DEADLINE: Duration = Duration::from_secs(10);
+
+/// Zenoh key the hub publishes to joined host `host` on.
+pub fn down_key(run_id: &str, host: u32) -> String {
+    format!("qfleet/{run_id}/bridge/down/{host}")
+}
+
+/// Zenoh key joined host `host` publishes to the hub on.
+pub fn up_key(run_id: &str, host: u32) -> String {
+    format!("qfleet/{run_id}/bridge/up/{host}")
+}
+
+/// The hub's subscription: every joined host's key.
+pub fn up_key_all(run_id: &str) -> String {
+    format!("qfleet/{run_id}/bridge/up/*")
+}
+
+/// What can go wrong in a bridge.
+#[derive(Debug, thiserror::Error)]
+pub enum BridgeError {
+    /// This host's iceoryx2 bus.
+    #[error(transparent)]
+    Bus(#[from] bus::BusError),
+    /// The endpoint is not a Zenoh endpoint.
+    #[error("{endpoint:?} is not a Zenoh endpoint (expected e.g. tcp/10.0.0.1:7447): {detail}")]
+    Endpoint {
+        /// What was given.
+        endpoint: String,
+        /// Zenoh's reason.
+        detail: String,
+    },
+    /// A Zenoh call failed.
+    #[error("zenoh: {what}: {detail}")]
+    Zenoh {
+        /// What was being done.
+        what: String,
+        /// Zenoh's error (its error type is not `std::error::Error`, so kept as text).
+        detail: String,
+    },
+    /// The coordinator's host refused the join.
+    #[error("join refused by the coordinator's host: {0}")]
+    Refused(String),
+    /// The join exchange failed.
+    #[error("join failed: {0}")]
+    Join(String),
+    /// The link itself failed.
+    #[error("link: {0}")]
+    Link(String),
+    /// A bridge thread.
+    #[error("bridge thread: {0}")]
+    Thread(String),
+}
+
+/// Zenoh's error text without the source location it appends (` at /…/src/lib.rs:62.`), which
+/// means nothing to a user.
+pub(crate) fn zenoh_text(e: &impl std::fmt::Display) -> String {
+    let s = e.to_string();
+    match s.find(" at /") {
+        Some(i) => s[..i].to_string(),
+        None => s,
+    }
+}

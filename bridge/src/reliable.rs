@@ -1,0 +1,223 @@
+//! Lossless across the link: number every lossless frame, keep it until the peer acknowledges
+//! it, and send everything unacknowledged again when the acknowledgement does not come.
+//!
+//! Zenoh over TCP is reliable while a session lasts, but a frame published while the link is
+//! down (or while a session is being re-established) is gone. So the bridge runs its own
+//! go-back-N over Zenoh: the sender ([`Outgoing`]) numbers frames 0, 1, 2, …, the receiver
+//! ([`Incoming`]) takes only the next number it expects (a gap means "lost on the way": it waits
+//! for the resend) and reports in every heartbeat how many it has in order; the sender drops
+//! those and, when the oldest kept frame has waited [`RESEND_AFTER`] or the link came back, sends
+//! all kept frames again. Duplicates are harmless: the receiver skips numbers it already has.
+//! No IO here: the bridge loops feed these types and publish what they return.
+
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+/// How long an unacknowledged frame waits before the whole window is resent (heartbeats, which
+/// carry the acks, go every [`crate::HEARTBEAT_EVERY`]).
+pub const RESEND_AFTER: Duration = Duration::from_millis(300);
+
+/// Most frames kept unacknowledged; beyond it the sender reports the link as overflowing instead
+/// of growing without bound (a peer that never acks is lost long before this).
+pub const MAX_KEPT: usize = 1 << 20;
+
+/// The sending half of one lossless stream.
+#[derive(Debug, Default)]
+pub struct Outgoing {
+    next: u64,
+    kept: VecDeque<(u64, Vec<u8>)>,
+    last_send: Option<Instant>,
+    /// Frames sent again (each resend of each frame counts).
+    pub resent: u64,
+}
+
+/// The buffer of unacknowledged frames is full: the peer has not acknowledged anything for a
+/// very long time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("{0} lossless frames unacknowledged by the other host")]
+pub struct Overflow(pub usize);
+
+impl Outgoing {
+    /// The seq the next frame gets (also: how many were numbered so far).
+    pub fn next_seq(&self) -> u64 {
+        self.next
+    }
+
+    /// Frames kept until acknowledged.
+    pub fn unacked(&self) -> usize {
+        self.kept.len()
+    }
+
+    /// Numbers a frame: `build(seq)` makes it; it is kept and returned for sending now.
+    pub fn push(
+        &mut self,
+        now: Instant,
+        build: impl FnOnce(u64) -> Vec<u8>,
+    ) -> Result<&[u8], Overflow> {
+        if self.kept.len() >= MAX_KEPT {
+            return Err(Overflow(self.kept.len()));
+        }
+        let seq = self.next;
+        self.next += 1;
+        if self.kept.is_empty() {
+            self.last_send = Some(now);
+        }
+        self.kept.push_back((seq, build(seq)));
+        Ok(self.kept.back().map_or(&[][..], |(_, f)| f.as_slice()))
+    }
+
+    /// The peer has every frame with seq `< acked`: forget them.
+    pub fn ack(&mut self, acked: u64, now: Instant) {
+        let before = self.kept.len();
+        while self.kept.front().is_some_and(|(s, _)| *s < acked) {
+            self.kept.pop_front();
+        }
+        if self.kept.len() != before {
+            // progress: the remaining frames get a fresh wait
+            self.last_send = Some(now);
+        }
+    }
+
+    /// Frames to send again now: all kept ones when the oldest has waited [`RESEND_AFTER`]
+    /// since the last (re)send or ack progress, or when `force` (the link just came back).
+    pub fn due(&mut self, now: Instant, force: bool) -> impl Iterator<Item = &[u8]> {
+        let waited = self
+            .last_send
+            .is_some_and(|t| now.duration_since(t) >= RESEND_AFTER);
+        let go = !self.kept.is_empty() && (force || waited);
+        if go {
+            self.last_send = Some(now);
+            self.resent += self.kept.len() as u64;
+        }
+        self.kept
+            .iter()
+            .filter(move |_| go)
+            .map(|(_, f)| f.as_slice())
+    }
+}
+
+/// What the receiver makes of a lossless frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Arrival {
+    /// The next one: deliver it.
+    Next,
+    /// Already had it (a resend): skip.
+    Duplicate,
+    /// A frame before it was lost: skip, the sender resends from the gap.
+    Gap,
+}
+
+/// The receiving half of one lossless stream.
+#[derive(Debug, Default)]
+pub struct Incoming {
+    expected: u64,
+    /// Resent frames skipped.
+    pub duplicates: u64,
+    /// Frames skipped because an earlier one was missing.
+    pub gaps: u64,
+}
+
+impl Incoming {
+    /// Frames received in order so far (what the heartbeat acknowledges).
+    pub fn acked(&self) -> u64 {
+        self.expected
+    }
+
+    /// Classifies the frame numbered `seq`; `Next` advances the stream.
+    pub fn arrive(&mut self, seq: u64) -> Arrival {
+        if seq == self.expected {
+            self.expected += 1;
+            Arrival::Next
+        } else if seq < self.expected {
+            self.duplicates += 1;
+            Arrival::Duplicate
+        } else {
+            self.gaps += 1;
+            Arrival::Gap
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(seq: u64) -> Vec<u8> {
+        seq.to_le_bytes().to_vec()
+    }
+
+    fn seq_of(f: &[u8]) -> u64 {
+        u64::from_le_bytes(f.try_into().unwrap())
+    }
+
+    /// A link that drops frames while "down" delivers every frame exactly once, in order,
+    /// after it comes back: the promise the bridge makes for lossless topics.
+    #[test]
+    fn frames_lost_while_the_link_is_down_arrive_once_in_order_after_it_is_back() {
+        let t0 = Instant::now();
+        let mut out = Outgoing::default();
+        let mut inc = Incoming::default();
+        let mut delivered = Vec::new();
+        let wire = |f: &[u8], up: bool, inc: &mut Incoming, got: &mut Vec<u64>| {
+            if up && inc.arrive(seq_of(f)) == Arrival::Next {
+                got.push(seq_of(f));
+            }
+        };
+        for i in 0..10u64 {
+            let up = !(3..7).contains(&i); // frames 3..7 are published into a dead link
+            let f = out.push(t0, frame).unwrap().to_vec();
+            wire(&f, up, &mut inc, &mut delivered);
+        }
+        assert_eq!(delivered, vec![0, 1, 2], "7..10 follow a gap and wait");
+        out.ack(inc.acked(), t0);
+        assert_eq!(out.unacked(), 7);
+        // nothing is due before the resend time …
+        assert_eq!(out.due(t0 + Duration::from_millis(10), false).count(), 0);
+        // … then everything kept goes again
+        let again: Vec<Vec<u8>> = out
+            .due(t0 + RESEND_AFTER, false)
+            .map(<[u8]>::to_vec)
+            .collect();
+        for f in &again {
+            wire(f, true, &mut inc, &mut delivered);
+        }
+        assert_eq!(delivered, (0..10).collect::<Vec<_>>());
+        out.ack(inc.acked(), t0 + RESEND_AFTER);
+        assert_eq!(out.unacked(), 0);
+        assert_eq!(out.resent, 7);
+        assert_eq!(inc.gaps, 3);
+    }
+
+    #[test]
+    fn a_resend_of_what_arrived_is_skipped_as_duplicate() {
+        let mut inc = Incoming::default();
+        assert_eq!(inc.arrive(0), Arrival::Next);
+        assert_eq!(inc.arrive(0), Arrival::Duplicate);
+        assert_eq!(inc.arrive(2), Arrival::Gap);
+        assert_eq!(inc.arrive(1), Arrival::Next);
+        assert_eq!(inc.acked(), 2);
+    }
+
+    #[test]
+    fn a_link_that_comes_back_resends_at_once() {
+        let t0 = Instant::now();
+        let mut out = Outgoing::default();
+        out.push(t0, frame).unwrap();
+        assert_eq!(out.due(t0, false).count(), 0);
+        assert_eq!(out.due(t0, true).count(), 1);
+        // an empty window never resends
+        out.ack(1, t0);
+        assert_eq!(out.due(t0 + RESEND_AFTER * 3, true).count(), 0);
+    }
+
+    #[test]
+    fn ack_progress_restarts_the_wait() {
+        let t0 = Instant::now();
+        let mut out = Outgoing::default();
+        out.push(t0, frame).unwrap();
+        out.push(t0, frame).unwrap();
+        out.ack(1, t0 + RESEND_AFTER);
+        assert_eq!(out.due(t0 + RESEND_AFTER, false).count(), 0);
+        assert_eq!(out.due(t0 + RESEND_AFTER * 2, false).count(), 1);
+    }
+}

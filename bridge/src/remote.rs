@@ -1,0 +1,484 @@
+//! The joining side: ask to join, stand in for the coordinator on this host's bus, and carry
+//! every message across.
+//!
+//! [`request`] connects to the coordinator's host and returns the [`JoinPlan`]. [`Joiner::new`]
+//! then creates this host's services with a coordinator stand-in — an iceoryx2 node named
+//! `qfleet-coordinator`, whose process is `qfleet join` itself — so local robots register,
+//! watch their coordinator's pid and reconnect exactly as they do on one host; the caller starts
+//! the robots and calls [`Joiner::serve`]. A robot whose process is gone is reported to the hub
+//! in the next heartbeat. While the link is down the robots keep learning; their lossless
+//! messages wait here and are resent when it is back.
+
+use std::collections::{BTreeSet, VecDeque};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use bus::bus_schema::{
+    Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
+    QHintBatch, Register, RobotState, Topic,
+};
+use bus::{BusConfig, BusError, CoordinatorBus, check_nodes, monotonic_ns};
+use hdrhistogram::Histogram;
+use zenoh::Wait;
+use zenoh::handlers::{FifoChannel, FifoChannelHandler};
+use zenoh::pubsub::{Publisher, Subscriber};
+use zenoh::sample::Sample;
+
+use crate::health::{ClockSync, LinkEvent, LinkState, LinkWatch};
+use crate::join::{JOIN_KEY, JoinPlan, JoinReply, JoinRequest};
+use crate::link::{self, Tuning};
+use crate::reliable::{Arrival, Incoming, Outgoing};
+use crate::stats::{HostReport, Percentiles, new_hist, record};
+use crate::topics::{FromRobot, ToRobot};
+use crate::wire::{self, HEADER, Heartbeat, Kind};
+use crate::{BridgeError, HEARTBEAT_EVERY, down_key, up_key};
+
+/// How often the joining side lists this host's robot processes.
+const LIST_EVERY: Duration = Duration::from_millis(200);
+
+/// Asks `endpoint` to let `req.robots` robots join; the session stays open for [`Joiner`].
+pub fn request(
+    endpoint: &str,
+    req: &JoinRequest,
+    timeout: Duration,
+    tuning: Tuning,
+) -> Result<(zenoh::Session, JoinPlan, ClockSync), BridgeError> {
+    let session = link::connect(endpoint, timeout, tuning)?;
+    let deadline = Instant::now() + timeout;
+    loop {
+        let mut req = req.clone();
+        req.t_ns = monotonic_ns();
+        let body = serde_json::to_vec(&req).map_err(|e| BridgeError::Join(e.to_string()))?;
+        let replies = session
+            .get(JOIN_KEY)
+            .payload(body)
+            .timeout(Duration::from_secs(1))
+            .wait()
+            .map_err(|e| BridgeError::Zenoh {
+                what: format!("asking {endpoint} to join"),
+                detail: crate::zenoh_text(&e),
+            })?;
+        if let Ok(reply) = replies.recv() {
+            let got = monotonic_ns();
+            let sample = reply.into_result().map_err(|e| {
+                BridgeError::Join(format!("{endpoint} answered with an error: {e:?}"))
+            })?;
+            let answer: JoinReply =
+                serde_json::from_slice(&sample.payload().to_bytes()).map_err(|e| {
+                    BridgeError::Join(format!(
+                        "unreadable answer from {endpoint} ({e}): another qfleet version?"
+                    ))
+                })?;
+            return match answer {
+                JoinReply::Accepted(plan) => {
+                    let mut clock = ClockSync::default();
+                    clock.seed(req.t_ns, plan.t_ns, got);
+                    Ok((session, plan, clock))
+                }
+                JoinReply::Refused { reason } => Err(BridgeError::Refused(reason)),
+            };
+        }
+        // connected but the hub's queryable is not known here yet (or no run listens there)
+        if Instant::now() >= deadline {
+            return Err(BridgeError::Join(format!(
+                "no qfleet run answered on {endpoint} within {timeout:?}"
+            )));
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// The joining host's bridge: its bus (coordinator stand-in) and its end of the link.
+pub struct Joiner {
+    session: zenoh::Session,
+    plan: JoinPlan,
+    bus: CoordinatorBus,
+    publisher: Publisher<'static>,
+    frames: Subscriber<FifoChannelHandler<Sample>>,
+    out: Outgoing,
+    inc: Incoming,
+    watch: LinkWatch,
+    clock: ClockSync,
+    echo: (u64, u64),
+    deliver: VecDeque<Vec<u8>>,
+    seen: BTreeSet<u32>,
+    gone: BTreeSet<u32>,
+    rtt: Histogram<u64>,
+    one_way: Histogram<u64>,
+    wake: [bool; 4],
+    report: HostReport,
+}
+
+/// How [`Joiner::serve`] ended.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Ending {
+    /// The robots are done and everything they sent was acknowledged.
+    Done,
+    /// The coordinator's host said the run is over.
+    RunOver,
+    /// Asked to stop (Ctrl-C).
+    Stopped,
+    /// The coordinator's host stayed silent past the deadline.
+    Lost,
+}
+
+impl Joiner {
+    /// Creates this host's services for the plan (before any robot starts).
+    pub fn new(
+        session: zenoh::Session,
+        plan: JoinPlan,
+        clock: ClockSync,
+        host: &str,
+        tuning: Tuning,
+    ) -> Result<Self, BridgeError> {
+        let mut cfg = BusConfig::new(plan.run_id.clone(), plan.robots_total)?;
+        cfg.hint_buffer = plan.hint_buffer;
+        cfg.merged_buffer = plan.merged_buffer;
+        cfg.send_timeout = Duration::from_secs(1);
+        cfg.validate()?;
+        let bus = CoordinatorBus::create(&cfg)?;
+        let publisher = link::publisher(&session, up_key(&plan.run_id, plan.host_index), tuning)?;
+        let frames = session
+            .declare_subscriber(down_key(&plan.run_id, plan.host_index))
+            .with(FifoChannel::new(link::SUBSCRIBER_DEPTH))
+            .wait()
+            .map_err(|e| BridgeError::Zenoh {
+                what: "subscribing to the coordinator's host".into(),
+                detail: crate::zenoh_text(&e),
+            })?;
+        let now = Instant::now();
+        let mut watch = LinkWatch::new(
+            now,
+            Duration::from_millis(plan.down_after_ms),
+            Duration::from_millis(plan.deadline_ms),
+        );
+        watch.heard(now);
+        let report = HostReport {
+            host: host.to_string(),
+            robots: plan.robot_ids.clone(),
+            ..HostReport::default()
+        };
+        Ok(Joiner {
+            session,
+            plan,
+            bus,
+            publisher,
+            frames,
+            out: Outgoing::default(),
+            inc: Incoming::default(),
+            watch,
+            clock,
+            echo: (0, 0),
+            deliver: VecDeque::new(),
+            seen: BTreeSet::new(),
+            gone: BTreeSet::new(),
+            rtt: new_hist(),
+            one_way: new_hist(),
+            wake: [false; 4],
+            report,
+        })
+    }
+
+    /// The plan this host runs.
+    pub fn plan(&self) -> &JoinPlan {
+        &self.plan
+    }
+
+    /// Carries messages until the robots are done (`robots_done()` and nothing unacknowledged),
+    /// the coordinator's host says goodbye or is lost, or `stop` is set.
+    pub fn serve(
+        &mut self,
+        stop: &AtomicBool,
+        mut robots_done: impl FnMut() -> bool,
+    ) -> Result<Ending, BridgeError> {
+        let mut last_beat = Instant::now() - HEARTBEAT_EVERY;
+        let mut last_list = Instant::now();
+        let mut idle_since = Instant::now();
+        let mut done_at: Option<Instant> = None;
+        // a frame that ended an idle wait, handled first in the next round
+        let mut woken: Option<Sample> = None;
+        link::tighten_timer_slack();
+        let ending = loop {
+            let now = Instant::now();
+            let mut busy = false;
+            let mut over = false;
+            for _ in 0..4096 {
+                let Some(sample) = woken
+                    .take()
+                    .or_else(|| self.frames.try_recv().ok().flatten())
+                else {
+                    break;
+                };
+                busy = true;
+                over |= self.on_frame(&sample.payload().to_bytes(), now);
+            }
+            busy |= self.deliver_in_order();
+            busy |= self.forward_up(now)?;
+            self.wake_robots();
+            if now.duration_since(last_list) >= LIST_EVERY {
+                last_list = now;
+                self.list_robots()?;
+            }
+            match self.watch.tick(now) {
+                Some(LinkEvent::WentDown) => eprintln!(
+                    "qfleet join: the coordinator's host is silent; robots keep learning, their \
+                     lossless messages are kept"
+                ),
+                Some(LinkEvent::Lost) => break Ending::Lost,
+                _ => {}
+            }
+            if now.duration_since(last_beat) >= HEARTBEAT_EVERY {
+                last_beat = now;
+                self.heartbeat();
+            }
+            let due: Vec<Vec<u8>> = self.out.due(now, false).map(<[u8]>::to_vec).collect();
+            for f in due {
+                self.send(&f);
+            }
+            if over {
+                break Ending::RunOver;
+            }
+            if stop.load(Ordering::SeqCst) {
+                break Ending::Stopped;
+            }
+            if robots_done() {
+                // the last reports must be acknowledged; a robot's "gone" must reach the hub
+                let t = *done_at.get_or_insert(now);
+                if self.out.unacked() == 0 && now.duration_since(t) >= HEARTBEAT_EVERY * 3 {
+                    break Ending::Done;
+                }
+            }
+            if busy {
+                idle_since = now;
+            } else if now.duration_since(idle_since) > Duration::from_micros(100) {
+                // a frame ends the wait at once; the bus is looked at between slices
+                woken = self.frames.recv_timeout(link::IDLE_WAIT).ok().flatten();
+            } else {
+                std::thread::yield_now();
+            }
+        };
+        if ending != Ending::Lost {
+            let _ = link::put(&self.publisher, &wire::goodbye_frame());
+        }
+        Ok(ending)
+    }
+
+    /// The figures of the link, and closes it.
+    pub fn finish(self) -> HostReport {
+        let mut r = self.report;
+        r.state = Some(self.watch.state());
+        r.reconnects = self.watch.reconnects;
+        r.down_ms = self.watch.down_for.as_millis() as u64;
+        r.clock_offset_ns = self.clock.offset_ns();
+        r.best_rtt_ns = self.clock.best_rtt_ns().unwrap_or(0);
+        r.rtt_ns = Percentiles::of(&self.rtt);
+        r.one_way_in_ns = Percentiles::of(&self.one_way);
+        r.resent = self.out.resent;
+        r.duplicates = self.inc.duplicates;
+        drop(self.frames);
+        drop(self.publisher);
+        let _ = self.bus.close();
+        let _ = self.session.close().wait();
+        r
+    }
+
+    /// Handles one frame; true when the hub said goodbye.
+    fn on_frame(&mut self, frame: &[u8], now: Instant) -> bool {
+        self.report.frames_in += 1;
+        let Ok(h) = wire::header(frame) else {
+            self.report.rejected += 1;
+            return false;
+        };
+        if let Some(LinkEvent::CameBack) = self.watch.heard(now) {
+            eprintln!("qfleet join: the coordinator's host is back; resending what it missed");
+            let due: Vec<Vec<u8>> = self.out.due(now, true).map(<[u8]>::to_vec).collect();
+            for f in due {
+                self.send(&f);
+            }
+        }
+        match h.kind {
+            Kind::Heartbeat => {
+                let Ok(hb) = serde_json::from_slice::<Heartbeat>(&frame[HEADER..]) else {
+                    self.report.rejected += 1;
+                    return false;
+                };
+                let t = monotonic_ns();
+                if let Some(rtt) = self.clock.sample(hb.t_ns, hb.echo_ns, hb.hold_ns, t) {
+                    record(&mut self.rtt, rtt);
+                }
+                self.echo = (hb.t_ns, t);
+                self.out.ack(hb.acked, now);
+            }
+            Kind::Lossless => {
+                if self.inc.arrive(h.seq) == Arrival::Next {
+                    self.deliver.push_back(frame.to_vec());
+                }
+            }
+            Kind::Latest => {
+                let _ = self.put(h.topic, &frame[HEADER..]);
+            }
+            Kind::Goodbye => return true,
+        }
+        false
+    }
+
+    fn deliver_in_order(&mut self) -> bool {
+        let mut any = false;
+        while let Some(frame) = self.deliver.pop_front() {
+            let Ok(h) = wire::header(&frame) else {
+                continue;
+            };
+            if self.put(h.topic, &frame[HEADER..]) == Some(false) {
+                self.deliver.push_front(frame);
+                break;
+            }
+            any = true;
+        }
+        any
+    }
+
+    /// Writes a coordinator message into this host's bus: Some(true) sent, Some(false) try
+    /// again later, None dropped.
+    fn put(&mut self, topic: Topic, payload: &[u8]) -> Option<bool> {
+        match topic {
+            Topic::Control => self.put_as::<Control>(payload, 0),
+            Topic::Merged => self.put_as::<MergedHintBatch>(payload, 1),
+            Topic::Ack => self.put_as::<DiscoveryAck>(payload, 2),
+            Topic::Relay => self.put_as::<DiscoveryRelay>(payload, 3),
+            _ => {
+                self.report.rejected += 1;
+                None
+            }
+        }
+    }
+
+    fn put_as<T: ToRobot>(&mut self, payload: &[u8], slot: usize) -> Option<bool> {
+        let mut m = T::default();
+        if wire::read_into(payload, &mut m).is_err() {
+            self.report.rejected += 1;
+            return None;
+        }
+        m.shift(self.clock.to_local());
+        match T::outbox(&self.bus).send(&m) {
+            Ok(_) => {
+                self.wake[slot] = true;
+                let t = monotonic_ns();
+                let sent = m.send_ns();
+                if sent != 0 && sent <= t {
+                    record(&mut self.one_way, t - sent);
+                }
+                Some(true)
+            }
+            // nobody here to tell (the robots left): as the coordinator does, not an error
+            Err(BusError::NoSubscriber { .. }) => None,
+            Err(_) if T::TOPIC.delivery() == bus::bus_schema::Delivery::Lossless => Some(false),
+            Err(_) => {
+                self.report.dropped += 1;
+                None
+            }
+        }
+    }
+
+    fn wake_robots(&mut self) {
+        let w = std::mem::take(&mut self.wake);
+        let b = &self.bus;
+        let r = [
+            w[0].then(|| b.control.notify()),
+            w[1].then(|| b.merged.notify()),
+            w[2].then(|| b.ack.notify()),
+            w[3].then(|| b.relay.notify()),
+        ];
+        drop(r);
+    }
+
+    /// Reads what the robots sent and publishes it to the hub.
+    fn forward_up(&mut self, now: Instant) -> Result<bool, BridgeError> {
+        let mut frames: Vec<(bool, Vec<u8>)> = Vec::new();
+        let mut registered = false;
+        let bus = &self.bus;
+        up::<Register>(bus, &mut frames, |_| registered = true);
+        if registered {
+            // the start handshake: connect to the new robot's publishers before it sends
+            // anything lossless (the coordinator does this when it admits a robot)
+            bus.connect_all()?;
+        }
+        up::<RobotState>(bus, &mut frames, |_| {});
+        up::<PseudoTargetDiscovery>(bus, &mut frames, |_| {});
+        up::<QHintBatch>(bus, &mut frames, |_| {});
+        up::<FinalReport>(bus, &mut frames, |_| {});
+        let any = !frames.is_empty();
+        for (lossless, mut f) in frames {
+            if lossless {
+                match self.out.push(now, |seq| {
+                    f[8..16].copy_from_slice(&seq.to_le_bytes());
+                    f
+                }) {
+                    Ok(f) => {
+                        let f = f.to_vec();
+                        self.send(&f);
+                    }
+                    Err(e) => return Err(BridgeError::Link(e.to_string())),
+                }
+            } else {
+                self.send(&f);
+            }
+        }
+        Ok(any)
+    }
+
+    fn send(&mut self, frame: &[u8]) {
+        if self.watch.state() == LinkState::Up && link::put(&self.publisher, frame) {
+            self.report.frames_out += 1;
+        }
+    }
+
+    fn heartbeat(&mut self) {
+        let t = monotonic_ns();
+        let hb = Heartbeat {
+            t_ns: t,
+            echo_ns: self.echo.0,
+            hold_ns: if self.echo.0 == 0 {
+                0
+            } else {
+                t.saturating_sub(self.echo.1)
+            },
+            acked: self.inc.acked(),
+            sent: self.out.next_seq(),
+            gone: self.gone.iter().copied().collect(),
+        };
+        if link::put(&self.publisher, &wire::heartbeat_frame(&hb)) {
+            self.report.frames_out += 1;
+        }
+    }
+
+    /// Lists this host's robot nodes (cleaning up after dead ones): a robot seen before and
+    /// not alive now is gone.
+    fn list_robots(&mut self) -> Result<(), BridgeError> {
+        let nodes = check_nodes(self.bus.config(), true)?;
+        let alive: BTreeSet<u32> = nodes
+            .alive()
+            .filter_map(|n| n.name.strip_prefix("qfleet-robot-")?.parse().ok())
+            .collect();
+        for id in &self.seen {
+            if !alive.contains(id) {
+                self.gone.insert(*id);
+            }
+        }
+        self.seen
+            .extend(alive.iter().filter(|id| !self.gone.contains(id)));
+        Ok(())
+    }
+}
+
+/// Drains one robot topic into frames.
+fn up<T: FromRobot>(
+    bus: &CoordinatorBus,
+    frames: &mut Vec<(bool, Vec<u8>)>,
+    mut seen: impl FnMut(&T),
+) {
+    let lossless = T::TOPIC.delivery() == bus::bus_schema::Delivery::Lossless;
+    let _ = T::inbox(bus).drain(usize::MAX, |m| {
+        seen(m);
+        frames.push((lossless, wire::data_frame(m, 0)));
+    });
+}

@@ -1,0 +1,316 @@
+//! The bytes on the Zenoh link: a 16-byte frame header, then either a bus-schema message as its
+//! `#[repr(C)]` bytes or a JSON heartbeat.
+//!
+//! | bytes | field |
+//! |---|---|
+//! | 0 | [`Kind`]: 0 lossless data, 1 latest-wins data, 2 heartbeat, 3 goodbye |
+//! | 1 | topic index in [`Topic::ALL`] (data frames; 0 otherwise) |
+//! | 2..8 | zero |
+//! | 8..16 | link sequence number, little-endian (lossless frames; 0 otherwise) |
+//! | 16.. | payload: the message's bytes (exactly its size), or the JSON [`Heartbeat`] |
+//!
+//! Messages travel as their in-memory bytes: the join checks that both hosts speak the same
+//! schema version and byte order, so the layouts of `bus-schema/README.md` hold on both ends.
+//! Every monotonic time in a message is moved onto the receiving host's clock on arrival
+//! ([`Stamped::shift`]), so the coordinator's and the robots' latency figures stay meaningful.
+
+use bus::Message;
+use bus::bus_schema::{
+    Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
+    QHintBatch, Register, RobotState, Topic,
+};
+use serde::{Deserialize, Serialize};
+
+/// Bytes before the payload of every frame.
+pub const HEADER: usize = 16;
+
+/// What a frame carries.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    /// A message of a lossless topic, numbered on the link and acknowledged by heartbeats.
+    Lossless = 0,
+    /// A message of a latest-wins topic: sent once, may be dropped.
+    Latest = 1,
+    /// Link state: acks, clock echo, robots gone (JSON [`Heartbeat`]).
+    Heartbeat = 2,
+    /// The sender is leaving (the run is over).
+    Goodbye = 3,
+}
+
+/// A frame header, decoded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Header {
+    /// What follows.
+    pub kind: Kind,
+    /// The topic of a data frame.
+    pub topic: Topic,
+    /// The link sequence number of a lossless frame.
+    pub seq: u64,
+}
+
+/// Why a frame could not be read (a peer of another build, or garbage): dropped and counted.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum FrameError {
+    /// Shorter than the header.
+    #[error("frame of {0} bytes is shorter than the {HEADER}-byte header")]
+    Short(usize),
+    /// Unknown kind byte.
+    #[error("unknown frame kind {0}")]
+    Kind(u8),
+    /// Unknown topic byte.
+    #[error("unknown topic index {0}")]
+    Topic(u8),
+    /// The payload is not the size of the topic's message.
+    #[error("{topic:?} payload of {got} bytes, expected {want}")]
+    Size {
+        /// Topic of the frame.
+        topic: Topic,
+        /// Payload bytes received.
+        got: usize,
+        /// The message's size.
+        want: usize,
+    },
+}
+
+/// Index of `topic` in [`Topic::ALL`].
+pub fn topic_index(topic: Topic) -> u8 {
+    Topic::ALL.iter().position(|t| *t == topic).unwrap_or(0) as u8
+}
+
+/// Appends a frame header to `out` (which should be empty).
+pub fn put_header(out: &mut Vec<u8>, kind: Kind, topic: Topic, seq: u64) {
+    out.push(kind as u8);
+    out.push(topic_index(topic));
+    out.extend_from_slice(&[0; 6]);
+    out.extend_from_slice(&seq.to_le_bytes());
+}
+
+/// Reads a frame header; the payload is `&frame[HEADER..]`.
+pub fn header(frame: &[u8]) -> Result<Header, FrameError> {
+    if frame.len() < HEADER {
+        return Err(FrameError::Short(frame.len()));
+    }
+    let kind = match frame[0] {
+        0 => Kind::Lossless,
+        1 => Kind::Latest,
+        2 => Kind::Heartbeat,
+        3 => Kind::Goodbye,
+        k => return Err(FrameError::Kind(k)),
+    };
+    let topic = *Topic::ALL
+        .get(frame[1] as usize)
+        .ok_or(FrameError::Topic(frame[1]))?;
+    let mut seq = [0u8; 8];
+    seq.copy_from_slice(&frame[8..16]);
+    Ok(Header {
+        kind,
+        topic,
+        seq: u64::from_le_bytes(seq),
+    })
+}
+
+/// A data frame for `msg`: header, then the message's bytes.
+pub fn data_frame<T: Message>(msg: &T, seq: u64) -> Vec<u8> {
+    let kind = match T::TOPIC.delivery() {
+        bus::bus_schema::Delivery::Lossless => Kind::Lossless,
+        bus::bus_schema::Delivery::LatestWins => Kind::Latest,
+    };
+    let mut out = Vec::with_capacity(HEADER + size_of::<T>());
+    put_header(&mut out, kind, T::TOPIC, seq);
+    // SAFETY: `T: Message` is a `#[repr(C)]` bus-schema type whose padding is spelled out as
+    // zeroed fields (checked by bus-schema's layout test), so all `size_of::<T>()` bytes are
+    // initialised and may be read as `u8`.
+    let bytes =
+        unsafe { std::slice::from_raw_parts((msg as *const T).cast::<u8>(), size_of::<T>()) };
+    out.extend_from_slice(bytes);
+    out
+}
+
+/// Copies a payload into `dst` (e.g. a loaned shared-memory slot); the size must match.
+pub fn read_into<T: Message>(payload: &[u8], dst: &mut T) -> Result<(), FrameError> {
+    if payload.len() != size_of::<T>() {
+        return Err(FrameError::Size {
+            topic: T::TOPIC,
+            got: payload.len(),
+            want: size_of::<T>(),
+        });
+    }
+    // SAFETY: `T: Message` guarantees every bit pattern of its integer/float fields is a valid
+    // value (bus-schema types hold only integers, floats and arrays of them), the sizes match,
+    // and `dst` is an exclusive reference, so the regions do not overlap.
+    unsafe {
+        std::ptr::copy_nonoverlapping(
+            payload.as_ptr(),
+            (dst as *mut T).cast::<u8>(),
+            payload.len(),
+        );
+    }
+    Ok(())
+}
+
+/// Moves one monotonic time by `delta` ns; 0 ("no time") stays 0.
+fn shift_ns(t: &mut u64, delta: i64) {
+    if *t != 0 {
+        *t = t.saturating_add_signed(delta).max(1);
+    }
+}
+
+/// A message whose monotonic times can be moved onto another host's clock.
+pub trait Stamped: Message {
+    /// Adds `delta` ns to every non-zero monotonic time the message carries.
+    fn shift(&mut self, delta: i64);
+}
+
+macro_rules! stamped {
+    ($($ty:ty => [$($field:ident),*]),* $(,)?) => {$(
+        impl Stamped for $ty {
+            fn shift(&mut self, delta: i64) {
+                $(shift_ns(&mut self.$field, delta);)*
+            }
+        }
+    )*};
+}
+
+stamped!(
+    Register => [send_time_ns],
+    RobotState => [send_time_ns],
+    PseudoTargetDiscovery => [time_ns, send_time_ns],
+    QHintBatch => [oldest_update_ns, send_time_ns],
+    FinalReport => [send_time_ns],
+    Control => [time_ns],
+    DiscoveryAck => [time_ns],
+    DiscoveryRelay => [origin_ns, send_time_ns],
+);
+
+impl Stamped for MergedHintBatch {
+    fn shift(&mut self, delta: i64) {
+        shift_ns(&mut self.oldest_origin_ns, delta);
+        shift_ns(&mut self.send_time_ns, delta);
+        let n = (self.count as usize).min(self.origin_ns.len());
+        for t in &mut self.origin_ns[..n] {
+            shift_ns(t, delta);
+        }
+    }
+}
+
+/// What each side tells the other every heartbeat period (JSON in a [`Kind::Heartbeat`] frame).
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Heartbeat {
+    /// The sender's monotonic time when it sent this.
+    pub t_ns: u64,
+    /// The `t_ns` of the last heartbeat the sender received (0 = none yet): a round trip.
+    pub echo_ns: u64,
+    /// How long the sender held that heartbeat before echoing it.
+    pub hold_ns: u64,
+    /// Lossless frames of the receiver's stream the sender has in order: seq `< acked` arrived.
+    pub acked: u64,
+    /// Lossless frames the sender has numbered so far (its next seq).
+    pub sent: u64,
+    /// Robots of the joining host whose process is gone (joining side only).
+    pub gone: Vec<u32>,
+}
+
+/// A heartbeat frame.
+pub fn heartbeat_frame(hb: &Heartbeat) -> Vec<u8> {
+    let mut out = Vec::with_capacity(HEADER + 96);
+    put_header(&mut out, Kind::Heartbeat, Topic::Register, 0);
+    // a plain struct of integers always serialises
+    if let Ok(json) = serde_json::to_vec(hb) {
+        out.extend_from_slice(&json);
+    }
+    out
+}
+
+/// A goodbye frame.
+pub fn goodbye_frame() -> Vec<u8> {
+    let mut out = Vec::with_capacity(HEADER);
+    put_header(&mut out, Kind::Goodbye, Topic::Register, 0);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_message_survives_the_frame_round_trip() {
+        let d = PseudoTargetDiscovery {
+            robot_id: 3,
+            goal_id: 1,
+            cell_x: 7,
+            cell_y: 9,
+            value: 0.25,
+            seq: 41,
+            time_ns: 1000,
+            episode: 5,
+            send_time_ns: 2000,
+            ..PseudoTargetDiscovery::ZEROED
+        };
+        let f = data_frame(&d, 77);
+        let h = header(&f).unwrap();
+        assert_eq!(
+            (h.kind, h.topic, h.seq),
+            (Kind::Lossless, Topic::Discovery, 77)
+        );
+        let mut back = PseudoTargetDiscovery::ZEROED;
+        read_into(&f[HEADER..], &mut back).unwrap();
+        assert_eq!(back, d);
+    }
+
+    #[test]
+    fn latest_wins_topics_travel_as_latest_frames() {
+        let f = data_frame(&RobotState::ZEROED, 0);
+        assert_eq!(header(&f).unwrap().kind, Kind::Latest);
+        assert_eq!(header(&f).unwrap().topic, Topic::RobotState);
+    }
+
+    #[test]
+    fn bad_frames_are_errors_not_panics() {
+        assert_eq!(header(&[0; 3]), Err(FrameError::Short(3)));
+        assert_eq!(header(&[9; 16]), Err(FrameError::Kind(9)));
+        let mut f = vec![0u8; 16];
+        f[1] = 200;
+        assert_eq!(header(&f), Err(FrameError::Topic(200)));
+        let mut r = Register::ZEROED;
+        assert!(matches!(
+            read_into(&[1, 2, 3], &mut r),
+            Err(FrameError::Size { got: 3, .. })
+        ));
+    }
+
+    #[test]
+    fn shifting_moves_every_time_but_keeps_zero_as_no_time() {
+        let mut m = MergedHintBatch::ZEROED;
+        m.count = 2;
+        m.origin_ns[0] = 100;
+        m.origin_ns[1] = 0;
+        m.origin_ns[2] = 500; // beyond count: untouched
+        m.send_time_ns = 1000;
+        m.shift(-50);
+        assert_eq!(
+            (m.origin_ns[0], m.origin_ns[1], m.origin_ns[2]),
+            (50, 0, 500)
+        );
+        assert_eq!((m.send_time_ns, m.oldest_origin_ns), (950, 0));
+        let mut c = Control {
+            time_ns: 10,
+            ..Control::ZEROED
+        };
+        c.shift(-100);
+        assert_eq!(c.time_ns, 1, "a time never becomes 0 (= no time) or wraps");
+    }
+
+    #[test]
+    fn a_heartbeat_round_trips_through_json() {
+        let hb = Heartbeat {
+            t_ns: 5,
+            acked: 3,
+            gone: vec![4],
+            ..Heartbeat::default()
+        };
+        let f = heartbeat_frame(&hb);
+        assert_eq!(header(&f).unwrap().kind, Kind::Heartbeat);
+        let back: Heartbeat = serde_json::from_slice(&f[HEADER..]).unwrap();
+        assert_eq!(back, hb);
+    }
+}

@@ -1,0 +1,517 @@
+//! A run across two hosts, for real: two network namespaces joined by a veth pair, each "host"
+//! with its own mount namespace holding a private tmpfs on `/dev/shm` and on iceoryx2's root
+//! (`/tmp/iceoryx2`), so the only path between the coordinator's host (A, 10.77.0.1) and the
+//! joining host (B, 10.77.0.2) is the network. Addresses exist only inside those namespaces.
+//!
+//! Needs root, `ip` (iproute2) and `unshare` (util-linux); without them every test says
+//! `SKIPPED` and why, and passes. Every namespace, link and mount is removed when a test ends,
+//! failed or not (the mounts die with their mount namespaces; the namespaces are deleted by
+//! [`TwoHosts`]'s `Drop`, after every process in them is killed), and each test checks that its
+//! run left nothing in the outer system's `/dev/shm` or `/tmp/iceoryx2`.
+//!
+//! The four tests take turns (a lock): each runs a fleet on both "hosts", and four at once on
+//! two cores would turn the link-down test's 2 s outage into noise.
+
+use std::path::Path;
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
+
+use qfleet_suite::{Scratch, bin, describe, leftovers, run_id, scratch, skip, wait_bounded};
+use serde_json::Value;
+
+/// One test at a time (see the module doc); a failed test does not poison the others.
+static TURN: Mutex<()> = Mutex::new(());
+
+const ENDPOINT: &str = "tcp/10.77.0.1:7447";
+const LIMIT: Duration = Duration::from_secs(150);
+
+/// One host of the pair.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+enum Host {
+    A,
+    B,
+}
+
+/// Two network namespaces joined by a veth pair; deleted on drop.
+struct TwoHosts {
+    ns: [String; 2],
+    veth: [String; 2],
+}
+
+fn sh(args: &[&str]) -> Result<(), String> {
+    let out = Command::new(args[0])
+        .args(&args[1..])
+        .stdin(Stdio::null())
+        .output()
+        .map_err(|e| format!("{}: {e}", args[0]))?;
+    if out.status.success() {
+        Ok(())
+    } else {
+        Err(format!(
+            "`{}` failed: {}",
+            args.join(" "),
+            String::from_utf8_lossy(&out.stderr).trim()
+        ))
+    }
+}
+
+impl TwoHosts {
+    /// The pair, or `None` after printing why this machine cannot make it.
+    fn new(test: &str) -> Option<TwoHosts> {
+        static N: AtomicU32 = AtomicU32::new(0);
+        let skip = |why: String| {
+            skip(&format!("multihost::{test}"), &why);
+            None
+        };
+        // SAFETY: geteuid has no preconditions
+        if unsafe { libc::geteuid() } != 0 {
+            return skip("needs root (network and mount namespaces)".into());
+        }
+        for tool in ["ip", "unshare", "mount"] {
+            if Command::new(tool).arg("--version").output().is_err() {
+                return skip(format!("`{tool}` is not installed"));
+            }
+        }
+        let n = N.fetch_add(1, Ordering::Relaxed);
+        let tag = format!("{}{n}", std::process::id() % 100_000);
+        let hosts = TwoHosts {
+            ns: [format!("qfa{tag}"), format!("qfb{tag}")],
+            veth: [format!("qva{tag}"), format!("qvb{tag}")],
+        };
+        let [na, nb] = &hosts.ns;
+        let [va, vb] = &hosts.veth;
+        let setup = (|| -> Result<(), String> {
+            sh(&["ip", "netns", "add", na])?;
+            sh(&["ip", "netns", "add", nb])?;
+            sh(&["ip", "link", "add", va, "type", "veth", "peer", "name", vb])?;
+            sh(&["ip", "link", "set", va, "netns", na])?;
+            sh(&["ip", "link", "set", vb, "netns", nb])?;
+            for (ns, v, addr) in [(na, va, "10.77.0.1/24"), (nb, vb, "10.77.0.2/24")] {
+                sh(&["ip", "-n", ns, "addr", "add", addr, "dev", v])?;
+                sh(&["ip", "-n", ns, "link", "set", v, "up"])?;
+                sh(&["ip", "-n", ns, "link", "set", "lo", "up"])?;
+            }
+            Ok(())
+        })();
+        match setup {
+            Ok(()) => Some(hosts),
+            // dropping `hosts` removes whatever part was made
+            Err(e) => skip(format!("network namespaces unsupported here: {e}")),
+        }
+    }
+
+    fn ns(&self, host: Host) -> &str {
+        &self.ns[host as usize]
+    }
+
+    /// `program args…` on `host`: in its network namespace, in a new mount namespace with a
+    /// private tmpfs on /dev/shm and /tmp/iceoryx2.
+    fn command(&self, host: Host, program: &Path, args: &[&str]) -> Command {
+        let mut c = Command::new("ip");
+        c.args([
+            "netns",
+            "exec",
+            self.ns(host),
+            "unshare",
+            "-m",
+            "--propagation",
+            "private",
+        ])
+        .args([
+            "sh",
+            "-c",
+            "mount -t tmpfs qfleet-shm /dev/shm && mkdir -p /tmp/iceoryx2 && \
+                 mount -t tmpfs qfleet-iox /tmp/iceoryx2 && exec \"$0\" \"$@\"",
+        ])
+        .arg(program)
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+        c
+    }
+
+    /// Sets host A's end of the link down or up.
+    fn link(&self, up: bool) {
+        let state = if up { "up" } else { "down" };
+        sh(&["ip", "-n", &self.ns[0], "link", "set", &self.veth[0], state])
+            .unwrap_or_else(|e| panic!("{e}"));
+    }
+
+    /// SIGKILLs every process on `host`.
+    fn kill_all(&self, host: Host) {
+        let out = Command::new("ip")
+            .args(["netns", "pids", self.ns(host)])
+            .output()
+            .map(|o| String::from_utf8_lossy(&o.stdout).into_owned())
+            .unwrap_or_default();
+        for pid in out.split_whitespace().filter_map(|p| p.parse::<i32>().ok()) {
+            // SAFETY: kill(2) with a pid read from the namespace's process list
+            unsafe { libc::kill(pid, libc::SIGKILL) };
+        }
+    }
+}
+
+impl Drop for TwoHosts {
+    fn drop(&mut self) {
+        for host in [Host::A, Host::B] {
+            self.kill_all(host);
+        }
+        std::thread::sleep(Duration::from_millis(100));
+        for ns in &self.ns {
+            let _ = sh(&["ip", "netns", "del", ns]); // takes its end of the veth pair with it
+        }
+        for v in &self.veth {
+            let _ = sh(&["ip", "link", "del", v]); // only if it never moved into a namespace
+        }
+    }
+}
+
+/// `qfleet run` on host A with `local` robots and `remote` robots to come from host B.
+fn start_a(
+    hosts: &TwoHosts,
+    id: &str,
+    out: &Path,
+    local: u32,
+    remote: u32,
+    extra: &[&str],
+) -> Child {
+    let (l, r) = (local.to_string(), remote.to_string());
+    let out = out.display().to_string();
+    let mut args = vec![
+        "run",
+        "--run-id",
+        id,
+        "--robots",
+        &l,
+        "--remote-robots",
+        &r,
+        "--listen",
+        ENDPOINT,
+        "--out",
+        &out,
+    ];
+    args.extend_from_slice(extra);
+    hosts
+        .command(Host::A, &bin("qfleet"), &args)
+        .spawn()
+        .expect("spawn qfleet run")
+}
+
+/// `qfleet join` on host B.
+fn start_b(hosts: &TwoHosts, robots: u32, out: &Path, extra: &[&str]) -> Child {
+    let n = robots.to_string();
+    let out = out.display().to_string();
+    let mut args = vec![
+        "join", ENDPOINT, "--robots", &n, "--name", "host-b", "--out", &out,
+    ];
+    args.extend_from_slice(extra);
+    hosts
+        .command(Host::B, &bin("qfleet"), &args)
+        .spawn()
+        .expect("spawn qfleet join")
+}
+
+fn result(dir: &Path, out: &Output) -> Value {
+    let text = std::fs::read_to_string(dir.join("result.json"))
+        .unwrap_or_else(|e| panic!("no result.json ({e}): {}", describe(out)));
+    serde_json::from_str(&text).expect("result.json is JSON")
+}
+
+fn robot(r: &Value, id: u64) -> &Value {
+    r["robots"]
+        .as_array()
+        .and_then(|a| a.iter().find(|x| x["robot_id"] == id))
+        .unwrap_or_else(|| panic!("robot {id} missing: {r}"))
+}
+
+/// Every robot finished and every discovery made was received (none lost across the link).
+fn assert_complete(r: &Value, robots: u64) {
+    for id in 0..robots {
+        assert_eq!(robot(r, id)["status"], "finished", "robot {id}: {r}");
+        let x = robot(r, id);
+        assert_eq!(x["discoveries_acked"], x["discoveries_sent"], "{x}");
+    }
+    assert_eq!(r["discoveries_received"], r["discoveries_sent"], "{r}");
+    assert!(
+        r["discoveries_sent"].as_u64().unwrap_or(0) > 0,
+        "nothing crossed: {r}"
+    );
+}
+
+fn host_b(r: &Value) -> &Value {
+    r["hosts"]
+        .as_array()
+        .and_then(|a| a.iter().find(|h| h["host"] == "host-b"))
+        .unwrap_or_else(|| panic!("no host-b in the result's hosts: {r}"))
+}
+
+/// Waits until host A's run directory shows the remote robots learning (their logs on B are
+/// not visible from A, so: the coordinator's stdout is not ours either — wait for B's robot
+/// logs to exist and a little learning time).
+fn wait_joined(dir_b: &Path, ids: &[u32]) {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while ids
+        .iter()
+        .any(|id| !dir_b.join(format!("robot-{id}.log")).exists())
+    {
+        assert!(Instant::now() < deadline, "host B never started its robots");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::thread::sleep(Duration::from_millis(1500));
+}
+
+fn scratch_pair(id: &str) -> (Scratch, Scratch) {
+    (scratch(&format!("{id}-a")), scratch(&format!("{id}-b")))
+}
+
+/// Nothing of run `id` in the outer system's shared memory (each host had its own).
+fn assert_no_leftovers(id: &str) {
+    let left = leftovers(id);
+    assert!(
+        left.is_empty(),
+        "files of {id} in the outer system: {left:?}"
+    );
+}
+
+// the improved learner explicitly: its discoveries are what the link must carry (the fleet's
+// default learner may change)
+const SHORT: [&str; 6] = [
+    "--map",
+    "builtin:paper-20",
+    "--learner",
+    "improved",
+    "--episodes",
+    "3000",
+];
+const LONG: [&str; 6] = [
+    "--map",
+    "builtin:paper-20",
+    "--learner",
+    "improved",
+    "--episodes",
+    "150000",
+];
+
+#[test]
+fn a_run_across_two_hosts_completes_with_every_discovery_delivered() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(hosts) = TwoHosts::new("run") else {
+        return;
+    };
+    let _ = bin("qfleet");
+    let id = run_id("mh-run");
+    let (da, db) = scratch_pair(&id);
+    let a = start_a(&hosts, &id, &da, 1, 2, &SHORT);
+    let b = start_b(&hosts, 2, &db, &[]);
+    let out_b = wait_bounded(b, LIMIT);
+    let out_a = wait_bounded(a, LIMIT);
+    assert!(out_a.status.success(), "host A: {}", describe(&out_a));
+    assert!(out_b.status.success(), "host B: {}", describe(&out_b));
+    let r = result(&da, &out_a);
+    assert_complete(&r, 3);
+    let b = host_b(&r);
+    assert_eq!(b["robots"], serde_json::json!([1, 2]), "{b}");
+    assert_eq!(r["hosts"][0]["robots"], serde_json::json!([0]), "{r}");
+    assert!(b["rtt_ns"]["count"].as_u64() > Some(0), "{b}");
+    // the two namespaces share one kernel clock: the estimated offset must be within the
+    // estimate's own error bound (half the best round trip) of zero
+    let off = b["clock_offset_ns"].as_i64().unwrap().unsigned_abs();
+    assert!(off <= b["best_rtt_ns"].as_u64().unwrap() / 2 + 1, "{b}");
+    eprintln!("cross-host: {b}");
+    drop(hosts);
+    assert_no_leftovers(&id);
+}
+
+#[test]
+fn the_link_down_for_two_seconds_loses_nothing_and_counts_a_reconnect() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(hosts) = TwoHosts::new("link-down") else {
+        return;
+    };
+    let _ = bin("qfleet");
+    let id = run_id("mh-down");
+    let (da, db) = scratch_pair(&id);
+    let a = start_a(&hosts, &id, &da, 1, 2, &LONG);
+    let b = start_b(&hosts, 2, &db, &[]);
+    wait_joined(&db, &[1, 2]);
+    hosts.link(false);
+    std::thread::sleep(Duration::from_secs(2));
+    hosts.link(true);
+    let out_b = wait_bounded(b, LIMIT);
+    let out_a = wait_bounded(a, LIMIT);
+    assert!(out_a.status.success(), "host A: {}", describe(&out_a));
+    assert!(out_b.status.success(), "host B: {}", describe(&out_b));
+    let r = result(&da, &out_a);
+    assert_complete(&r, 3);
+    let b = host_b(&r);
+    assert!(
+        b["reconnects"].as_u64() >= Some(1),
+        "no reconnect counted: {b}"
+    );
+    assert!(b["down_ms"].as_u64() >= Some(1000), "{b}");
+    eprintln!("after 2 s down: {b}");
+    drop(hosts);
+    assert_no_leftovers(&id);
+}
+
+#[test]
+fn a_killed_joining_host_has_its_robots_reported_lost_and_the_run_completes() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(hosts) = TwoHosts::new("host-killed") else {
+        return;
+    };
+    let _ = bin("qfleet");
+    let id = run_id("mh-kill");
+    let (da, db) = scratch_pair(&id);
+    let a = start_a(
+        &hosts,
+        &id,
+        &da,
+        1,
+        2,
+        &[&LONG[..], &["--host-deadline", "3"]].concat(),
+    );
+    let b = start_b(&hosts, 2, &db, &[]);
+    wait_joined(&db, &[1, 2]);
+    hosts.kill_all(Host::B);
+    let _ = wait_bounded(b, LIMIT);
+    let out_a = wait_bounded(a, LIMIT);
+    let r = result(&da, &out_a);
+    assert_eq!(robot(&r, 0)["status"], "finished", "{r}");
+    for id in [1, 2] {
+        assert_eq!(robot(&r, id)["status"], "lost", "robot {id}: {r}");
+    }
+    assert_eq!(host_b(&r)["state"], "lost", "{r}");
+    let stderr = String::from_utf8_lossy(&out_a.stderr);
+    assert!(stderr.contains("host host-b silent"), "{stderr}");
+    drop(hosts);
+    assert_no_leftovers(&id);
+}
+
+#[test]
+fn a_join_with_another_schema_version_is_refused_clearly_on_both_hosts() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(hosts) = TwoHosts::new("schema") else {
+        return;
+    };
+    let _ = bin("qfleet");
+    let id = run_id("mh-schema");
+    let (da, db) = scratch_pair(&id);
+    let a = start_a(&hosts, &id, &da, 1, 1, &SHORT);
+    let b = start_b(&hosts, 1, &db, &["--schema-version-override", "999"]);
+    let out_b = wait_bounded(b, LIMIT);
+    assert!(
+        !out_b.status.success(),
+        "host B joined: {}",
+        describe(&out_b)
+    );
+    let eb = String::from_utf8_lossy(&out_b.stderr);
+    let ours = format!("v{}", bus_schema::SCHEMA_VERSION);
+    assert!(
+        eb.contains("join refused")
+            && eb.contains("schema version mismatch")
+            && eb.contains("v999")
+            && eb.contains(&ours),
+        "{eb}"
+    );
+    // host A goes on waiting for a robot that can join: stop it as a user would
+    // SAFETY: kill(2) on our child (`ip netns exec` execs down to qfleet)
+    unsafe { libc::kill(a.id() as i32, libc::SIGINT) };
+    let out_a = wait_bounded(a, LIMIT);
+    let ea = String::from_utf8_lossy(&out_a.stderr);
+    assert!(
+        ea.contains("refused the join of host host-b") && ea.contains("v999"),
+        "{ea}"
+    );
+    drop(hosts);
+    assert_no_leftovers(&id);
+}
+
+#[test]
+fn an_experiment_across_two_hosts_runs_every_phase_with_the_remote_robots() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(hosts) = TwoHosts::new("experiment") else {
+        return;
+    };
+    let _ = bin("qfleet");
+    // a short prefix: the experiment adds the seed, its pid and the time (48 characters at most)
+    let id = format!("mhx{}", std::process::id());
+    let (da, db) = scratch_pair(&id);
+    // two goals, two phases: the phase change (a control message) must cross the link too
+    let manifest = da.join("m.toml");
+    std::fs::write(
+        &manifest,
+        r#"
+name = "across hosts"
+sharing = "both"
+episodes = 300
+seeds = [5]
+[map]
+source = "builtin:paper-10"
+[[goals]]
+cell = [9, 9]
+[[goals]]
+cell = [9, 0]
+[robots]
+count = 3
+start = [0, 0]
+[learner]
+kind = "improved"
+[[phases]]
+[[phases]]
+rotate = 1
+episodes = 200
+"#,
+    )
+    .expect("write the manifest");
+    let out = da.join("out");
+    let (m, o) = (manifest.display().to_string(), out.display().to_string());
+    let a = hosts
+        .command(
+            Host::A,
+            &bin("qfleet"),
+            &[
+                "experiment",
+                &m,
+                "--run-id",
+                &id,
+                "--remote-robots",
+                "2",
+                "--listen",
+                ENDPOINT,
+                "--out",
+                &o,
+            ],
+        )
+        .spawn()
+        .expect("spawn qfleet experiment");
+    let b = start_b(&hosts, 2, &db, &[]);
+    let out_b = wait_bounded(b, LIMIT);
+    let out_a = wait_bounded(a, LIMIT);
+    assert!(out_a.status.success(), "host A: {}", describe(&out_a));
+    assert!(out_b.status.success(), "host B: {}", describe(&out_b));
+    let seed = out.join("seed-5");
+    let r = result(&seed, &out_a);
+    let phases = r["phases"].as_array().expect("phases");
+    assert_eq!(phases.len(), 2, "{r}");
+    for (p, phase) in phases.iter().enumerate() {
+        let robots = phase["robots"].as_array().expect("robots");
+        assert_eq!(robots.len(), 3, "phase {p}: {phase}");
+        for x in robots {
+            assert_eq!(x["status"], "finished", "phase {p}: {x}");
+            // round-robin over the two goals, shifted by one in phase 1: the remote robots
+            // got their new goal across the link
+            let rid = x["robot_id"].as_u64().unwrap();
+            assert_eq!(x["goal"].as_u64().unwrap(), (rid + p as u64) % 2, "{x}");
+        }
+    }
+    assert!(r["discoveries_received"].as_u64() > Some(0), "{r}");
+    let b = host_b(&r);
+    assert_eq!(b["robots"], serde_json::json!([1, 2]), "{b}");
+    assert_eq!(b["state"], "up", "{b}");
+    drop(hosts);
+    assert_no_leftovers(&id);
+}

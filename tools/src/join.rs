@@ -1,0 +1,473 @@
+//! `qfleet join ENDPOINT --robots N`: run N robots of a run whose coordinator is on another host,
+//! and the `--remote-robots K --listen ENDPOINT` options of `qfleet run` that wait for them.
+//!
+//! The joining host needs no map file and no learner option: the coordinator's host sends the
+//! run id, fleet size, robot ids, every robot's options and the files they name at the join
+//! (the `bridge` crate's `join` module). Robots start here as on one host, with this process as
+//! their coordinator stand-in; the `bridge` crate carries their messages.
+
+use std::collections::BTreeMap;
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, anyhow, bail};
+use bridge::{Ending, Hub, HubOptions, HubReport, JoinRequest, RemotePlan, Tuning};
+use clap::Args;
+use launcher::Exit;
+
+/// Options of `qfleet run` (and `experiment`) for robots on other hosts.
+#[derive(Debug, Clone, Args)]
+pub struct RemoteArgs {
+    /// Robots that join from other hosts with `qfleet join ENDPOINT --robots N` (ids after the
+    /// local ones); the run waits for them like for local robots (the coordinator's 30 s).
+    #[arg(long, default_value_t = 0, requires = "listen")]
+    pub remote_robots: u32,
+    /// Zenoh endpoint other hosts join on, e.g. `tcp/10.0.0.1:7447`.
+    #[arg(long, value_name = "ENDPOINT")]
+    pub listen: Option<String>,
+    /// Seconds a silent host is waited for before its robots are reported lost.
+    #[arg(long, default_value_t = 10.0)]
+    pub host_deadline: f64,
+    /// Milliseconds of heartbeat silence after which a host's link counts as down (a reconnect
+    /// is counted when it is heard again).
+    #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(100..))]
+    pub link_down_ms: u64,
+}
+
+impl RemoteArgs {
+    /// Local plus remote robots, checked against the fleet limit.
+    pub fn total(&self, local: u32) -> Result<u32> {
+        let total = local + self.remote_robots;
+        if total > bus::MAX_ROBOTS {
+            bail!(
+                "--robots {local} + --remote-robots {} = {total} exceeds the fleet limit {}",
+                self.remote_robots,
+                bus::MAX_ROBOTS
+            );
+        }
+        Ok(total)
+    }
+
+    /// The coordinator's `--hang-ms` for this run: with remote robots at least the host
+    /// deadline, so a link that is down (robots on the other host learning alone) is not
+    /// mistaken for hung robots before the host is given up on.
+    pub fn hang_ms(&self, hang_ms: u64) -> u64 {
+        if self.remote_robots == 0 {
+            return hang_ms;
+        }
+        hang_ms.max((self.host_deadline.max(0.0) * 1000.0) as u64)
+    }
+
+    /// Starts the hub when `--remote-robots` is set: remote robots get ids `local..total` and
+    /// exactly the options a local robot of that id would get (`robot(id)`, the same closure
+    /// the launcher starts local robots with, less `--out`), with the files they name shipped.
+    pub fn start_hub(
+        &self,
+        run_id: &str,
+        local: u32,
+        merged_buffer: usize,
+        robot: &dyn Fn(u32) -> Command,
+    ) -> Result<Option<Hub>> {
+        let (Some(listen), true) = (&self.listen, self.remote_robots > 0) else {
+            return Ok(None);
+        };
+        let deadline = Duration::try_from_secs_f64(self.host_deadline).map_err(|_| {
+            anyhow!(
+                "--host-deadline must be seconds >= 0, got {}",
+                self.host_deadline
+            )
+        })?;
+        let total = self.total(local)?;
+        let mut files = BTreeMap::new();
+        let mut robot_args = vec![Vec::new(); local as usize];
+        for id in local..total {
+            robot_args.push(ship_files(robot_cli(&robot(id)), &mut files)?);
+        }
+        let plan = RemotePlan {
+            run_id: run_id.to_string(),
+            robots_total: total,
+            first_remote: local,
+            robot_args,
+            files,
+            hint_buffer: HINT_BUFFER,
+            merged_buffer,
+        };
+        let hub = Hub::start(HubOptions {
+            listen: listen.clone(),
+            plan,
+            down_after: Duration::from_millis(self.link_down_ms),
+            deadline,
+            tuning: Tuning::default(),
+        })
+        .with_context(|| format!("listening for other hosts on {listen}"))?;
+        Ok(Some(hub))
+    }
+}
+
+/// The coordinator's hint buffer per connection (its `--hint-buffer` default, which neither
+/// `qfleet run` nor `qfleet experiment` changes).
+const HINT_BUFFER: usize = 64;
+
+/// The coordinator's merged-hint buffer per connection for a fleet of `robots` (its
+/// `--merged-buffer 0` default).
+pub fn merged_buffer(robots: u32) -> usize {
+    (4096 / robots.max(1) as usize).clamp(8, 64)
+}
+
+/// A robot-agent command's options as text, without `--out DIR` (a joining host writes into
+/// its own directory).
+fn robot_cli(cmd: &Command) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut it = cmd.get_args().map(|a| a.to_string_lossy().into_owned());
+    while let Some(a) = it.next() {
+        if a == "--out" {
+            it.next();
+            continue;
+        }
+        out.push(a);
+    }
+    out
+}
+
+/// Replaces the paths after `--map` (unless built-in) and `--scen` with `{file:NAME}` and keeps
+/// their content in `files`, so the joining host needs no copy of them.
+fn ship_files(cli: Vec<String>, files: &mut BTreeMap<String, String>) -> Result<Vec<String>> {
+    let mut out = Vec::with_capacity(cli.len());
+    let mut it = cli.into_iter();
+    while let Some(a) = it.next() {
+        let is_file_opt = a == "--map" || a == "--scen";
+        out.push(a);
+        let Some(v) = (if is_file_opt { it.next() } else { None }) else {
+            continue;
+        };
+        if v.starts_with("builtin:") {
+            out.push(v);
+            continue;
+        }
+        let path = PathBuf::from(&v);
+        let text = std::fs::read_to_string(&path)
+            .with_context(|| format!("reading {} to send it to joining hosts", path.display()))?;
+        let base = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "map".into());
+        // two different files of the same name (robots of an experiment) keep both
+        let mut name = base.clone();
+        let mut n = 1;
+        while files.get(&name).is_some_and(|t| *t != text) {
+            n += 1;
+            name = format!("{n}-{base}");
+        }
+        out.push(format!("{}{name}}}", bridge::join::FILE_PLACEHOLDER));
+        files.insert(name, text);
+    }
+    Ok(out)
+}
+
+/// Stops the hub, writes `bridge.json` into the run's directory and adds the hosts to
+/// `result.json` (`hosts`: which robots ran where, reconnects, lost hosts, link latency).
+pub fn finish_hub(hub: Option<Hub>, out: &Path, local: u32) -> Result<Option<HubReport>> {
+    let Some(hub) = hub else {
+        return Ok(None);
+    };
+    let report = hub.finish().context("the bridge to other hosts")?;
+    if report.joined_robots < report.remote_robots {
+        eprintln!(
+            "qfleet: only {} of {} remote robots joined on {} (start `qfleet join {} --robots N` on the other hosts before the coordinator's 30 s registration timeout)",
+            report.joined_robots, report.remote_robots, report.listen, report.listen
+        );
+    }
+    let json = serde_json::to_string_pretty(&report)?;
+    std::fs::write(out.join("bridge.json"), json)
+        .with_context(|| format!("writing {}", out.join("bridge.json").display()))?;
+    let path = out.join("result.json");
+    if let Ok(text) = std::fs::read_to_string(&path)
+        && let Ok(mut v) = serde_json::from_str::<serde_json::Value>(&text)
+        && let Some(obj) = v.as_object_mut()
+    {
+        obj.insert("hosts".into(), hosts_json(&report, local));
+        std::fs::write(&path, serde_json::to_string_pretty(&v)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(Some(report))
+}
+
+/// Options of `qfleet join`.
+#[derive(Debug, Args)]
+pub struct JoinCmd {
+    /// The coordinator's Zenoh endpoint (`qfleet run … --listen ENDPOINT` there), e.g.
+    /// `tcp/10.0.0.1:7447`.
+    endpoint: String,
+    /// Robots to run on this host.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=bus::MAX_ROBOTS as i64))]
+    robots: u32,
+    /// This host's name in the run's result (default: the hostname).
+    #[arg(long)]
+    name: Option<String>,
+    /// Directory for the robots' results and logs and `join.json` (default: a temporary
+    /// directory, removed afterwards).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Seconds to wait for the coordinator's host to answer.
+    #[arg(long, default_value_t = 30.0)]
+    timeout: f64,
+    /// Seconds robots get to exit after the run ends before they are killed.
+    #[arg(long, default_value_t = 5.0)]
+    grace: f64,
+    /// Print this host's link figures as JSON on stdout.
+    #[arg(long)]
+    json: bool,
+    /// Testing only: claim another bus schema version in the join request.
+    #[arg(long, hide = true)]
+    schema_version_override: Option<u32>,
+}
+
+fn hostname() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|s| s.trim().to_string())
+        .ok()
+        .filter(|s| !s.is_empty())
+        .unwrap_or_else(|| "remote".into())
+}
+
+impl JoinCmd {
+    /// Runs the command.
+    pub fn run(self) -> Result<()> {
+        // bad input is exit code 2, before anything connects
+        let timeout = Duration::try_from_secs_f64(self.timeout)
+            .map_err(|_| anyhow!("--timeout must be seconds >= 0, got {}", self.timeout))
+            .context(Exit::BadInput)?;
+        let grace = Duration::try_from_secs_f64(self.grace)
+            .map_err(|_| anyhow!("--grace must be seconds >= 0, got {}", self.grace))
+            .context(Exit::BadInput)?;
+        bridge::link::check_endpoint(&self.endpoint).context(Exit::BadInput)?;
+        let robot_bin = launcher::spawn::sibling("robot-agent")?;
+        let host = self.name.clone().unwrap_or_else(hostname);
+        let mut req = JoinRequest::new(host.clone(), self.robots, 0);
+        if let Some(v) = self.schema_version_override {
+            req.schema_version = v;
+        }
+        eprintln!(
+            "qfleet join: asking {} for {} robot(s)…",
+            self.endpoint, self.robots
+        );
+        let (session, plan, clock) =
+            bridge::request(&self.endpoint, &req, timeout, Tuning::default())?;
+        let ids = plan.robot_ids.clone();
+        eprintln!(
+            "qfleet join: joined run {} as host {} with robots {:?}",
+            plan.run_id, plan.host_index, ids
+        );
+        let prefix = bus::bus_schema::names::iceoryx_prefix(&plan.run_id);
+        if let Ok(r) = bus::clean_stale(&prefix)
+            && !r.alive.is_empty()
+        {
+            bail!("run {} is already live on this host", plan.run_id);
+        }
+        let (out, temp_out) = match &self.out {
+            Some(d) => (d.clone(), false),
+            None => (
+                std::env::temp_dir().join(format!(
+                    "qfleet-join-{}-{}",
+                    plan.run_id,
+                    std::process::id()
+                )),
+                true,
+            ),
+        };
+        std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+        for (name, text) in &plan.files {
+            let clean = Path::new(name)
+                .file_name()
+                .ok_or_else(|| anyhow!("the coordinator's host sent a file without a name"))?;
+            std::fs::write(out.join(clean), text)
+                .with_context(|| format!("writing {}", out.join(clean).display()))?;
+        }
+        let stop = Arc::new(AtomicBool::new(false));
+        {
+            let s = Arc::clone(&stop);
+            ctrlc::set_handler(move || s.store(true, Ordering::SeqCst))
+                .context("installing the Ctrl-C handler")?;
+        }
+        let mut joiner = bridge::Joiner::new(session, plan, clock, &host, Tuning::default())?;
+        let plan = joiner.plan().clone();
+        let mut children: Vec<(u32, Child)> = Vec::new();
+        let spawned = (|| -> Result<()> {
+            for (i, id) in plan.robot_ids.iter().enumerate() {
+                let args = plan.robot_args.get(i).cloned().unwrap_or_default();
+                let args = args.into_iter().map(|a| {
+                    match a
+                        .strip_prefix(bridge::join::FILE_PLACEHOLDER)
+                        .and_then(|s| s.strip_suffix('}'))
+                    {
+                        Some(name) => out.join(name).display().to_string(),
+                        None => a,
+                    }
+                });
+                let log = std::fs::File::create(out.join(format!("robot-{id}.log")))
+                    .with_context(|| format!("creating the log of robot {id}"))?;
+                let child = Command::new(&robot_bin)
+                    .args(args)
+                    .arg("--out")
+                    .arg(&out)
+                    .stdin(Stdio::null())
+                    .stdout(Stdio::null())
+                    .stderr(log)
+                    .process_group(0)
+                    .spawn()
+                    .with_context(|| format!("starting robot {id}"))?;
+                children.push((*id, child));
+            }
+            Ok(())
+        })();
+        let ending = match spawned {
+            Ok(()) => joiner.serve(&stop, || {
+                children
+                    .iter_mut()
+                    .all(|(_, c)| matches!(c.try_wait(), Ok(Some(_))))
+            }),
+            Err(e) => {
+                stop_children(&mut children, Duration::ZERO);
+                return Err(e);
+            }
+        };
+        let wait = match ending {
+            Ok(Ending::Done | Ending::RunOver) => grace,
+            _ => Duration::ZERO,
+        };
+        let failed = stop_children(&mut children, wait);
+        let report = joiner.finish();
+        let _ = bus::clean_stale(&prefix);
+        let json = serde_json::to_string_pretty(&report)?;
+        let _ = std::fs::write(out.join("join.json"), &json);
+        if self.json {
+            println!("{}", serde_json::to_string(&report)?);
+        }
+        eprintln!(
+            "qfleet join: link to {}: {} reconnect(s), {} ms down, round trip p50 {:.1} µs, clock offset {} ns (±{} ns)",
+            self.endpoint,
+            report.reconnects,
+            report.down_ms,
+            report.rtt_ns.p50 as f64 / 1e3,
+            report.clock_offset_ns,
+            report.best_rtt_ns / 2
+        );
+        if temp_out {
+            let _ = std::fs::remove_dir_all(&out);
+        }
+        match ending? {
+            Ending::Lost => bail!(
+                "lost the coordinator's host {} (silent past the deadline); robots stopped",
+                self.endpoint
+            ),
+            Ending::Stopped => bail!("interrupted"),
+            Ending::Done | Ending::RunOver if !failed.is_empty() => {
+                bail!("robots {failed:?} exited with an error (see their logs)")
+            }
+            Ending::Done | Ending::RunOver => Ok(()),
+        }
+    }
+}
+
+/// Waits up to `grace` for the robots to exit, then SIGTERMs and finally kills the rest;
+/// returns the ids that exited unsuccessfully or had to be stopped.
+fn stop_children(children: &mut [(u32, Child)], grace: Duration) -> Vec<u32> {
+    let deadline = Instant::now() + grace;
+    let mut failed = Vec::new();
+    let mut termed = false;
+    loop {
+        let running: Vec<usize> = (0..children.len())
+            .filter(|&i| matches!(children[i].1.try_wait(), Ok(None)))
+            .collect();
+        if running.is_empty() {
+            break;
+        }
+        let now = Instant::now();
+        if now >= deadline && !termed {
+            for &i in &running {
+                // SAFETY: kill(2) on a child we started and have not reaped
+                unsafe { libc::kill(children[i].1.id() as i32, libc::SIGTERM) };
+            }
+            termed = true;
+        } else if now >= deadline + Duration::from_secs(2) {
+            for &i in &running {
+                let _ = children[i].1.kill();
+            }
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    for (id, c) in children.iter_mut() {
+        if !matches!(c.wait(), Ok(s) if s.success()) {
+            failed.push(*id);
+        }
+    }
+    failed
+}
+
+/// The run's result as JSON with the `hosts` entry `finish_hub` wrote into `result.json`.
+pub fn with_hosts(
+    r: &coordinator::RunResult,
+    hub: &Option<HubReport>,
+    local: u32,
+) -> Result<String> {
+    let mut v = serde_json::to_value(r)?;
+    if let (Some(hub), Some(obj)) = (hub, v.as_object_mut()) {
+        obj.insert("hosts".into(), hosts_json(hub, local));
+    }
+    Ok(serde_json::to_string(&v)?)
+}
+
+/// `hosts` of a result: the local host first, then every joined host's link figures.
+fn hosts_json(report: &HubReport, local: u32) -> serde_json::Value {
+    let mut hosts = vec![serde_json::json!({
+        "host": "local", "robots": (0..local).collect::<Vec<_>>(), "state": "local",
+    })];
+    hosts.extend(
+        report
+            .hosts
+            .iter()
+            .filter_map(|h| serde_json::to_value(h).ok()),
+    );
+    serde_json::Value::Array(hosts)
+}
+
+/// The `hosts` lines of `qfleet run`'s human output: where each robot ran and what the link to
+/// each joined host did (nothing without `--remote-robots`).
+pub fn print_hosts(hub: &Option<HubReport>, local: u32) -> Result<()> {
+    let Some(hub) = hub else {
+        return Ok(());
+    };
+    crate::term::out!(
+        "  hosts              local: robots 0..{}; {} of {} remote robots joined on {}",
+        local.saturating_sub(1),
+        hub.joined_robots,
+        hub.remote_robots,
+        hub.listen
+    )?;
+    for h in &hub.hosts {
+        let state = h
+            .state
+            .map(|s| serde_json::to_string(&s).unwrap_or_default())
+            .unwrap_or_default();
+        crate::term::out!(
+            "  host {:13} robots {:?}  link {}  reconnects {}  down {} ms  round trip p50 {:.1} µs p99.9 {:.1} µs  one-way in p50 {:.1} µs  resent {}",
+            h.host,
+            h.robots,
+            state.trim_matches('"'),
+            h.reconnects,
+            h.down_ms,
+            h.rtt_ns.p50 as f64 / 1e3,
+            h.rtt_ns.p999 as f64 / 1e3,
+            h.one_way_in_ns.p50 as f64 / 1e3,
+            h.resent
+        )?;
+    }
+    for r in &hub.refused {
+        crate::term::out!("  refused join       {r}")?;
+    }
+    Ok(())
+}
