@@ -228,6 +228,7 @@ impl Default for Supervision {
 /// `watch`, the live view / recorder, has joined), finishes the watch, cleans up, and returns
 /// the coordinator's result. With `remote` (`--remote-robots K --listen …`) the last K robots
 /// of the manifest are started by other hosts that join over the bridge.
+#[allow(clippy::too_many_arguments)]
 pub fn run_once(
     plan: &Plan,
     seed: u64,
