@@ -372,9 +372,16 @@ pub fn run_once(
     let mut result: ExperimentResult = dir
         .read_json(OutFile::Result)
         .context("the coordinator wrote no result")?;
-    // the coordinator knows only the merge rule: the result names both
+    // the coordinator knows only the merge rule: the result names both. Written into the
+    // file's JSON as it is, so that what the bridge added (`hosts`) stays.
     result.rules = Some(rules.to_string());
-    dir.write_json(OutFile::Result, &result)?;
+    let mut file: serde_json::Value = dir
+        .read_json(OutFile::Result)
+        .context("the coordinator wrote no result")?;
+    if let Some(obj) = file.as_object_mut() {
+        obj.insert("rules".into(), serde_json::Value::String(rules.to_string()));
+    }
+    dir.write_json(OutFile::Result, &file)?;
     Ok(result)
 }
 

@@ -173,13 +173,7 @@ impl RunCmd {
             &watch,
         );
         let quit = crate::live::finish(watch);
-        // the hub's proxies are nodes of this run: gone before its files are removed
-        let hosts = crate::join::finish_hub(hub, &out, self.robots).unwrap_or_else(|e| {
-            term::warn(&format!("warning: {e:#}"));
-            None
-        });
-        // whatever happened: no file of the run may stay behind
-        crate::launch::clean_up(&run_id);
+        // the typed rewrite first: the hub then adds `hosts`, a field RunResult does not have
         let mut result = std::fs::read_to_string(out.join("result.json"))
             .ok()
             .and_then(|t| serde_json::from_str::<RunResult>(&t).ok());
@@ -193,6 +187,13 @@ impl RunCmd {
                 ));
             }
         }
+        // the hub's proxies are nodes of this run: gone before its files are removed
+        let hosts = crate::join::finish_hub(hub, &out, self.robots).unwrap_or_else(|e| {
+            term::warn(&format!("warning: {e:#}"));
+            None
+        });
+        // whatever happened: no file of the run may stay behind
+        crate::launch::clean_up(&run_id);
         if result.is_some()
             && !out_dir.is_temp()
             && let Err(e) = crate::runplots::write(&out)
