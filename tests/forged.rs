@@ -59,6 +59,9 @@ fn forge_during_run(tag: &str, forge: impl FnOnce(&Observer)) -> Ran {
             .args(["run", "--json", "--run-id", &id, "--out"])
             .arg(&dir)
             .args(["--map", "builtin:paper-20", "--episodes", EPISODES])
+            // the paper's learner: its episodes are long enough for the forger to meet every
+            // robot mid-run (planning robots, the default, can be done before it has joined)
+            .args(["--learner", "improved"])
             .args(["--robots", &ROBOTS.to_string()])
             .process_group(0),
     );
