@@ -21,7 +21,6 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use planner::env::{Env, Rewards, Transition};
-use planner::grid::{Cell, Grid};
 use planner::map::builtin;
 use planner::task::{Task, resolve_task};
 use std::hint::black_box;
@@ -280,34 +279,8 @@ fn free_cells(env: &Env) -> Vec<u32> {
         .collect()
 }
 
-/// A serpentine corridor: free rows at even y joined at alternating ends (as in
-/// `planner/tests/planning.rs`).
 fn serpentine(w: usize, h: usize) -> Task {
-    let mut free = vec![false; w * h];
-    for y in (0..h).step_by(2) {
-        for x in 0..w {
-            free[y * w + x] = true;
-        }
-        if y + 1 < h {
-            let x = if (y / 2).is_multiple_of(2) { w - 1 } else { 0 };
-            free[(y + 1) * w + x] = true;
-        }
-    }
-    let grid = Grid::new(w, h, free).expect("grid");
-    let goal_x = if ((h - 1) / 2).is_multiple_of(2) {
-        w as u16 - 1
-    } else {
-        0
-    };
-    let goal = Cell::new(goal_x, h as u16 - 1);
-    let optimal_len = planner::path::shortest_moves(&grid, Cell::new(0, 0), goal).expect("path");
-    Task {
-        map_name: "serpentine".into(),
-        grid,
-        start: Cell::new(0, 0),
-        goal,
-        optimal_len,
-    }
+    planner::suite::serpentine(w, h).expect("corridor")
 }
 
 fn env_of(task: &Task) -> Env {

@@ -320,6 +320,37 @@ fn walls(size: usize, rng: &mut LearnRng) -> Vec<bool> {
     free
 }
 
+/// A serpentine corridor `w` cells wide and `h` high: free rows at even y joined at alternating
+/// ends, from (0, 0) to the far end of the last row: the longest path a map of that size holds
+/// (1 090 moves at 51×41), for long-path tests and benchmarks. `None` when the grid is invalid.
+pub fn serpentine(w: usize, h: usize) -> Option<Task> {
+    let mut free = vec![false; w.checked_mul(h)?];
+    for y in (0..h).step_by(2) {
+        for x in 0..w {
+            free[y * w + x] = true;
+        }
+        if y + 1 < h {
+            let x = if (y / 2).is_multiple_of(2) { w - 1 } else { 0 };
+            free[(y + 1) * w + x] = true;
+        }
+    }
+    let grid = Grid::new(w, h, free).ok()?;
+    let goal_x = if ((h - 1) / 2).is_multiple_of(2) {
+        w - 1
+    } else {
+        0
+    };
+    let goal = Cell::new(u16::try_from(goal_x).ok()?, u16::try_from(h - 1).ok()?);
+    let optimal_len = crate::path::shortest_moves(&grid, Cell::new(0, 0), goal)?;
+    Some(Task {
+        map_name: "serpentine".into(),
+        grid,
+        start: Cell::new(0, 0),
+        goal,
+        optimal_len,
+    })
+}
+
 /// A far start/goal pair by a fixed rule: from a random free cell of the largest component,
 /// the farthest cell becomes the start, and the farthest cell from it the goal (two BFS
 /// sweeps: close to the component's diameter).

@@ -5,35 +5,9 @@ use planner::suite::{Family, generate};
 use planner::task::Task;
 use planner::{Cell, Grid, Learner, LearnerConfig};
 
-/// A serpentine corridor `w` wide: free rows at even y joined at alternating ends.
+/// The serpentine corridor of `planner::suite`.
 fn serpentine(w: usize, h: usize) -> Task {
-    let mut free = vec![false; w * h];
-    for y in (0..h).step_by(2) {
-        for x in 0..w {
-            free[y * w + x] = true;
-        }
-        if y + 1 < h {
-            let x = if (y / 2).is_multiple_of(2) { w - 1 } else { 0 };
-            free[(y + 1) * w + x] = true;
-        }
-    }
-    let grid = Grid::new(w, h, free).expect("grid");
-    let goal = Cell::new(
-        if ((h - 1) / 2).is_multiple_of(2) {
-            w as u16 - 1
-        } else {
-            0
-        },
-        h as u16 - 1,
-    );
-    let optimal_len = planner::path::shortest_moves(&grid, Cell::new(0, 0), goal).expect("path");
-    Task {
-        map_name: "serpentine".into(),
-        grid,
-        start: Cell::new(0, 0),
-        goal,
-        optimal_len,
-    }
+    planner::suite::serpentine(w, h).expect("corridor")
 }
 
 #[test]
