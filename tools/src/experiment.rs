@@ -335,9 +335,7 @@ pub fn run_once(
         logs: out,
         before_robots: Some(&|| {
             if let Some(w) = &watch {
-                w.wait_joined(
-                    Duration::try_from_secs_f64(m.timeout_s).unwrap_or(Duration::from_secs(30)),
-                );
+                w.wait_joined(m.timeout_s);
             }
         }),
     };

@@ -41,11 +41,14 @@ pub fn start(
 }
 
 impl Hook {
-    /// Waits (up to `timeout`) until the watch thread has joined the run, so a recording or
-    /// the live view misses nothing the robots send; the launcher calls it once the
-    /// coordinator runs and before it starts the robots ([`launcher::Fleet::before_robots`]).
-    /// A watch that could not join in time is a warning: the run goes on unobserved so far.
-    pub fn wait_joined(&self, timeout: std::time::Duration) {
+    /// Waits (up to `timeout_s` seconds, the run's start-up budget; 30 s if that is not a
+    /// valid duration) until the watch thread has joined the run, so a recording or the live
+    /// view misses nothing the robots send; the launcher calls it once the coordinator runs and
+    /// before it starts the robots ([`launcher::Fleet::before_robots`]). A watch that could not
+    /// join in time is a warning: the run goes on unobserved so far.
+    pub fn wait_joined(&self, timeout_s: f64) {
+        let timeout = std::time::Duration::try_from_secs_f64(timeout_s)
+            .unwrap_or(std::time::Duration::from_secs(30));
         if let Some(w) = &self.watch
             && !w.wait_joined(timeout)
         {

@@ -370,11 +370,7 @@ impl RunCmd {
             grace,
             time_limit,
             logs: out,
-            before_robots: Some(&|| {
-                watch.wait_joined(
-                    Duration::try_from_secs_f64(timeout).unwrap_or(Duration::from_secs(30)),
-                )
-            }),
+            before_robots: Some(&|| watch.wait_joined(timeout)),
         };
         let total = u64::from(fleet_size) * u64::from(episodes);
         let bar = ProgressBar::new(total);
