@@ -67,6 +67,8 @@ impl CoordinatorBus {
     /// Subscribers are created before anything else happens, so they exist before any robot
     /// can publish (the first half of the start handshake).
     pub fn create(config: &BusConfig) -> Result<Self, BusError> {
+        // a fleet past the open-file limit fails here, clearly, not robot by robot later
+        crate::limits::check_open_files(config.robots)?;
         let node = config.create_node(bus_schema::COORDINATOR_NODE_NAME)?;
         let r = Role::Creator;
         let bus = Self::create_ports(config, node, r).map_err(|e| explain_no_space(config, e))?;

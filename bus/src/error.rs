@@ -244,6 +244,23 @@ pub enum BusError {
         have_mib: f64,
     },
 
+    /// The coordinator of the fleet would run out of file descriptors.
+    #[error(
+        "a run of {robots} robots needs ~{need} open files in its coordinator, and this system \
+         allows {soft} (hard limit {hard}, `ulimit -Hn`); raise the limit (`ulimit -n {need}` \
+         as root, or LimitNOFILE= in a systemd unit) or run fewer robots"
+    )]
+    OpenFiles {
+        /// Robots of the run.
+        robots: u32,
+        /// Open files the coordinator needs ([`crate::limits::coordinator_files`]).
+        need: u64,
+        /// The soft limit after raising it.
+        soft: u64,
+        /// The hard limit.
+        hard: u64,
+    },
+
     /// Every observer slot of the run is taken by live outside readers.
     #[error(
         "run {run_id} already has {slots} outside readers, all the slots it keeps for them; \

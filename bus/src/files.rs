@@ -249,10 +249,12 @@ fn mib(bytes: u64) -> f64 {
 
 /// Every check a launcher runs before it starts any process of the run described by `cfg`:
 /// iceoryx2's root directory usable, no file of another user under the run's prefix, room in
-/// `/dev/shm`.
+/// `/dev/shm`, enough open files for the coordinator (the soft limit raised to the hard one, for
+/// this process and the ones it starts).
 pub fn preflight(cfg: &BusConfig) -> Result<(), BusError> {
     cfg.validate()?;
     check_iceoryx_root()?;
     check_run_files(&cfg.prefix())?;
-    check_shm_space(cfg)
+    check_shm_space(cfg)?;
+    crate::limits::check_open_files(cfg.robots)
 }

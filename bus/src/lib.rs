@@ -159,6 +159,7 @@ mod endpoints;
 mod error;
 mod files;
 mod handshake;
+pub mod limits;
 mod liveness;
 mod observer;
 mod topic;

@@ -28,7 +28,7 @@ use report::{CoordinatorCheckpoint, RobotCheckpoint};
 
 use crate::admission::{Roster, Sender, Verdict};
 use crate::discovery::{Discoveries, Seen};
-use crate::liveness::{Life, Listing, robot_of_node};
+use crate::liveness::{Life, Listing, alive_in, robot_of_node};
 use crate::merge::{FleetTable, MergeRule};
 use crate::options::CoordError;
 use crate::validate::{self, Shape};
@@ -801,14 +801,8 @@ impl Engine {
             self.clean_dead(bus.config());
         }
         self.checks += 1;
-        let mut alive = vec![false; self.robots.len()];
-        for n in report.alive() {
-            if let Some(id) = robot_of_node(&n.name)
-                && id < alive.len()
-            {
-                alive[id] = true;
-            }
-        }
+        // None: the listing proves no death (an unreadable node may be any robot's)
+        let alive = alive_in(&report, self.robots.len());
         // a report that arrived before the process went away is not a loss
         self.drain(bus)?;
         let now = Instant::now();
@@ -816,6 +810,7 @@ impl Engine {
             if self.life.joined_since(id, listed_at) {
                 continue; // a new process that registered after the listing
             }
+            let Some(alive) = &alive else { continue };
             slot.alive = alive[id];
             if slot.accepted && !alive[id] && slot.report.is_none() && !slot.lost {
                 slot.lost = true;

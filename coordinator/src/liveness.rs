@@ -13,7 +13,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::ROBOT_ID_ALL;
-use bus::{BusConfig, BusError, NodeReport, check_nodes, monotonic_ns};
+use bus::{BusConfig, BusError, Liveness, NodeReport, check_nodes, monotonic_ns};
 use crossbeam::channel::{Receiver, TrySendError, bounded};
 
 use report::RobotCheckpoint;
@@ -30,6 +30,29 @@ pub(crate) struct Listing {
 /// The node name of robot `id` (the one `bus::RobotBus::open` creates).
 pub(crate) fn robot_of_node(name: &str) -> Option<usize> {
     name.strip_prefix("qfleet-robot-")?.parse().ok()
+}
+
+/// Which of robots `0..robots` a listing shows alive, or `None` when the listing proves no
+/// death: a node whose files could not be read (out of file descriptors, a node half-created
+/// or half-removed, another user's file) may be any robot's. A robot that really died is still
+/// caught by its heartbeat deadline.
+pub(crate) fn alive_in(report: &NodeReport, robots: usize) -> Option<Vec<bool>> {
+    if report
+        .nodes
+        .iter()
+        .any(|n| !matches!(n.liveness, Liveness::Alive | Liveness::Dead))
+    {
+        return None;
+    }
+    let mut alive = vec![false; robots];
+    for n in report.alive() {
+        if let Some(id) = robot_of_node(&n.name)
+            && id < robots
+        {
+            alive[id] = true;
+        }
+    }
+    Some(alive)
 }
 
 /// Lists the run's nodes on a thread of its own, every `every` (and at once after
@@ -359,6 +382,45 @@ mod tests {
         assert_eq!(robot_of_node("qfleet-robot-3"), Some(3));
         assert_eq!(robot_of_node("qfleet-coordinator"), None);
         assert_eq!(robot_of_node("qfleet-robot-x"), None);
+    }
+
+    fn node(name: &str, liveness: Liveness) -> bus::NodeInfo {
+        bus::NodeInfo {
+            name: name.into(),
+            pid: Some(1),
+            executable: "robot-agent".into(),
+            liveness,
+        }
+    }
+
+    #[test]
+    fn a_listing_shows_robots_alive_by_node_name_and_ignores_others() {
+        let report = NodeReport {
+            nodes: vec![
+                node("qfleet-coordinator", Liveness::Alive),
+                node("qfleet-robot-0", Liveness::Alive),
+                node("qfleet-robot-2", Liveness::Dead),
+                node("qfleet-robot-9", Liveness::Alive), // outside the fleet
+            ],
+            ..NodeReport::default()
+        };
+        assert_eq!(alive_in(&report, 3), Some(vec![true, false, false]));
+    }
+
+    #[test]
+    fn a_listing_with_an_unreadable_node_proves_no_death() {
+        // out of file descriptors, iceoryx2 cannot read a live robot's node: it must not be
+        // reported lost (it once was, for the last robots of a 256-robot run)
+        for unreadable in [Liveness::Inaccessible, Liveness::Undefined] {
+            let report = NodeReport {
+                nodes: vec![
+                    node("qfleet-robot-0", Liveness::Alive),
+                    node("", unreadable),
+                ],
+                ..NodeReport::default()
+            };
+            assert_eq!(alive_in(&report, 2), None, "{unreadable:?}");
+        }
     }
 
     #[test]

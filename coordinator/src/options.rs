@@ -140,7 +140,8 @@ impl CoordError {
             CoordError::Option { .. }
             | CoordError::Task(_)
             | CoordError::Plan(_)
-            | CoordError::MapTooLarge { .. } => 2,
+            | CoordError::MapTooLarge { .. }
+            | CoordError::Bus(BusError::OpenFiles { .. }) => 2,
             CoordError::Interrupted(_) => 130,
             CoordError::Refused { .. } => 3,
             _ => 1,

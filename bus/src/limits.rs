@@ -1,0 +1,119 @@
+//! Open-file limits: how many file descriptors a run's coordinator needs, and raising the
+//! process's soft limit to its hard one so that a large fleet does not fail half-way.
+//!
+//! iceoryx2 keeps a file descriptor open for every shared-memory connection between a publisher
+//! and a subscriber, every data segment it maps and every wake socket, so the coordinator of N
+//! robots holds about 19 per robot (measured with `ls /proc/PID/fd` on runs of `qfleet run`:
+//! 1189 at 64 robots, 4175 at 256). Linux's usual soft limit is 1024: without raising it, robots
+//! past the ~50th never got through registration (the coordinator could not open their
+//! connections and said nothing about why) and, near the limit, a node listing that cannot open
+//! a robot's files made a live robot look dead. Raising the soft limit to the hard one is what
+//! any process may do; past the hard limit only the administrator can help, so a fleet that does
+//! not fit is refused before anything starts ([`check_open_files`], part of
+//! [`crate::preflight`]).
+
+use crate::BusError;
+
+/// File descriptors the coordinator holds besides its robots' (its own services, node files,
+/// logs, the node lister): a margin over the ~60 measured.
+pub const COORDINATOR_FILES_BASE: u64 = 128;
+
+/// File descriptors the coordinator holds per robot of the run (measured 16–19, see the module
+/// doc), with a margin.
+pub const COORDINATOR_FILES_PER_ROBOT: u64 = 20;
+
+/// Open files the coordinator of a run of `robots` robots needs.
+pub fn coordinator_files(robots: u32) -> u64 {
+    COORDINATOR_FILES_BASE + COORDINATOR_FILES_PER_ROBOT * u64::from(robots)
+}
+
+/// A process's open-file limits (`RLIMIT_NOFILE`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct OpenFiles {
+    /// What the process may open now.
+    pub soft: u64,
+    /// What the soft limit may be raised to without privileges.
+    pub hard: u64,
+}
+
+/// This process's open-file limits, or `None` if they cannot be read.
+pub fn open_files() -> Option<OpenFiles> {
+    let mut lim = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit writes into the struct we own
+    if unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut lim) } != 0 {
+        return None;
+    }
+    Some(OpenFiles {
+        soft: lim.rlim_cur,
+        hard: lim.rlim_max,
+    })
+}
+
+/// Raises this process's soft open-file limit to its hard limit (inherited by the processes
+/// it starts), best effort; returns the limits in force afterwards.
+pub fn raise_open_files() -> Option<OpenFiles> {
+    let now = open_files()?;
+    // an unlimited hard limit still stops at the kernel's per-process ceiling
+    let target = if now.hard == libc::RLIM_INFINITY {
+        std::fs::read_to_string("/proc/sys/fs/nr_open")
+            .ok()
+            .and_then(|s| s.trim().parse().ok())
+            .unwrap_or(1 << 20)
+    } else {
+        now.hard
+    };
+    if now.soft < target {
+        let lim = libc::rlimit {
+            rlim_cur: target,
+            rlim_max: now.hard,
+        };
+        // SAFETY: setrlimit reads the struct we own; raising the soft limit up to the hard
+        // one needs no privilege
+        unsafe { libc::setrlimit(libc::RLIMIT_NOFILE, &lim) };
+    }
+    open_files()
+}
+
+/// Raises the soft open-file limit and checks that the coordinator of `robots` robots fits
+/// under it; [`BusError::OpenFiles`] otherwise. Limits that cannot be read pass.
+pub fn check_open_files(robots: u32) -> Result<(), BusError> {
+    let need = coordinator_files(robots);
+    match raise_open_files() {
+        Some(l) if l.soft < need => Err(BusError::OpenFiles {
+            robots,
+            need,
+            soft: l.soft,
+            hard: l.hard,
+        }),
+        _ => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_need_grows_with_the_fleet_and_covers_what_was_measured() {
+        assert!(coordinator_files(64) >= 1189);
+        assert!(coordinator_files(256) >= 4175);
+        assert!(
+            coordinator_files(2) < 1024,
+            "small runs fit the usual default"
+        );
+        assert!(coordinator_files(33) > coordinator_files(32));
+    }
+
+    #[test]
+    fn raising_keeps_the_soft_limit_at_most_the_hard_one() {
+        let l = raise_open_files().expect("limits readable on Linux");
+        assert!(l.soft <= l.hard);
+        assert!(
+            l.soft == l.hard || l.hard == libc::RLIM_INFINITY,
+            "the soft limit is raised to the hard one: {l:?}"
+        );
+    }
+}
