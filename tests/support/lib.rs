@@ -34,17 +34,13 @@ pub fn bin_dir() -> &'static Path {
             .to_string();
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
         let mut cmd = Command::new(cargo);
+        // The same selection as `cargo test --workspace` (every member, test targets, so
+        // dev-dependencies count) plus the binaries: cargo then resolves the same features and
+        // reuses every library that test build made. `--bins -p robot-agent -p coordinator -p
+        // qfleet` resolved fewer features (regex-automata, getrandom, zerocopy) and rebuilt
+        // zenoh and ~40 other crates inside the first end-to-end test: 477 s of a CI run.
         cmd.current_dir(env!("CARGO_MANIFEST_DIR"))
-            .args([
-                "build",
-                "--bins",
-                "-p",
-                "robot-agent",
-                "-p",
-                "coordinator",
-                "-p",
-                "qfleet",
-            ])
+            .args(["build", "--workspace", "--bins", "--tests"])
             .env("CARGO_TARGET_DIR", &target_dir);
         if profile != "debug" {
             cmd.args(["--profile", &profile]);
