@@ -36,7 +36,7 @@ use crate::health::{ClockSync, LinkEvent, LinkState, LinkWatch};
 use crate::join::{Admission, JOIN_KEY, JoinPlan, JoinReply, JoinRequest, RemotePlan};
 use crate::link::{self, Tuning};
 use crate::reliable::{Arrival, Incoming, Outgoing};
-use crate::stats::{HostReport, Percentiles, new_hist, record};
+use crate::stats::{HostEntry, HostReport, Percentiles, new_hist, record};
 use crate::topics::{FromRobot, ToRobot};
 use crate::wire::{self, HEADER, Heartbeat, Kind};
 use crate::{BridgeError, HEARTBEAT_EVERY, down_key, up_key_all};
@@ -69,6 +69,15 @@ pub struct HubReport {
     pub refused: Vec<String>,
     /// One entry per joined host.
     pub hosts: Vec<HostReport>,
+}
+
+impl HubReport {
+    /// A result's `hosts`: this host first (robots `0..local`), then every joined host.
+    pub fn entries(&self, local: u32) -> Vec<HostEntry> {
+        std::iter::once(HostEntry::local(local))
+            .chain(self.hosts.iter().map(HostReport::entry))
+            .collect()
+    }
 }
 
 /// The running hub; [`Hub::finish`] stops it and returns its report.
@@ -366,11 +375,11 @@ impl Host {
         if self.lost() {
             return;
         }
-        self.report.frames_in += 1;
+        self.report.link.frames_in += 1;
         let h = match wire::header(frame) {
             Ok(h) => h,
             Err(_) => {
-                self.report.rejected += 1;
+                self.report.link.rejected += 1;
                 return;
             }
         };
@@ -384,7 +393,7 @@ impl Host {
         match h.kind {
             Kind::Heartbeat => {
                 let Ok(hb) = serde_json::from_slice::<Heartbeat>(&frame[HEADER..]) else {
-                    self.report.rejected += 1;
+                    self.report.link.rejected += 1;
                     return;
                 };
                 let t = monotonic_ns();
@@ -441,7 +450,7 @@ impl Host {
             Topic::Report => self.put_as::<FinalReport>(payload, cfg, 4),
             // coordinator topics never come from a joined host
             _ => {
-                self.report.rejected += 1;
+                self.report.link.rejected += 1;
                 Put::Rejected
             }
         }
@@ -451,7 +460,7 @@ impl Host {
         let mut m = T::default();
         if wire::read_into(payload, &mut m).is_err() || !self.ids.contains(&m.robot_id()) {
             // a robot of another host (or of this one) cannot be impersonated from there
-            self.report.rejected += 1;
+            self.report.link.rejected += 1;
             return Put::Rejected;
         }
         m.shift(self.clock.to_local());
@@ -488,7 +497,7 @@ impl Host {
             }
             Err(_) if lossless => Put::Later,
             Err(_) => {
-                self.report.dropped += 1;
+                self.report.link.dropped += 1;
                 Put::Rejected
             }
         }
@@ -570,7 +579,7 @@ impl Host {
 
     fn send(&mut self, frame: &[u8]) {
         if self.watch.state() == LinkState::Up && link::put(&self.publisher, frame) {
-            self.report.frames_out += 1;
+            self.report.link.frames_out += 1;
         }
     }
 
@@ -620,7 +629,7 @@ impl Host {
             };
             // heartbeats go even while the link looks down: they are how it comes back
             if link::put(&self.publisher, &wire::heartbeat_frame(&hb)) {
-                self.report.frames_out += 1;
+                self.report.link.frames_out += 1;
             }
         }
         self.resend(now, false);
@@ -644,14 +653,14 @@ impl Host {
     fn into_report(self) -> HostReport {
         let mut r = self.report;
         r.state = Some(self.watch.state());
-        r.reconnects = self.watch.reconnects;
-        r.down_ms = self.watch.down_for.as_millis() as u64;
-        r.clock_offset_ns = self.clock.offset_ns();
-        r.best_rtt_ns = self.clock.best_rtt_ns().unwrap_or(0);
-        r.rtt_ns = Percentiles::of(&self.rtt);
-        r.one_way_in_ns = Percentiles::of(&self.one_way);
-        r.resent = self.out.resent;
-        r.duplicates = self.inc.duplicates;
+        r.link.reconnects = self.watch.reconnects;
+        r.link.down_ms = self.watch.down_for.as_millis() as u64;
+        r.link.clock_offset_ns = self.clock.offset_ns();
+        r.link.best_rtt_ns = self.clock.best_rtt_ns().unwrap_or(0);
+        r.link.rtt_ns = Percentiles::of(&self.rtt);
+        r.link.one_way_in_ns = Percentiles::of(&self.one_way);
+        r.link.resent = self.out.resent;
+        r.link.duplicates = self.inc.duplicates;
         r
     }
 }

@@ -267,14 +267,14 @@ impl Joiner {
     pub fn finish(self) -> HostReport {
         let mut r = self.report;
         r.state = Some(self.watch.state());
-        r.reconnects = self.watch.reconnects;
-        r.down_ms = self.watch.down_for.as_millis() as u64;
-        r.clock_offset_ns = self.clock.offset_ns();
-        r.best_rtt_ns = self.clock.best_rtt_ns().unwrap_or(0);
-        r.rtt_ns = Percentiles::of(&self.rtt);
-        r.one_way_in_ns = Percentiles::of(&self.one_way);
-        r.resent = self.out.resent;
-        r.duplicates = self.inc.duplicates;
+        r.link.reconnects = self.watch.reconnects;
+        r.link.down_ms = self.watch.down_for.as_millis() as u64;
+        r.link.clock_offset_ns = self.clock.offset_ns();
+        r.link.best_rtt_ns = self.clock.best_rtt_ns().unwrap_or(0);
+        r.link.rtt_ns = Percentiles::of(&self.rtt);
+        r.link.one_way_in_ns = Percentiles::of(&self.one_way);
+        r.link.resent = self.out.resent;
+        r.link.duplicates = self.inc.duplicates;
         drop(self.frames);
         drop(self.publisher);
         let _ = self.bus.close();
@@ -284,9 +284,9 @@ impl Joiner {
 
     /// Handles one frame; true when the hub said goodbye.
     fn on_frame(&mut self, frame: &[u8], now: Instant) -> bool {
-        self.report.frames_in += 1;
+        self.report.link.frames_in += 1;
         let Ok(h) = wire::header(frame) else {
-            self.report.rejected += 1;
+            self.report.link.rejected += 1;
             return false;
         };
         if let Some(LinkEvent::CameBack) = self.watch.heard(now) {
@@ -299,7 +299,7 @@ impl Joiner {
         match h.kind {
             Kind::Heartbeat => {
                 let Ok(hb) = serde_json::from_slice::<Heartbeat>(&frame[HEADER..]) else {
-                    self.report.rejected += 1;
+                    self.report.link.rejected += 1;
                     return false;
                 };
                 let t = monotonic_ns();
@@ -346,7 +346,7 @@ impl Joiner {
             Topic::Ack => self.put_as::<DiscoveryAck>(payload, 2),
             Topic::Relay => self.put_as::<DiscoveryRelay>(payload, 3),
             _ => {
-                self.report.rejected += 1;
+                self.report.link.rejected += 1;
                 None
             }
         }
@@ -355,7 +355,7 @@ impl Joiner {
     fn put_as<T: ToRobot>(&mut self, payload: &[u8], slot: usize) -> Option<bool> {
         let mut m = T::default();
         if wire::read_into(payload, &mut m).is_err() {
-            self.report.rejected += 1;
+            self.report.link.rejected += 1;
             return None;
         }
         m.shift(self.clock.to_local());
@@ -373,7 +373,7 @@ impl Joiner {
             Err(BusError::NoSubscriber { .. }) => None,
             Err(_) if T::TOPIC.delivery() == bus::bus_schema::Delivery::Lossless => Some(false),
             Err(_) => {
-                self.report.dropped += 1;
+                self.report.link.dropped += 1;
                 None
             }
         }
@@ -428,7 +428,7 @@ impl Joiner {
 
     fn send(&mut self, frame: &[u8]) {
         if self.watch.state() == LinkState::Up && link::put(&self.publisher, frame) {
-            self.report.frames_out += 1;
+            self.report.link.frames_out += 1;
         }
     }
 
@@ -447,7 +447,7 @@ impl Joiner {
             gone: self.gone.iter().copied().collect(),
         };
         if link::put(&self.publisher, &wire::heartbeat_frame(&hb)) {
-            self.report.frames_out += 1;
+            self.report.link.frames_out += 1;
         }
     }
 
