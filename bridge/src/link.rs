@@ -239,6 +239,13 @@ pub fn spin_after() -> Duration {
     })
 }
 
+/// Whether the joining side naps for the hub's answer too (`QFLEET_BRIDGE_JOIN_NAPS=0` turns it
+/// off; measurement only).
+pub fn reply_naps() -> bool {
+    static NAPS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *NAPS.get_or_init(|| std::env::var("QFLEET_BRIDGE_JOIN_NAPS").map_or(true, |v| v != "0"))
+}
+
 /// While messages move, the longest a blocked bridge loop waits before it looks at its host's
 /// bus again for messages whose sender did not notify (an iceoryx2 `WaitSet` waits in whole
 /// milliseconds).

@@ -223,6 +223,7 @@ impl Joiner {
         let mut last_busy = Instant::now();
         let mut last_data = Instant::now() - link::ACTIVE_FOR;
         let mut done_at: Option<Instant> = None;
+        let mut expect_until = Instant::now();
         link::tighten_timer_slack();
         let ending = loop {
             let now = Instant::now();
@@ -236,7 +237,11 @@ impl Joiner {
                 over |= self.on_frame(&sample.payload().to_bytes(), now);
             }
             let mut data = self.deliver_in_order();
-            data |= self.forward_up(now)?;
+            if self.forward_up(now)? {
+                data = true;
+                // the coordinator's answer (merged hints, acks, relays) comes back over the link
+                expect_until = now + link::REPLY_WINDOW;
+            }
             self.wake_robots();
             if now.duration_since(last_list) >= LIST_EVERY {
                 last_list = now;
@@ -280,6 +285,10 @@ impl Joiner {
             // notified message, or the next heartbeat / robot listing
             if now.duration_since(last_busy) < spin {
                 std::thread::yield_now();
+                continue;
+            }
+            if now < expect_until && link::reply_naps() {
+                std::thread::sleep(link::REPLY_NAP);
                 continue;
             }
             let due = (last_beat + HEARTBEAT_EVERY).min(last_list + LIST_EVERY);
