@@ -241,6 +241,30 @@ fn assert_complete(r: &Value, robots: u64) {
     );
 }
 
+/// The `hosts` of a result: the same in the `--json` stdout as in `result.json`, read back into
+/// the typed entries, the coordinator's host first with its local robots.
+fn assert_hosts_typed(file: &Value, out: &Output, local: &[u32]) {
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let printed: Value = serde_json::from_str(stdout.trim())
+        .unwrap_or_else(|e| panic!("--json printed no JSON ({e}): {}", describe(out)));
+    // `qfleet experiment --json` prints one result per seed
+    let printed = match printed {
+        Value::Array(mut a) if a.len() == 1 => a.remove(0),
+        v => v,
+    };
+    assert_eq!(
+        printed["hosts"], file["hosts"],
+        "stdout and result.json disagree"
+    );
+    let hosts: Vec<report::HostEntry> =
+        serde_json::from_value(file["hosts"].clone()).expect("hosts read back typed");
+    assert_eq!(hosts.len(), 2, "{hosts:?}");
+    assert_eq!(hosts[0].state, report::HostState::Local, "{hosts:?}");
+    assert_eq!(hosts[0].robots, local, "{hosts:?}");
+    assert!(hosts[0].link.is_none(), "{hosts:?}");
+    assert!(hosts[1].link.is_some(), "{hosts:?}");
+}
+
 fn host_b(r: &Value) -> &Value {
     r["hosts"]
         .as_array()
@@ -304,7 +328,7 @@ fn a_run_across_two_hosts_completes_with_every_discovery_delivered() {
     let _ = bin("qfleet");
     let id = run_id("mh-run");
     let (da, db) = scratch_pair(&id);
-    let a = start_a(&hosts, &id, &da, 1, 2, &SHORT);
+    let a = start_a(&hosts, &id, &da, 1, 2, &[&SHORT[..], &["--json"]].concat());
     let b = start_b(&hosts, 2, &db, &[]);
     let out_b = wait_bounded(b, LIMIT);
     let out_a = wait_bounded(a, LIMIT);
@@ -312,6 +336,7 @@ fn a_run_across_two_hosts_completes_with_every_discovery_delivered() {
     assert!(out_b.status.success(), "host B: {}", describe(&out_b));
     let r = result(&da, &out_a);
     assert_complete(&r, 3);
+    assert_hosts_typed(&r, &out_a, &[0]);
     let b = host_b(&r);
     assert_eq!(b["robots"], serde_json::json!([1, 2]), "{b}");
     assert_eq!(r["hosts"][0]["robots"], serde_json::json!([0]), "{r}");
@@ -484,6 +509,7 @@ episodes = 200
                 ENDPOINT,
                 "--out",
                 &o,
+                "--json",
             ],
         )
         .spawn()
@@ -509,6 +535,7 @@ episodes = 200
         }
     }
     assert!(r["discoveries_received"].as_u64() > Some(0), "{r}");
+    assert_hosts_typed(&r, &out_a, &[0]);
     let b = host_b(&r);
     assert_eq!(b["robots"], serde_json::json!([1, 2]), "{b}");
     assert_eq!(b["state"], "up", "{b}");

@@ -23,20 +23,22 @@ use bus::bus_schema::{
     Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
     QHintBatch, ROBOT_ID_ALL, Register, RobotState, Topic,
 };
-use bus::{BusConfig, BusError, RobotBus, monotonic_ns};
+use std::sync::mpsc::Receiver;
+
+use bus::iceoryx2::prelude::{CallbackProgression, SignalHandlingMode, WaitSetBuilder, ipc};
+use bus::{BusConfig, BusError, RobotBus, WakeListener, Waker, monotonic_ns, wake_pair};
 use hdrhistogram::Histogram;
 use serde::Serialize;
 use zenoh::Wait;
-use zenoh::handlers::{FifoChannel, FifoChannelHandler};
-use zenoh::pubsub::{Publisher, Subscriber};
+use zenoh::pubsub::Subscriber;
 use zenoh::query::{Query, Queryable};
 use zenoh::sample::Sample;
 
 use crate::health::{ClockSync, LinkEvent, LinkState, LinkWatch};
 use crate::join::{Admission, JOIN_KEY, JoinPlan, JoinReply, JoinRequest, RemotePlan};
-use crate::link::{self, Tuning};
+use crate::link::{self, Tuning, Tx};
 use crate::reliable::{Arrival, Incoming, Outgoing};
-use crate::stats::{HostReport, Percentiles, new_hist, record};
+use crate::stats::{HostEntry, HostReport, Percentiles, new_hist, record};
 use crate::topics::{FromRobot, ToRobot};
 use crate::wire::{self, HEADER, Heartbeat, Kind};
 use crate::{BridgeError, HEARTBEAT_EVERY, down_key, up_key_all};
@@ -71,10 +73,21 @@ pub struct HubReport {
     pub hosts: Vec<HostReport>,
 }
 
+impl HubReport {
+    /// A result's `hosts`: this host first (robots `0..local`), then every joined host.
+    pub fn entries(&self, local: u32) -> Vec<HostEntry> {
+        std::iter::once(HostEntry::local(local))
+            .chain(self.hosts.iter().map(HostReport::entry))
+            .collect()
+    }
+}
+
 /// The running hub; [`Hub::finish`] stops it and returns its report.
 #[derive(Debug)]
 pub struct Hub {
     stop: Arc<AtomicBool>,
+    /// Ends the hub thread's wait at once when the hub is stopped.
+    waker: Waker,
     thread: Option<JoinHandle<Result<HubReport, BridgeError>>>,
 }
 
@@ -84,16 +97,19 @@ impl Hub {
         let session = link::listen(&opts.listen, opts.tuning)?;
         let stop = Arc::new(AtomicBool::new(false));
         let flag = Arc::clone(&stop);
+        let (waker, wakes) = wake_pair()?;
+        let w = waker.clone();
         let thread = std::thread::Builder::new()
             .name("qfleet-hub".into())
             .spawn(move || {
-                let r = run(&session, &opts, &flag);
+                let r = run(&session, &opts, &flag, w, &wakes);
                 let _ = session.close().wait();
                 r
             })
             .map_err(|e| BridgeError::Thread(e.to_string()))?;
         Ok(Hub {
             stop,
+            waker,
             thread: Some(thread),
         })
     }
@@ -101,6 +117,7 @@ impl Hub {
     /// Tells the joined hosts the run is over, drops every proxy and returns the report.
     pub fn finish(mut self) -> Result<HubReport, BridgeError> {
         self.stop.store(true, Ordering::SeqCst);
+        self.waker.wake();
         match self.thread.take() {
             Some(t) => t
                 .join()
@@ -113,6 +130,7 @@ impl Hub {
 impl Drop for Hub {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::SeqCst);
+        self.waker.wake();
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
@@ -129,7 +147,7 @@ struct Proxy {
 struct Host {
     name: String,
     ids: Range<u32>,
-    publisher: Publisher<'static>,
+    tx: Tx,
     out: Outgoing,
     inc: Incoming,
     watch: LinkWatch,
@@ -139,6 +157,8 @@ struct Host {
     last_beat: Instant,
     /// Lossless frames in order, waiting to be written into this host's bus.
     deliver: VecDeque<Vec<u8>>,
+    /// Buffers of delivered frames, reused for the next ones.
+    spare: Vec<Vec<u8>>,
     proxies: BTreeMap<u32, Proxy>,
     /// Robots the host reported gone, applied once every frame it sent before is delivered.
     gone_after: Vec<(u64, Vec<u32>)>,
@@ -152,10 +172,19 @@ struct Host {
     report: HostReport,
 }
 
+fn waitset_error(e: impl std::fmt::Debug) -> BridgeError {
+    BridgeError::Bus(BusError::Event {
+        service: "WaitSet".into(),
+        detail: format!("{e:?}"),
+    })
+}
+
 fn run(
     session: &zenoh::Session,
     opts: &HubOptions,
     stop: &AtomicBool,
+    waker: Waker,
+    wakes: &WakeListener,
 ) -> Result<HubReport, BridgeError> {
     let plan = &opts.plan;
     let zerr = |what: &str| {
@@ -168,15 +197,24 @@ fn run(
     let mut cfg = BusConfig::new(plan.run_id.clone(), plan.robots_total)?;
     cfg.hint_buffer = plan.hint_buffer;
     cfg.merged_buffer = plan.merged_buffer;
-    let joins: Queryable<FifoChannelHandler<Query>> = session
+    // joins and frames arrive on Zenoh's threads: each is pushed into a channel and wakes this
+    // thread's WaitSet, which also holds the wake listeners of the coordinator's topics
+    let joins: Queryable<Receiver<Query>> = session
         .declare_queryable(JOIN_KEY)
+        .with(link::waking(64, waker.clone()))
         .wait()
         .map_err(zerr("declaring the join queryable"))?;
-    let frames: Subscriber<FifoChannelHandler<Sample>> = session
+    let frames: Subscriber<Receiver<Sample>> = session
         .declare_subscriber(up_key_all(&plan.run_id))
-        .with(FifoChannel::new(link::SUBSCRIBER_DEPTH))
+        .with(link::waking(link::SUBSCRIBER_DEPTH, waker))
         .wait()
         .map_err(zerr("subscribing to the joined hosts"))?;
+    // iceoryx2's own SIGINT/SIGTERM handler would replace the process's: keep it off
+    let waitset = WaitSetBuilder::new()
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<ipc::Service>()
+        .map_err(waitset_error)?;
+    let _wake_guard = wakes.attach(&waitset)?;
     let remote = plan.robots_total - plan.first_remote;
     let mut admission = Admission::new(plan.first_remote, plan.robots_total);
     let mut hosts: Vec<Host> = Vec::new();
@@ -189,21 +227,22 @@ fn run(
         "qfleet: waiting for {remote} robot(s) from other hosts on {}: run `qfleet join {} --robots N` there",
         opts.listen, opts.listen
     );
-    let mut idle_since = Instant::now();
-    // a frame that ended an idle wait, handled first in the next round
-    let mut woken: Option<Sample> = None;
+    let spin = link::spin_after();
+    let mut last_busy = Instant::now();
+    let mut last_data = Instant::now() - link::ACTIVE_FOR;
+    let mut expect_until = Instant::now();
     link::tighten_timer_slack();
     loop {
         let mut busy = false;
         let now = Instant::now();
         // joins
-        while let Ok(Some(q)) = joins.try_recv() {
+        while let Ok(q) = joins.try_recv() {
             busy = true;
             answer_join(session, &q, opts, &mut admission, &mut hosts, &mut report);
         }
         // frames from the joined hosts
         for _ in 0..4096 {
-            let Some(sample) = woken.take().or_else(|| frames.try_recv().ok().flatten()) else {
+            let Ok(sample) = frames.try_recv() else {
                 break;
             };
             busy = true;
@@ -215,28 +254,79 @@ fn run(
                 host.on_frame(&sample.payload().to_bytes(), now, &cfg);
             }
         }
+        let mut data = false;
         for host in &mut hosts {
-            busy |= host.deliver_in_order(&cfg);
+            data |= host.deliver_in_order(&cfg);
             host.apply_gone();
-            busy |= host.forward_down(now);
+            data |= host.forward_down(now);
             host.tick(now);
-            host.wake();
+            if host.wake() {
+                // the coordinator answers hints and discoveries without a wakeup
+                expect_until = now + link::REPLY_WINDOW;
+            }
         }
         if stop.load(Ordering::SeqCst) {
             break;
         }
-        // idle: spin a little (a reply is often on its way), then wait in short slices for
-        // the next frame (a frame ends the wait at once; the bus is looked at between slices)
-        if busy {
-            idle_since = now;
-        } else if now.duration_since(idle_since) > Duration::from_micros(100) {
-            woken = frames.recv_timeout(link::IDLE_WAIT).ok().flatten();
-        } else {
+        if data {
+            last_data = now;
+        }
+        if busy || data {
+            last_busy = now;
+            continue;
+        }
+        // idle: keep looking a little (the coordinator's replies to what was just delivered
+        // come without a wakeup), then block on the WaitSet until a frame, a join, a notified
+        // message or the next periodic work
+        if now.duration_since(last_busy) < spin {
             std::thread::yield_now();
+            continue;
+        }
+        if now < expect_until {
+            std::thread::sleep(link::REPLY_NAP);
+            continue;
+        }
+        let due = hosts
+            .iter()
+            .filter(|h| !h.lost())
+            .map(|h| h.last_beat + HEARTBEAT_EVERY)
+            .min()
+            .unwrap_or(now + HEARTBEAT_EVERY);
+        let timeout = link::wait_for(now, due, last_data);
+        if timeout.is_zero() {
+            continue;
+        }
+        // one proxy's inboxes are enough to hear the coordinator: a notify wakes every
+        // listener of a topic, and every proxy subscribes to every coordinator topic
+        let anchor = hosts.iter().find_map(|h| h.proxies.values().next());
+        let guards = match anchor {
+            Some(p) => p
+                .bus
+                .listeners()
+                .into_iter()
+                .map(|(_, l)| waitset.attach_notification(l).map_err(waitset_error))
+                .collect::<Result<Vec<_>, _>>()?,
+            None => Vec::new(),
+        };
+        waitset
+            .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, timeout)
+            .map_err(waitset_error)?;
+        drop(guards);
+        // before the channels are drained: whatever is pushed after this wakes the next wait
+        wakes.clear();
+        if let Some(p) = anchor {
+            for inbox_wakeups in [
+                p.bus.control.clear_wakeups(),
+                p.bus.merged.clear_wakeups(),
+                p.bus.ack.clear_wakeups(),
+                p.bus.relay.clear_wakeups(),
+            ] {
+                inbox_wakeups?;
+            }
         }
     }
     for host in &mut hosts {
-        let _ = link::put(&host.publisher, &wire::goodbye_frame());
+        host.tx.send(true, &wire::goodbye_frame());
     }
     report.joined_robots = hosts.iter().map(|h| h.ids.len() as u32).sum();
     report.hosts = hosts.into_iter().map(Host::into_report).collect();
@@ -329,7 +419,7 @@ fn answer_join(
         },
         name: req.host,
         ids,
-        publisher,
+        tx: Tx::new(publisher),
         out: Outgoing::default(),
         inc: Incoming::default(),
         watch,
@@ -337,6 +427,7 @@ fn answer_join(
         echo: (0, 0),
         last_beat: now - HEARTBEAT_EVERY,
         deliver: VecDeque::new(),
+        spare: Vec::new(),
         proxies: BTreeMap::new(),
         gone_after: Vec::new(),
         gone: BTreeSet::new(),
@@ -366,11 +457,11 @@ impl Host {
         if self.lost() {
             return;
         }
-        self.report.frames_in += 1;
+        self.report.link.frames_in += 1;
         let h = match wire::header(frame) {
             Ok(h) => h,
             Err(_) => {
-                self.report.rejected += 1;
+                self.report.link.rejected += 1;
                 return;
             }
         };
@@ -384,7 +475,7 @@ impl Host {
         match h.kind {
             Kind::Heartbeat => {
                 let Ok(hb) = serde_json::from_slice::<Heartbeat>(&frame[HEADER..]) else {
-                    self.report.rejected += 1;
+                    self.report.link.rejected += 1;
                     return;
                 };
                 let t = monotonic_ns();
@@ -398,7 +489,12 @@ impl Host {
                 }
             }
             Kind::Lossless => match self.inc.arrive(h.seq) {
-                Arrival::Next => self.deliver.push_back(frame.to_vec()),
+                Arrival::Next => {
+                    let mut buf = self.spare.pop().unwrap_or_default();
+                    buf.clear();
+                    buf.extend_from_slice(frame);
+                    self.deliver.push_back(buf);
+                }
                 Arrival::Duplicate | Arrival::Gap => {}
             },
             Kind::Latest => {
@@ -415,18 +511,18 @@ impl Host {
     /// Writes the in-order lossless frames into the bus until one has to wait.
     fn deliver_in_order(&mut self, cfg: &BusConfig) -> bool {
         let mut any = false;
-        while let Some(frame) = self.deliver.front() {
-            let Ok(h) = wire::header(frame) else {
-                self.deliver.pop_front();
-                continue;
+        while let Some(frame) = self.deliver.pop_front() {
+            let put = match wire::header(&frame) {
+                Ok(h) => self.put(h.topic, &frame[HEADER..], cfg),
+                Err(_) => Put::Rejected,
             };
-            let frame = frame.clone();
-            match self.put(h.topic, &frame[HEADER..], cfg) {
-                Put::Done | Put::Rejected => {
-                    self.deliver.pop_front();
-                    any = true;
-                }
-                Put::Later => break,
+            if let Put::Later = put {
+                self.deliver.push_front(frame);
+                break;
+            }
+            any = true;
+            if self.spare.len() < 1024 {
+                self.spare.push(frame);
             }
         }
         any
@@ -441,7 +537,7 @@ impl Host {
             Topic::Report => self.put_as::<FinalReport>(payload, cfg, 4),
             // coordinator topics never come from a joined host
             _ => {
-                self.report.rejected += 1;
+                self.report.link.rejected += 1;
                 Put::Rejected
             }
         }
@@ -451,7 +547,7 @@ impl Host {
         let mut m = T::default();
         if wire::read_into(payload, &mut m).is_err() || !self.ids.contains(&m.robot_id()) {
             // a robot of another host (or of this one) cannot be impersonated from there
-            self.report.rejected += 1;
+            self.report.link.rejected += 1;
             return Put::Rejected;
         }
         m.shift(self.clock.to_local());
@@ -488,7 +584,7 @@ impl Host {
             }
             Err(_) if lossless => Put::Later,
             Err(_) => {
-                self.report.dropped += 1;
+                self.report.link.dropped += 1;
                 Put::Rejected
             }
         }
@@ -512,73 +608,69 @@ impl Host {
         }
     }
 
-    /// Reads what the coordinator sent through the proxies and publishes it to the host.
+    /// Reads what the coordinator sent through the proxies and publishes it to the host
+    /// straight from the proxies' shared memory (one reused frame buffer; lossless frames are
+    /// kept in the resend window's reused buffers).
     fn forward_down(&mut self, now: Instant) -> bool {
         if self.proxies.is_empty() || self.lost() {
             return false;
         }
-        let mut frames: Vec<(bool, Vec<u8>)> = Vec::new();
-        let ids = self.ids.clone();
-        let (mut last_control, mut last_relay) = (self.last_control, self.last_relay);
-        for (i, proxy) in self.proxies.values().enumerate() {
+        let up = self.watch.state() == LinkState::Up;
+        let Host {
+            ids,
+            tx,
+            out,
+            proxies,
+            last_control,
+            last_relay,
+            name,
+            ..
+        } = self;
+        let mut any = false;
+        let mut overflow = None;
+        for (i, proxy) in proxies.values().enumerate() {
             let reader = i == 0;
             drain::<Control>(&proxy.bus, |c| {
                 let mine = c.robot_id == ROBOT_ID_ALL || ids.contains(&c.robot_id);
                 if mine && last_control.is_none_or(|s| c.seq > s) {
-                    last_control = Some(c.seq);
-                    frames.push((true, wire::data_frame(c, 0)));
+                    *last_control = Some(c.seq);
+                    any = true;
+                    if let Err(e) = tx.lossless(up, out, c, now) {
+                        overflow = Some(e);
+                    }
                 }
             });
             drain::<DiscoveryRelay>(&proxy.bus, |r| {
                 if last_relay.is_none_or(|s| r.relay_seq > s) {
-                    last_relay = Some(r.relay_seq);
-                    frames.push((true, wire::data_frame(r, 0)));
+                    *last_relay = Some(r.relay_seq);
+                    any = true;
+                    if let Err(e) = tx.lossless(up, out, r, now) {
+                        overflow = Some(e);
+                    }
                 }
             });
             drain::<MergedHintBatch>(&proxy.bus, |m| {
                 if reader {
-                    frames.push((false, wire::data_frame(m, 0)));
+                    any = true;
+                    tx.latest(up, m);
                 }
             });
             drain::<DiscoveryAck>(&proxy.bus, |a| {
                 if reader && ids.contains(&a.robot_id) {
-                    frames.push((false, wire::data_frame(a, 0)));
+                    any = true;
+                    tx.latest(up, a);
                 }
             });
         }
-        (self.last_control, self.last_relay) = (last_control, last_relay);
-        let any = !frames.is_empty();
-        for (lossless, mut f) in frames {
-            if lossless {
-                let pushed = self.out.push(now, |seq| {
-                    f[8..16].copy_from_slice(&seq.to_le_bytes());
-                    f
-                });
-                match pushed {
-                    Ok(f) => {
-                        let f = f.to_vec();
-                        self.send(&f);
-                    }
-                    Err(e) => eprintln!("qfleet: warning: host {}: {e}", self.name),
-                }
-            } else {
-                self.send(&f);
-            }
+        if let Some(e) = overflow {
+            eprintln!("qfleet: warning: host {name}: {e}");
         }
         any
     }
 
-    fn send(&mut self, frame: &[u8]) {
-        if self.watch.state() == LinkState::Up && link::put(&self.publisher, frame) {
-            self.report.frames_out += 1;
-        }
-    }
-
     fn resend(&mut self, now: Instant, force: bool) {
-        let due: Vec<Vec<u8>> = self.out.due(now, force).map(<[u8]>::to_vec).collect();
-        for f in due {
-            self.send(&f);
-        }
+        let up = self.watch.state() == LinkState::Up;
+        self.tx.resend(up, &mut self.out, now, force);
     }
 
     /// Heartbeat, resends, and the link's state.
@@ -619,17 +711,18 @@ impl Host {
                 gone: Vec::new(),
             };
             // heartbeats go even while the link looks down: they are how it comes back
-            if link::put(&self.publisher, &wire::heartbeat_frame(&hb)) {
-                self.report.frames_out += 1;
-            }
+            self.tx.send(true, &wire::heartbeat_frame(&hb));
         }
         self.resend(now, false);
     }
 
-    fn wake(&mut self) {
+    /// Notifies the coordinator of what was written into the proxies; whether anything was.
+    fn wake(&mut self) -> bool {
+        let mut any = false;
         for p in self.proxies.values_mut() {
             let b = &p.bus;
             let w = std::mem::take(&mut p.wake);
+            any |= w.contains(&true);
             let r = [
                 w[0].then(|| b.register.notify()),
                 w[1].then(|| b.state.notify()),
@@ -639,19 +732,21 @@ impl Host {
             ];
             drop(r);
         }
+        any
     }
 
     fn into_report(self) -> HostReport {
         let mut r = self.report;
+        r.link.frames_out = self.tx.frames_out;
         r.state = Some(self.watch.state());
-        r.reconnects = self.watch.reconnects;
-        r.down_ms = self.watch.down_for.as_millis() as u64;
-        r.clock_offset_ns = self.clock.offset_ns();
-        r.best_rtt_ns = self.clock.best_rtt_ns().unwrap_or(0);
-        r.rtt_ns = Percentiles::of(&self.rtt);
-        r.one_way_in_ns = Percentiles::of(&self.one_way);
-        r.resent = self.out.resent;
-        r.duplicates = self.inc.duplicates;
+        r.link.reconnects = self.watch.reconnects;
+        r.link.down_ms = self.watch.down_for.as_millis() as u64;
+        r.link.clock_offset_ns = self.clock.offset_ns();
+        r.link.best_rtt_ns = self.clock.best_rtt_ns().unwrap_or(0);
+        r.link.rtt_ns = Percentiles::of(&self.rtt);
+        r.link.one_way_in_ns = Percentiles::of(&self.one_way);
+        r.link.resent = self.out.resent;
+        r.link.duplicates = self.inc.duplicates;
         r
     }
 }

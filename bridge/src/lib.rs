@@ -36,7 +36,7 @@ pub use hub::{Hub, HubOptions, HubReport};
 pub use join::{JoinPlan, JoinReply, JoinRequest, RemotePlan};
 pub use link::Tuning;
 pub use remote::{Ending, Joiner, request};
-pub use stats::{HostReport, Percentiles};
+pub use stats::{HostEntry, HostLink, HostReport, HostState, Percentiles};
 
 /// How often each side sends a heartbeat (acks, clock echo, robots gone).
 pub const HEARTBEAT_EVERY: Duration = Duration::from_millis(50);

@@ -6,12 +6,15 @@
 //! joining host does not listen at all. Zenoh's own reliability (TCP) carries frames while a
 //! session lasts; what a broken session loses, [`crate::reliable`] resends.
 
-use std::time::Duration;
+use std::sync::mpsc::{Receiver, sync_channel};
+use std::time::{Duration, Instant};
 
 use zenoh::Wait;
 use zenoh::qos::{CongestionControl, Priority};
 
 use crate::BridgeError;
+use crate::reliable::{Outgoing, Overflow};
+use crate::wire;
 
 /// Zenoh settings that move the link's latency (measured by `qfleet bench`, BENCHMARKS.md
 /// "Across machines").
@@ -129,21 +132,169 @@ pub fn publisher(
 /// Subscriber channel depth: a burst of this many frames waits in memory for the bridge loop.
 pub const SUBSCRIBER_DEPTH: usize = 1 << 14;
 
+/// A Zenoh handler (`.with(…)` of a subscriber or queryable): Zenoh's callback pushes each item
+/// into a channel of `depth` (waiting while it is full, as Zenoh's FIFO handler does), then
+/// wakes the bridge loop's `WaitSet` through `waker`; the loop reads the returned receiver.
+pub fn waking<T: Send + 'static>(
+    depth: usize,
+    waker: bus::Waker,
+) -> (impl Fn(T) + Send + Sync + 'static, Receiver<T>) {
+    let (tx, rx) = sync_channel(depth);
+    let push = move |t: T| {
+        if tx.send(t).is_ok() {
+            waker.wake();
+        }
+    };
+    (push, rx)
+}
+
 /// Publishes one frame; a failure is returned for counting (the frame is resent if lossless).
+/// Zenoh takes its payload owned: this is the one copy of a frame per publish.
 pub fn put(publisher: &zenoh::pubsub::Publisher<'static>, frame: &[u8]) -> bool {
     publisher.put(frame.to_vec()).wait().is_ok()
 }
 
-/// How long an idle bridge loop waits for the next frame before it looks at its host's bus
-/// again (what a message from a local process may wait for the bridge, at most).
-pub const IDLE_WAIT: Duration = Duration::from_micros(100);
+/// One side's sending end of a link: the publisher, a frame buffer reused for every message,
+/// and the count of frames that went out.
+pub struct Tx {
+    publisher: zenoh::pubsub::Publisher<'static>,
+    scratch: Vec<u8>,
+    /// Frames published.
+    pub frames_out: u64,
+}
+
+impl Tx {
+    /// Sends on `publisher`.
+    pub fn new(publisher: zenoh::pubsub::Publisher<'static>) -> Self {
+        Tx {
+            publisher,
+            scratch: Vec::new(),
+            frames_out: 0,
+        }
+    }
+
+    /// Publishes `frame` if the link is `up` (heartbeats go regardless: pass `true`).
+    pub fn send(&mut self, up: bool, frame: &[u8]) {
+        if up && put(&self.publisher, frame) {
+            self.frames_out += 1;
+        }
+    }
+
+    /// Publishes a latest-wins message (sent once, may drop).
+    pub fn latest<T: bus::Message>(&mut self, up: bool, m: &T) {
+        wire::write_data_frame(&mut self.scratch, m, 0);
+        if up && put(&self.publisher, &self.scratch) {
+            self.frames_out += 1;
+        }
+    }
+
+    /// Numbers a lossless message in `out` (kept there until acknowledged) and publishes it.
+    pub fn lossless<T: bus::Message>(
+        &mut self,
+        up: bool,
+        out: &mut Outgoing,
+        m: &T,
+        now: Instant,
+    ) -> Result<(), Overflow> {
+        let f = out.push_with(now, |seq, buf| wire::write_data_frame(buf, m, seq))?;
+        if up && put(&self.publisher, f) {
+            self.frames_out += 1;
+        }
+        Ok(())
+    }
+
+    /// Publishes again what `out` says is due (see [`Outgoing::due`]).
+    pub fn resend(&mut self, up: bool, out: &mut Outgoing, now: Instant, force: bool) {
+        for f in out.due(now, force) {
+            if up && put(&self.publisher, f) {
+                self.frames_out += 1;
+            }
+        }
+    }
+}
+
+/// After a message moved, a bridge loop keeps looking at both sides (yielding its CPU between
+/// looks) this long before it waits.
+pub const SPIN_AFTER: Duration = Duration::from_micros(100);
+
+/// After the hub wrote something into the coordinator's inboxes, it looks for the answer every
+/// [`REPLY_NAP`] for this long before it blocks: the coordinator sends merged hints and
+/// discovery acks without notifying (so no `WaitSet` wakes on them), in answer to what it was
+/// just given.
+pub const REPLY_WINDOW: Duration = Duration::from_millis(2);
+
+/// The hub's nap between looks inside [`REPLY_WINDOW`] (a sleep, not a `WaitSet` wait: those
+/// wait in whole milliseconds).
+pub const REPLY_NAP: Duration = Duration::from_micros(50);
+
+/// The spin time in use: [`SPIN_AFTER`] unless `QFLEET_BRIDGE_SPIN_US` says otherwise
+/// (measurement only).
+pub fn spin_after() -> Duration {
+    static SPIN: std::sync::OnceLock<Duration> = std::sync::OnceLock::new();
+    *SPIN.get_or_init(|| {
+        std::env::var("QFLEET_BRIDGE_SPIN_US")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .map_or(SPIN_AFTER, Duration::from_micros)
+    })
+}
+
+/// Whether the joining side naps for the hub's answer too (`QFLEET_BRIDGE_JOIN_NAPS=0` turns it
+/// off; measurement only).
+pub fn reply_naps() -> bool {
+    static NAPS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *NAPS.get_or_init(|| std::env::var("QFLEET_BRIDGE_JOIN_NAPS").map_or(true, |v| v != "0"))
+}
+
+/// While messages move, the longest a blocked bridge loop waits before it looks at its host's
+/// bus again for messages whose sender did not notify (an iceoryx2 `WaitSet` waits in whole
+/// milliseconds).
+pub const POLL_WHILE_ACTIVE: Duration = Duration::from_millis(1);
+
+/// How long after the last message the loop keeps that poll; then it blocks until an event
+/// (a notified message, a frame, a join) or the next heartbeat.
+pub const ACTIVE_FOR: Duration = Duration::from_secs(1);
+
+/// How long a bridge loop may block now: until the next periodic work is `due`, shortened to
+/// [`POLL_WHILE_ACTIVE`] within [`ACTIVE_FOR`] of the last message (`last_data`).
+pub fn wait_for(now: Instant, due: Instant, last_data: Instant) -> Duration {
+    let until = due.saturating_duration_since(now);
+    if now.duration_since(last_data) < ACTIVE_FOR {
+        until.min(POLL_WHILE_ACTIVE)
+    } else {
+        until
+    }
+}
 
 /// Makes this thread's timed waits end on time: Linux lets a sleeping thread's wakeup slip by
-/// its timer slack (50 µs by default), which the bridge's short idle waits would pay on every
-/// hop. Best effort: without it the waits are only later.
+/// its timer slack (50 µs by default), which the hub's [`REPLY_NAP`]s would pay on every look.
+/// Best effort: without it the waits are only later.
 pub fn tighten_timer_slack() {
     // SAFETY: prctl(PR_SET_TIMERSLACK) changes only the calling thread's timer slack
     unsafe {
         libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_blocked_loop_polls_each_millisecond_while_messages_move_and_sleeps_to_the_heartbeat_after()
+    {
+        let now = Instant::now();
+        let beat = now + Duration::from_millis(40);
+        // messages moved just now: the un-notified ones are looked for every millisecond
+        assert_eq!(wait_for(now, beat, now), POLL_WHILE_ACTIVE);
+        // quiet for longer than ACTIVE_FOR: only the heartbeat wakes it
+        let quiet = now - ACTIVE_FOR;
+        assert_eq!(wait_for(now, beat, quiet), Duration::from_millis(40));
+        // work already due: no wait at all
+        assert_eq!(wait_for(now, now, quiet), Duration::ZERO);
+        assert_eq!(
+            wait_for(now + Duration::from_millis(1), now, now),
+            Duration::ZERO
+        );
     }
 }

@@ -21,11 +21,16 @@ pub const RESEND_AFTER: Duration = Duration::from_millis(300);
 /// of growing without bound (a peer that never acks is lost long before this).
 pub const MAX_KEPT: usize = 1 << 20;
 
+/// Most buffers of acknowledged frames kept for reuse.
+const MAX_SPARE: usize = 1024;
+
 /// The sending half of one lossless stream.
 #[derive(Debug, Default)]
 pub struct Outgoing {
     next: u64,
     kept: VecDeque<(u64, Vec<u8>)>,
+    /// Buffers of acknowledged frames, reused by [`Outgoing::push_with`].
+    spare: Vec<Vec<u8>>,
     last_send: Option<Instant>,
     /// Frames sent again (each resend of each frame counts).
     pub resent: u64,
@@ -66,11 +71,31 @@ impl Outgoing {
         Ok(self.kept.back().map_or(&[][..], |(_, f)| f.as_slice()))
     }
 
+    /// Numbers a frame written by `fill(seq, buf)` into a reused buffer (cleared; one of an
+    /// acknowledged frame when there is one, so a steady stream allocates nothing); it is kept
+    /// and returned for sending now.
+    pub fn push_with(
+        &mut self,
+        now: Instant,
+        fill: impl FnOnce(u64, &mut Vec<u8>),
+    ) -> Result<&[u8], Overflow> {
+        let mut buf = self.spare.pop().unwrap_or_default();
+        buf.clear();
+        self.push(now, |seq| {
+            fill(seq, &mut buf);
+            buf
+        })
+    }
+
     /// The peer has every frame with seq `< acked`: forget them.
     pub fn ack(&mut self, acked: u64, now: Instant) {
         let before = self.kept.len();
         while self.kept.front().is_some_and(|(s, _)| *s < acked) {
-            self.kept.pop_front();
+            if let Some((_, f)) = self.kept.pop_front()
+                && self.spare.len() < MAX_SPARE
+            {
+                self.spare.push(f);
+            }
         }
         if self.kept.len() != before {
             // progress: the remaining frames get a fresh wait
@@ -186,6 +211,29 @@ mod tests {
         assert_eq!(out.unacked(), 0);
         assert_eq!(out.resent, 7);
         assert_eq!(inc.gaps, 3);
+    }
+
+    #[test]
+    fn acknowledged_frames_lend_their_buffers_to_the_next_ones() {
+        let t0 = Instant::now();
+        let mut out = Outgoing::default();
+        let first = out
+            .push_with(t0, |seq, b| b.extend_from_slice(&seq.to_le_bytes()))
+            .unwrap()
+            .as_ptr();
+        out.ack(1, t0);
+        let next = out
+            .push_with(t0, |seq, b| {
+                assert!(b.is_empty(), "a reused buffer starts empty");
+                b.extend_from_slice(&seq.to_le_bytes());
+            })
+            .unwrap();
+        assert_eq!(seq_of(next), 1);
+        assert_eq!(
+            next.as_ptr(),
+            first,
+            "the acknowledged frame's buffer was not reused"
+        );
     }
 
     #[test]

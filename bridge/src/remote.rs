@@ -11,22 +11,25 @@
 
 use std::collections::{BTreeSet, VecDeque};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::Receiver;
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::{
     Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
     QHintBatch, Register, RobotState, Topic,
 };
-use bus::{BusConfig, BusError, CoordinatorBus, check_nodes, monotonic_ns};
+use bus::iceoryx2::prelude::{CallbackProgression, SignalHandlingMode, WaitSetBuilder, ipc};
+use bus::{
+    BusConfig, BusError, CoordinatorBus, WakeListener, check_nodes, monotonic_ns, wake_pair,
+};
 use hdrhistogram::Histogram;
 use zenoh::Wait;
-use zenoh::handlers::{FifoChannel, FifoChannelHandler};
-use zenoh::pubsub::{Publisher, Subscriber};
+use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
 
 use crate::health::{ClockSync, LinkEvent, LinkState, LinkWatch};
 use crate::join::{JOIN_KEY, JoinPlan, JoinReply, JoinRequest};
-use crate::link::{self, Tuning};
+use crate::link::{self, Tuning, Tx};
 use crate::reliable::{Arrival, Incoming, Outgoing};
 use crate::stats::{HostReport, Percentiles, new_hist, record};
 use crate::topics::{FromRobot, ToRobot};
@@ -93,14 +96,18 @@ pub struct Joiner {
     session: zenoh::Session,
     plan: JoinPlan,
     bus: CoordinatorBus,
-    publisher: Publisher<'static>,
-    frames: Subscriber<FifoChannelHandler<Sample>>,
+    tx: Tx,
+    frames: Subscriber<Receiver<Sample>>,
+    /// Rung by the subscriber's callback after each frame (taken by [`Joiner::serve`]).
+    wakes: Option<WakeListener>,
     out: Outgoing,
     inc: Incoming,
     watch: LinkWatch,
     clock: ClockSync,
     echo: (u64, u64),
     deliver: VecDeque<Vec<u8>>,
+    /// Buffers of delivered frames, reused for the next ones.
+    spare: Vec<Vec<u8>>,
     seen: BTreeSet<u32>,
     gone: BTreeSet<u32>,
     rtt: Histogram<u64>,
@@ -138,9 +145,10 @@ impl Joiner {
         cfg.validate()?;
         let bus = CoordinatorBus::create(&cfg)?;
         let publisher = link::publisher(&session, up_key(&plan.run_id, plan.host_index), tuning)?;
+        let (waker, wakes) = wake_pair()?;
         let frames = session
             .declare_subscriber(down_key(&plan.run_id, plan.host_index))
-            .with(FifoChannel::new(link::SUBSCRIBER_DEPTH))
+            .with(link::waking(link::SUBSCRIBER_DEPTH, waker))
             .wait()
             .map_err(|e| BridgeError::Zenoh {
                 what: "subscribing to the coordinator's host".into(),
@@ -162,14 +170,16 @@ impl Joiner {
             session,
             plan,
             bus,
-            publisher,
+            tx: Tx::new(publisher),
             frames,
+            wakes: Some(wakes),
             out: Outgoing::default(),
             inc: Incoming::default(),
             watch,
             clock,
             echo: (0, 0),
             deliver: VecDeque::new(),
+            spare: Vec::new(),
             seen: BTreeSet::new(),
             gone: BTreeSet::new(),
             rtt: new_hist(),
@@ -191,29 +201,47 @@ impl Joiner {
         stop: &AtomicBool,
         mut robots_done: impl FnMut() -> bool,
     ) -> Result<Ending, BridgeError> {
+        let waitset_error = |e: &dyn std::fmt::Debug| {
+            BridgeError::Bus(BusError::Event {
+                service: "WaitSet".into(),
+                detail: format!("{e:?}"),
+            })
+        };
+        // iceoryx2's own SIGINT/SIGTERM handler would replace the process's: keep it off
+        let waitset = WaitSetBuilder::new()
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .map_err(|e| waitset_error(&e))?;
+        let wakes = self
+            .wakes
+            .take()
+            .ok_or_else(|| BridgeError::Link("served twice".into()))?;
+        let wake_guard = wakes.attach(&waitset)?;
         let mut last_beat = Instant::now() - HEARTBEAT_EVERY;
         let mut last_list = Instant::now();
-        let mut idle_since = Instant::now();
+        let spin = link::spin_after();
+        let mut last_busy = Instant::now();
+        let mut last_data = Instant::now() - link::ACTIVE_FOR;
         let mut done_at: Option<Instant> = None;
-        // a frame that ended an idle wait, handled first in the next round
-        let mut woken: Option<Sample> = None;
+        let mut expect_until = Instant::now();
         link::tighten_timer_slack();
         let ending = loop {
             let now = Instant::now();
             let mut busy = false;
             let mut over = false;
             for _ in 0..4096 {
-                let Some(sample) = woken
-                    .take()
-                    .or_else(|| self.frames.try_recv().ok().flatten())
-                else {
+                let Ok(sample) = self.frames.try_recv() else {
                     break;
                 };
                 busy = true;
                 over |= self.on_frame(&sample.payload().to_bytes(), now);
             }
-            busy |= self.deliver_in_order();
-            busy |= self.forward_up(now)?;
+            let mut data = self.deliver_in_order();
+            if self.forward_up(now)? {
+                data = true;
+                // the coordinator's answer (merged hints, acks, relays) comes back over the link
+                expect_until = now + link::REPLY_WINDOW;
+            }
             self.wake_robots();
             if now.duration_since(last_list) >= LIST_EVERY {
                 last_list = now;
@@ -231,10 +259,8 @@ impl Joiner {
                 last_beat = now;
                 self.heartbeat();
             }
-            let due: Vec<Vec<u8>> = self.out.due(now, false).map(<[u8]>::to_vec).collect();
-            for f in due {
-                self.send(&f);
-            }
+            let up = self.watch.state() == LinkState::Up;
+            self.tx.resend(up, &mut self.out, now, false);
             if over {
                 break Ending::RunOver;
             }
@@ -248,17 +274,42 @@ impl Joiner {
                     break Ending::Done;
                 }
             }
-            if busy {
-                idle_since = now;
-            } else if now.duration_since(idle_since) > Duration::from_micros(100) {
-                // a frame ends the wait at once; the bus is looked at between slices
-                woken = self.frames.recv_timeout(link::IDLE_WAIT).ok().flatten();
-            } else {
-                std::thread::yield_now();
+            if data {
+                last_data = now;
             }
+            if busy || data {
+                last_busy = now;
+                continue;
+            }
+            // idle: keep looking a little, then block on the WaitSet until a frame, a robot's
+            // notified message, or the next heartbeat / robot listing
+            if now.duration_since(last_busy) < spin {
+                std::thread::yield_now();
+                continue;
+            }
+            if now < expect_until && link::reply_naps() {
+                std::thread::sleep(link::REPLY_NAP);
+                continue;
+            }
+            let due = (last_beat + HEARTBEAT_EVERY).min(last_list + LIST_EVERY);
+            let timeout = link::wait_for(now, due, last_data);
+            if timeout.is_zero() {
+                continue;
+            }
+            {
+                let _guards = self.bus.attach_all(&waitset)?;
+                waitset
+                    .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, timeout)
+                    .map_err(|e| waitset_error(&e))?;
+            }
+            // before the channel is drained: whatever is pushed after this wakes the next wait
+            wakes.clear();
+            self.bus.clear_wakeups()?;
         };
+        drop(wake_guard);
+        self.wakes = Some(wakes);
         if ending != Ending::Lost {
-            let _ = link::put(&self.publisher, &wire::goodbye_frame());
+            self.tx.send(true, &wire::goodbye_frame());
         }
         Ok(ending)
     }
@@ -267,16 +318,17 @@ impl Joiner {
     pub fn finish(self) -> HostReport {
         let mut r = self.report;
         r.state = Some(self.watch.state());
-        r.reconnects = self.watch.reconnects;
-        r.down_ms = self.watch.down_for.as_millis() as u64;
-        r.clock_offset_ns = self.clock.offset_ns();
-        r.best_rtt_ns = self.clock.best_rtt_ns().unwrap_or(0);
-        r.rtt_ns = Percentiles::of(&self.rtt);
-        r.one_way_in_ns = Percentiles::of(&self.one_way);
-        r.resent = self.out.resent;
-        r.duplicates = self.inc.duplicates;
+        r.link.reconnects = self.watch.reconnects;
+        r.link.down_ms = self.watch.down_for.as_millis() as u64;
+        r.link.clock_offset_ns = self.clock.offset_ns();
+        r.link.best_rtt_ns = self.clock.best_rtt_ns().unwrap_or(0);
+        r.link.rtt_ns = Percentiles::of(&self.rtt);
+        r.link.one_way_in_ns = Percentiles::of(&self.one_way);
+        r.link.resent = self.out.resent;
+        r.link.duplicates = self.inc.duplicates;
+        r.link.frames_out = self.tx.frames_out;
         drop(self.frames);
-        drop(self.publisher);
+        drop(self.tx);
         let _ = self.bus.close();
         let _ = self.session.close().wait();
         r
@@ -284,22 +336,20 @@ impl Joiner {
 
     /// Handles one frame; true when the hub said goodbye.
     fn on_frame(&mut self, frame: &[u8], now: Instant) -> bool {
-        self.report.frames_in += 1;
+        self.report.link.frames_in += 1;
         let Ok(h) = wire::header(frame) else {
-            self.report.rejected += 1;
+            self.report.link.rejected += 1;
             return false;
         };
         if let Some(LinkEvent::CameBack) = self.watch.heard(now) {
             eprintln!("qfleet join: the coordinator's host is back; resending what it missed");
-            let due: Vec<Vec<u8>> = self.out.due(now, true).map(<[u8]>::to_vec).collect();
-            for f in due {
-                self.send(&f);
-            }
+            let up = self.watch.state() == LinkState::Up;
+            self.tx.resend(up, &mut self.out, now, true);
         }
         match h.kind {
             Kind::Heartbeat => {
                 let Ok(hb) = serde_json::from_slice::<Heartbeat>(&frame[HEADER..]) else {
-                    self.report.rejected += 1;
+                    self.report.link.rejected += 1;
                     return false;
                 };
                 let t = monotonic_ns();
@@ -311,7 +361,10 @@ impl Joiner {
             }
             Kind::Lossless => {
                 if self.inc.arrive(h.seq) == Arrival::Next {
-                    self.deliver.push_back(frame.to_vec());
+                    let mut buf = self.spare.pop().unwrap_or_default();
+                    buf.clear();
+                    buf.extend_from_slice(frame);
+                    self.deliver.push_back(buf);
                 }
             }
             Kind::Latest => {
@@ -325,14 +378,18 @@ impl Joiner {
     fn deliver_in_order(&mut self) -> bool {
         let mut any = false;
         while let Some(frame) = self.deliver.pop_front() {
-            let Ok(h) = wire::header(&frame) else {
-                continue;
+            let later = match wire::header(&frame) {
+                Ok(h) => self.put(h.topic, &frame[HEADER..]) == Some(false),
+                Err(_) => false,
             };
-            if self.put(h.topic, &frame[HEADER..]) == Some(false) {
+            if later {
                 self.deliver.push_front(frame);
                 break;
             }
             any = true;
+            if self.spare.len() < 1024 {
+                self.spare.push(frame);
+            }
         }
         any
     }
@@ -346,7 +403,7 @@ impl Joiner {
             Topic::Ack => self.put_as::<DiscoveryAck>(payload, 2),
             Topic::Relay => self.put_as::<DiscoveryRelay>(payload, 3),
             _ => {
-                self.report.rejected += 1;
+                self.report.link.rejected += 1;
                 None
             }
         }
@@ -355,7 +412,7 @@ impl Joiner {
     fn put_as<T: ToRobot>(&mut self, payload: &[u8], slot: usize) -> Option<bool> {
         let mut m = T::default();
         if wire::read_into(payload, &mut m).is_err() {
-            self.report.rejected += 1;
+            self.report.link.rejected += 1;
             return None;
         }
         m.shift(self.clock.to_local());
@@ -373,7 +430,7 @@ impl Joiner {
             Err(BusError::NoSubscriber { .. }) => None,
             Err(_) if T::TOPIC.delivery() == bus::bus_schema::Delivery::Lossless => Some(false),
             Err(_) => {
-                self.report.dropped += 1;
+                self.report.link.dropped += 1;
                 None
             }
         }
@@ -391,44 +448,34 @@ impl Joiner {
         drop(r);
     }
 
-    /// Reads what the robots sent and publishes it to the hub.
+    /// Reads what the robots sent and publishes it to the hub straight from shared memory
+    /// (one reused frame buffer; lossless frames are kept in the resend window's reused
+    /// buffers).
     fn forward_up(&mut self, now: Instant) -> Result<bool, BridgeError> {
-        let mut frames: Vec<(bool, Vec<u8>)> = Vec::new();
+        let up_now = self.watch.state() == LinkState::Up;
+        let Joiner { bus, tx, out, .. } = self;
+        let mut sent = Sent {
+            tx,
+            out,
+            up: up_now,
+            now,
+            any: false,
+            overflow: None,
+        };
         let mut registered = false;
-        let bus = &self.bus;
-        up::<Register>(bus, &mut frames, |_| registered = true);
+        up::<Register>(bus, &mut sent, |_| registered = true);
         if registered {
             // the start handshake: connect to the new robot's publishers before it sends
             // anything lossless (the coordinator does this when it admits a robot)
             bus.connect_all()?;
         }
-        up::<RobotState>(bus, &mut frames, |_| {});
-        up::<PseudoTargetDiscovery>(bus, &mut frames, |_| {});
-        up::<QHintBatch>(bus, &mut frames, |_| {});
-        up::<FinalReport>(bus, &mut frames, |_| {});
-        let any = !frames.is_empty();
-        for (lossless, mut f) in frames {
-            if lossless {
-                match self.out.push(now, |seq| {
-                    f[8..16].copy_from_slice(&seq.to_le_bytes());
-                    f
-                }) {
-                    Ok(f) => {
-                        let f = f.to_vec();
-                        self.send(&f);
-                    }
-                    Err(e) => return Err(BridgeError::Link(e.to_string())),
-                }
-            } else {
-                self.send(&f);
-            }
-        }
-        Ok(any)
-    }
-
-    fn send(&mut self, frame: &[u8]) {
-        if self.watch.state() == LinkState::Up && link::put(&self.publisher, frame) {
-            self.report.frames_out += 1;
+        up::<RobotState>(bus, &mut sent, |_| {});
+        up::<PseudoTargetDiscovery>(bus, &mut sent, |_| {});
+        up::<QHintBatch>(bus, &mut sent, |_| {});
+        up::<FinalReport>(bus, &mut sent, |_| {});
+        match sent.overflow {
+            Some(e) => Err(BridgeError::Link(e.to_string())),
+            None => Ok(sent.any),
         }
     }
 
@@ -446,9 +493,7 @@ impl Joiner {
             sent: self.out.next_seq(),
             gone: self.gone.iter().copied().collect(),
         };
-        if link::put(&self.publisher, &wire::heartbeat_frame(&hb)) {
-            self.report.frames_out += 1;
-        }
+        self.tx.send(true, &wire::heartbeat_frame(&hb));
     }
 
     /// Lists this host's robot nodes (cleaning up after dead ones): a robot seen before and
@@ -470,15 +515,26 @@ impl Joiner {
     }
 }
 
-/// Drains one robot topic into frames.
-fn up<T: FromRobot>(
-    bus: &CoordinatorBus,
-    frames: &mut Vec<(bool, Vec<u8>)>,
-    mut seen: impl FnMut(&T),
-) {
+/// Where [`up`] publishes: the link's sending end and lossless window, and what happened.
+struct Sent<'a> {
+    tx: &'a mut Tx,
+    out: &'a mut Outgoing,
+    up: bool,
+    now: Instant,
+    any: bool,
+    overflow: Option<crate::reliable::Overflow>,
+}
+
+/// Drains one robot topic and publishes each message.
+fn up<T: FromRobot>(bus: &CoordinatorBus, sent: &mut Sent<'_>, mut seen: impl FnMut(&T)) {
     let lossless = T::TOPIC.delivery() == bus::bus_schema::Delivery::Lossless;
     let _ = T::inbox(bus).drain(usize::MAX, |m| {
         seen(m);
-        frames.push((lossless, wire::data_frame(m, 0)));
+        sent.any = true;
+        if !lossless {
+            sent.tx.latest(sent.up, m);
+        } else if let Err(e) = sent.tx.lossless(sent.up, sent.out, m, sent.now) {
+            sent.overflow = Some(e);
+        }
     });
 }

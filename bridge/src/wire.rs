@@ -111,19 +111,26 @@ pub fn header(frame: &[u8]) -> Result<Header, FrameError> {
 
 /// A data frame for `msg`: header, then the message's bytes.
 pub fn data_frame<T: Message>(msg: &T, seq: u64) -> Vec<u8> {
+    let mut out = Vec::with_capacity(HEADER + size_of::<T>());
+    write_data_frame(&mut out, msg, seq);
+    out
+}
+
+/// Writes [`data_frame`]`(msg, seq)` into `out` (cleared first; no allocation once `out` has
+/// grown to the largest message).
+pub fn write_data_frame<T: Message>(out: &mut Vec<u8>, msg: &T, seq: u64) {
     let kind = match T::TOPIC.delivery() {
         bus::bus_schema::Delivery::Lossless => Kind::Lossless,
         bus::bus_schema::Delivery::LatestWins => Kind::Latest,
     };
-    let mut out = Vec::with_capacity(HEADER + size_of::<T>());
-    put_header(&mut out, kind, T::TOPIC, seq);
+    out.clear();
+    put_header(out, kind, T::TOPIC, seq);
     // SAFETY: `T: Message` is a `#[repr(C)]` bus-schema type whose padding is spelled out as
     // zeroed fields (checked by bus-schema's layout test), so all `size_of::<T>()` bytes are
     // initialised and may be read as `u8`.
     let bytes =
         unsafe { std::slice::from_raw_parts((msg as *const T).cast::<u8>(), size_of::<T>()) };
     out.extend_from_slice(bytes);
-    out
 }
 
 /// Copies a payload into `dst` (e.g. a loaned shared-memory slot); the size must match.

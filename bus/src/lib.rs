@@ -163,6 +163,7 @@ pub mod limits;
 mod liveness;
 mod observer;
 mod topic;
+mod wake;
 
 pub use bus_schema;
 pub use iceoryx2;
@@ -188,3 +189,4 @@ pub use topic::{
     Batch, EVENT_DATA, EVENT_PEER_DEAD, FLEET_PORT_NAME, Inbox, Message, OBSERVER_PORT_NAME,
     Outbox, TopicLimits, Wakeups, control_buffer, limits,
 };
+pub use wake::{WakeListener, Waker, wake_pair};

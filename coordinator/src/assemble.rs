@@ -215,6 +215,8 @@ pub(crate) fn run_result(
         rejected: e.rejected,
         interrupted,
         elapsed_s,
+        // robots on other hosts are `qfleet run`'s to add
+        hosts: Vec::new(),
     }
 }
 

@@ -274,6 +274,8 @@ fn drive(
         coordinator_restarts: cp.restarts(),
         interrupted,
         wall_s: monotonic_ns().saturating_sub(cp.began_ns) as f64 / 1e9,
+        // robots on other hosts are `qfleet experiment`'s to add
+        hosts: Vec::new(),
     })
 }
 

@@ -9,6 +9,8 @@
 //!   and writes them ([`OutDir`]);
 //! - [`run`]: what the coordinator reports about a run or an experiment ([`RunResult`],
 //!   [`ExperimentResult`], [`RobotOutcome`], [`LivenessEvent`]);
+//! - [`hosts`]: which host each robot ran on and the link to each joined host ([`HostEntry`],
+//!   [`HostLink`]), the `hosts` of a result across machines;
 //! - [`checkpoint`]: what a restarted coordinator resumes from ([`CoordinatorCheckpoint`]);
 //! - [`atomic`]: the one writer ([`write_atomic`]: temp file, `fsync`, rename), whose errors
 //!   name the file and keep the OS error (a full disk is an error, never a panic).
@@ -19,6 +21,7 @@
 pub mod atomic;
 pub mod checkpoint;
 pub mod hist;
+pub mod hosts;
 pub mod outdir;
 pub mod robot;
 pub mod run;
@@ -29,6 +32,7 @@ pub use atomic::{
 };
 pub use checkpoint::{CoordinatorCheckpoint, NotResumed, RobotCheckpoint};
 pub use hist::{HistError, LatencyStats};
+pub use hosts::{HostEntry, HostLink, HostState, LinkPercentiles};
 pub use outdir::{LatencyPath, OutDir, OutFile, ReadError, RobotHist};
 pub use robot::{ApplyCounters, Counters, EndStatus, LinkCounters, PhaseDetail, RobotResult};
 pub use run::{

@@ -10,6 +10,7 @@ use clap::ValueEnum;
 use serde::{Deserialize, Serialize};
 
 use crate::hist::LatencyStats;
+use crate::hosts::HostEntry;
 
 /// How the coordinator waits for messages.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
@@ -293,6 +294,10 @@ pub struct RunResult {
     pub interrupted: bool,
     /// Wall time of the whole coordinator run, s.
     pub elapsed_s: f64,
+    /// Where the robots ran, with the coordinator's host first, for a run with robots on other
+    /// hosts (filled in by `qfleet run`; empty, and not written, on one host).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub hosts: Vec<HostEntry>,
 }
 
 /// One robot's result in one phase.
@@ -430,6 +435,10 @@ pub struct ExperimentResult {
     pub interrupted: bool,
     /// Wall time, s.
     pub wall_s: f64,
+    /// Where the robots ran, with the coordinator's host first, for an experiment with robots
+    /// on other hosts (filled in by `qfleet experiment`; empty, and not written, on one host).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub hosts: Vec<HostEntry>,
 }
 
 #[cfg(test)]

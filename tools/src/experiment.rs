@@ -343,9 +343,10 @@ pub fn run_once(
     // the watch leaves the run before its files are removed (its node is one of them)
     let watched = watch.map(crate::live::finish).transpose();
     // the hub's proxies are nodes of this run: gone before its files are removed
-    if let Err(e) = crate::join::finish_hub(hub, out, local) {
+    let hosts = crate::join::finish_hub(hub, out).unwrap_or_else(|e| {
         term::warn(&format!("warning: {e:#}"));
-    }
+        None
+    });
     // whatever happened: no file of the run may stay behind
     crate::launch::clean_up(run_id);
     watched?;
@@ -370,16 +371,11 @@ pub fn run_once(
     let mut result: ExperimentResult = dir
         .read_json(OutFile::Result)
         .context("the coordinator wrote no result")?;
-    // the coordinator knows only the merge rule: the result names both. Written into the
-    // file's JSON as it is, so that what the bridge added (`hosts`) stays.
+    // the coordinator knows only the merge rule and this host: the result names both rules,
+    // and where the robots ran
     result.rules = Some(rules.to_string());
-    let mut file: serde_json::Value = dir
-        .read_json(OutFile::Result)
-        .context("the coordinator wrote no result")?;
-    if let Some(obj) = file.as_object_mut() {
-        obj.insert("rules".into(), serde_json::Value::String(rules.to_string()));
-    }
-    dir.write_json(OutFile::Result, &file)?;
+    result.hosts = crate::join::host_entries(&hosts, local);
+    dir.write_json(OutFile::Result, &result)?;
     Ok(result)
 }
 

@@ -168,9 +168,10 @@ fn ship_files(cli: Vec<String>, files: &mut BTreeMap<String, String>) -> Result<
     Ok(out)
 }
 
-/// Stops the hub, writes `bridge.json` into the run's directory and adds the hosts to
-/// `result.json` (`hosts`: which robots ran where, reconnects, lost hosts, link latency).
-pub fn finish_hub(hub: Option<Hub>, out: &Path, local: u32) -> Result<Option<HubReport>> {
+/// Stops the hub and writes `bridge.json` (the hub's report) into the run's directory; the
+/// caller puts [`HubReport::entries`] into the result as its `hosts` (which robots ran where,
+/// reconnects, lost hosts, link latency).
+pub fn finish_hub(hub: Option<Hub>, out: &Path) -> Result<Option<HubReport>> {
     let Some(hub) = hub else {
         return Ok(None);
     };
@@ -184,16 +185,12 @@ pub fn finish_hub(hub: Option<Hub>, out: &Path, local: u32) -> Result<Option<Hub
     let json = serde_json::to_string_pretty(&report)?;
     std::fs::write(out.join("bridge.json"), json)
         .with_context(|| format!("writing {}", out.join("bridge.json").display()))?;
-    let path = out.join("result.json");
-    if let Ok(text) = std::fs::read_to_string(&path)
-        && let Ok(mut v) = serde_json::from_str::<serde_json::Value>(&text)
-        && let Some(obj) = v.as_object_mut()
-    {
-        obj.insert("hosts".into(), hosts_json(&report, local));
-        std::fs::write(&path, serde_json::to_string_pretty(&v)?)
-            .with_context(|| format!("writing {}", path.display()))?;
-    }
     Ok(Some(report))
+}
+
+/// A result's `hosts` for a run whose hub reported `hub` (empty on one host).
+pub fn host_entries(hub: &Option<HubReport>, local: u32) -> Vec<bridge::HostEntry> {
+    hub.as_ref().map(|h| h.entries(local)).unwrap_or_default()
 }
 
 /// Options of `qfleet join`.
@@ -350,11 +347,11 @@ impl JoinCmd {
         eprintln!(
             "qfleet join: link to {}: {} reconnect(s), {} ms down, round trip p50 {:.1} µs, clock offset {} ns (±{} ns)",
             self.endpoint,
-            report.reconnects,
-            report.down_ms,
-            report.rtt_ns.p50 as f64 / 1e3,
-            report.clock_offset_ns,
-            report.best_rtt_ns / 2
+            report.link.reconnects,
+            report.link.down_ms,
+            report.link.rtt_ns.p50 as f64 / 1e3,
+            report.link.clock_offset_ns,
+            report.link.best_rtt_ns / 2
         );
         if temp_out {
             let _ = std::fs::remove_dir_all(&out);
@@ -408,33 +405,6 @@ fn stop_children(children: &mut [(u32, Child)], grace: Duration) -> Vec<u32> {
     failed
 }
 
-/// The run's result as JSON with the `hosts` entry `finish_hub` wrote into `result.json`.
-pub fn with_hosts(
-    r: &coordinator::RunResult,
-    hub: &Option<HubReport>,
-    local: u32,
-) -> Result<String> {
-    let mut v = serde_json::to_value(r)?;
-    if let (Some(hub), Some(obj)) = (hub, v.as_object_mut()) {
-        obj.insert("hosts".into(), hosts_json(hub, local));
-    }
-    Ok(serde_json::to_string(&v)?)
-}
-
-/// `hosts` of a result: the local host first, then every joined host's link figures.
-fn hosts_json(report: &HubReport, local: u32) -> serde_json::Value {
-    let mut hosts = vec![serde_json::json!({
-        "host": "local", "robots": (0..local).collect::<Vec<_>>(), "state": "local",
-    })];
-    hosts.extend(
-        report
-            .hosts
-            .iter()
-            .filter_map(|h| serde_json::to_value(h).ok()),
-    );
-    serde_json::Value::Array(hosts)
-}
-
 /// The `hosts` lines of `qfleet run`'s human output: where each robot ran and what the link to
 /// each joined host did (nothing without `--remote-robots`).
 pub fn print_hosts(hub: &Option<HubReport>, local: u32) -> Result<()> {
@@ -458,12 +428,12 @@ pub fn print_hosts(hub: &Option<HubReport>, local: u32) -> Result<()> {
             h.host,
             h.robots,
             state.trim_matches('"'),
-            h.reconnects,
-            h.down_ms,
-            h.rtt_ns.p50 as f64 / 1e3,
-            h.rtt_ns.p999 as f64 / 1e3,
-            h.one_way_in_ns.p50 as f64 / 1e3,
-            h.resent
+            h.link.reconnects,
+            h.link.down_ms,
+            h.link.rtt_ns.p50 as f64 / 1e3,
+            h.link.rtt_ns.p999 as f64 / 1e3,
+            h.link.one_way_in_ns.p50 as f64 / 1e3,
+            h.link.resent
         )?;
     }
     for r in &hub.refused {

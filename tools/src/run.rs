@@ -173,25 +173,26 @@ impl RunCmd {
             &watch,
         );
         let quit = crate::live::finish(watch);
-        // the typed rewrite first: the hub then adds `hosts`, a field RunResult does not have
-        let mut result = std::fs::read_to_string(out.join("result.json"))
-            .ok()
-            .and_then(|t| serde_json::from_str::<RunResult>(&t).ok());
-        // the coordinator knows only the merge rule: the result names the apply rule too
-        if let Some(r) = &mut result {
-            r.apply = Some(rules.apply.to_string());
-            let dir = coordinator::output::OutDir::new(&out);
-            if let Err(e) = dir.write_json(coordinator::output::OutFile::Result, r) {
-                term::warn(&format!(
-                    "warning: adding the apply rule to result.json: {e}"
-                ));
-            }
-        }
         // the hub's proxies are nodes of this run: gone before its files are removed
-        let hosts = crate::join::finish_hub(hub, &out, self.robots).unwrap_or_else(|e| {
+        let hosts = crate::join::finish_hub(hub, &out).unwrap_or_else(|e| {
             term::warn(&format!("warning: {e:#}"));
             None
         });
+        let mut result = std::fs::read_to_string(out.join("result.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str::<RunResult>(&t).ok());
+        // the coordinator knows only the merge rule and this host: the result names the apply
+        // rule too, and where the robots ran
+        if let Some(r) = &mut result {
+            r.apply = Some(rules.apply.to_string());
+            r.hosts = crate::join::host_entries(&hosts, self.robots);
+            let dir = coordinator::output::OutDir::new(&out);
+            if let Err(e) = dir.write_json(coordinator::output::OutFile::Result, r) {
+                term::warn(&format!(
+                    "warning: adding the apply rule and hosts to result.json: {e}"
+                ));
+            }
+        }
         // whatever happened: no file of the run may stay behind
         crate::launch::clean_up(&run_id);
         if result.is_some()
@@ -202,7 +203,7 @@ impl RunCmd {
         }
         let done = outcome?;
         match &result {
-            Some(r) if self.json => out!("{}", crate::join::with_hosts(r, &hosts, self.robots)?)?,
+            Some(r) if self.json => out!("{}", serde_json::to_string(r)?)?,
             Some(r) => {
                 print_human(r, &out, out_dir.is_temp())?;
                 crate::join::print_hosts(&hosts, self.robots)?;
