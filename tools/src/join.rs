@@ -38,6 +38,11 @@ pub struct RemoteArgs {
     pub link_down_ms: u64,
 }
 
+/// How long after a host's deadline its silent robots may first count as hung: the hub's
+/// drop of their nodes and the coordinator's next node listings (every few hundred ms) fit
+/// well inside it.
+pub const LOSS_MARGIN_MS: u64 = 2000;
+
 impl RemoteArgs {
     /// Local plus remote robots, checked against the fleet limit.
     pub fn total(&self, local: u32) -> Result<u32> {
@@ -52,14 +57,17 @@ impl RemoteArgs {
         Ok(total)
     }
 
-    /// The coordinator's `--hang-ms` for this run: with remote robots at least the host
-    /// deadline, so a link that is down (robots on the other host learning alone) is not
-    /// mistaken for hung robots before the host is given up on.
+    /// The coordinator's `--hang-ms` for this run: with remote robots past the host deadline
+    /// by [`LOSS_MARGIN_MS`], so a link that is down (robots on the other host learning alone)
+    /// is not mistaken for hung robots, and a host given up on has its robots reported lost
+    /// (the hub drops their nodes, the coordinator's next listing sees them gone) before their
+    /// silence could make them hung. At exactly the deadline the two raced: a killed host's
+    /// robots came out `hung` in one CI-clone run of `tests/multihost.rs`.
     pub fn hang_ms(&self, hang_ms: u64) -> u64 {
         if self.remote_robots == 0 {
             return hang_ms;
         }
-        hang_ms.max((self.host_deadline.max(0.0) * 1000.0) as u64)
+        hang_ms.max((self.host_deadline.max(0.0) * 1000.0) as u64 + LOSS_MARGIN_MS)
     }
 
     /// Starts the hub when `--remote-robots` is set: remote robots get ids `local..total` and
@@ -440,4 +448,28 @@ pub fn print_hosts(hub: &Option<HubReport>, local: u32) -> Result<()> {
         crate::term::out!("  refused join       {r}")?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn remote(robots: u32, deadline_s: f64) -> RemoteArgs {
+        RemoteArgs {
+            remote_robots: robots,
+            listen: Some("tcp/127.0.0.1:7447".into()),
+            host_deadline: deadline_s,
+            link_down_ms: 500,
+        }
+    }
+
+    #[test]
+    fn remote_robots_turn_hung_only_well_after_their_host_is_given_up() {
+        // a killed host's robots must come out lost, not hung: the hang deadline is later
+        assert_eq!(remote(2, 3.0).hang_ms(2000), 3000 + LOSS_MARGIN_MS);
+        assert!(remote(2, 3.0).hang_ms(2000) > 3000);
+        // a longer hang deadline asked for is kept; a local-only run is untouched
+        assert_eq!(remote(2, 3.0).hang_ms(60_000), 60_000);
+        assert_eq!(remote(0, 3.0).hang_ms(2000), 2000);
+    }
 }
