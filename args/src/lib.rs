@@ -46,7 +46,8 @@ fn cell(s: &str) -> Result<Cell, String> {
 /// Which map, and which start and goal on it.
 #[derive(Debug, Clone, Args)]
 pub struct MapArgs {
-    /// Map: `builtin:paper-10|paper-20|paper-30`, an ASCII map file, or a MovingAI `.map` file.
+    /// Map: `builtin:paper-10|paper-20|paper-30`, `suite:FAMILY-SIZE-INDEX` (a generated map of
+    /// `qfleet eval`'s suite, e.g. `suite:rooms-64-3`), an ASCII map file, or a MovingAI `.map`.
     #[arg(long, default_value = "builtin:paper-20")]
     pub map: String,
     /// Start cell `X,Y` (x = column, y = row, from the top-left); overrides the map's `S`.

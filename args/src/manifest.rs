@@ -14,8 +14,10 @@
 //! seeds = [1, 2]              # one experiment per seed; robot i gets 1000 × seed + i
 //!
 //! [map]
-//! source = "builtin:paper-30" # or an ASCII map file, or a MovingAI .map (paths relative to
-//!                             # this file); `scen` + `scen_index` give default start and goal
+//! source = "builtin:paper-30" # or suite:FAMILY-SIZE-INDEX (a generated map of the suite, its
+//!                             # far pair as default start and goal), an ASCII map file, or a
+//!                             # MovingAI .map (paths relative to this file); `scen` +
+//!                             # `scen_index` give default start and goal
 //!
 //! [[goals]]
 //! cell = [29, 29]             # or scen_index = 3 (the goal of that scenario line)
@@ -209,7 +211,7 @@ pub struct Manifest {
     pub name: String,
     /// Where the manifest came from (for messages and relative paths).
     pub source_name: String,
-    /// Map spec as written: `builtin:…` or a path.
+    /// Map spec as written: `builtin:…`, `suite:…` or a path.
     pub map: String,
     /// Scenario file as written.
     pub scen: Option<String>,
@@ -565,7 +567,7 @@ pub fn load_manifest(path: &Path) -> Result<Manifest, ManifestError> {
 pub struct Plan {
     /// The manifest.
     pub manifest: Manifest,
-    /// The map spec to hand to robot-agents (`builtin:…` or an absolute path).
+    /// The map spec to hand to robot-agents (`builtin:…`, `suite:…` or an absolute path).
     pub map_spec: String,
     /// The loaded map.
     pub map: GridMap,
@@ -592,7 +594,7 @@ impl Manifest {
                 base.join(p)
             }
         };
-        let map_spec = if self.map.starts_with("builtin:") {
+        let map_spec = if self.map.starts_with("builtin:") || self.map.starts_with("suite:") {
             self.map.clone()
         } else {
             rel(&self.map).display().to_string()
@@ -755,6 +757,43 @@ rotate = 1
         let p = m.resolve(Path::new(".")).unwrap();
         assert_eq!(p.assignment, vec![vec![0, 1, 0, 1], vec![1, 0, 1, 0]]);
         assert!(p.optimal[0][0] >= 18);
+    }
+
+    #[test]
+    fn every_example_manifest_resolves() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples");
+        let mut checked = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_none_or(|e| e != "toml") {
+                continue;
+            }
+            let m = load_manifest(&path).unwrap();
+            let needs_shared = m.map.contains("shared/data/movingai");
+            if needs_shared && !dir.join(&m.map).exists() {
+                println!("SKIPPED {}: {} is absent", path.display(), m.map);
+                continue;
+            }
+            let plan = m.resolve(&dir).unwrap_or_else(|e| panic!("{e}"));
+            assert!(!plan.goal_cells.is_empty(), "{}", path.display());
+            if plan.map_spec.starts_with("suite:") {
+                let t = planner::suite::from_spec(&plan.map_spec["suite:".len()..]).unwrap();
+                assert_eq!(plan.goal_cells, [t.task.goal], "{}", path.display());
+                assert!(plan.starts.iter().all(|s| *s == t.task.start));
+                let half = if t.split == planner::suite::Split::Tuning {
+                    "tuning"
+                } else {
+                    "heldout"
+                };
+                let name = path.file_name().unwrap().to_string_lossy();
+                assert!(
+                    name.starts_with(&format!("sweep-{half}-")),
+                    "{name}: the file name must say its map's half ({half})"
+                );
+            }
+            checked += 1;
+        }
+        assert!(checked >= 9, "{checked} example manifests resolved");
     }
 
     #[test]

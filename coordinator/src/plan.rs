@@ -4,8 +4,8 @@
 //! as `plan.json`. A restarted coordinator reads the same file again.
 //!
 //! [`ExperimentPlan::check`] refuses a plan whose parts do not fit together (bad input, exit
-//! code 2) before anything starts; the map is loaded again from its spec (`builtin:…` or a
-//! path) and every cell checked on it.
+//! code 2) before anything starts; the map is loaded again from its spec (`builtin:…`, `suite:…`
+//! or a path) and every cell checked on it.
 
 use std::path::Path;
 
@@ -48,7 +48,7 @@ pub struct ExperimentPlan {
     pub timeout_s: f64,
     /// The learner's rewards (the merged-path watch walks the same environment).
     pub rewards: Rewards,
-    /// Map spec: `builtin:…` or a path.
+    /// Map spec: `builtin:…`, `suite:…` or a path.
     pub map: String,
     /// Goals, by goal index.
     pub goals: Vec<PlanGoal>,

@@ -175,6 +175,72 @@ pub fn generate(
     })
 }
 
+/// The suite seed of `qfleet eval` and of a `suite:` map spec that names none.
+pub const DEFAULT_SUITE_SEED: u64 = 1;
+
+/// Why a `suite:` map spec names no generated map.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum SpecError {
+    /// Not `FAMILY-SIZE-INDEX[@SEED]`, or a part out of range.
+    #[error(
+        "'suite:{spec}': {why} (expected suite:FAMILY-SIZE-INDEX[@SEED], e.g. suite:rooms-64-3, \
+         FAMILY one of random, rooms, maze, walls, SIZE 4 to {max}, INDEX 0 to 999999)",
+        max = crate::grid::MAX_SIDE
+    )]
+    Bad {
+        /// The spec after `suite:`.
+        spec: String,
+        /// What is wrong with it.
+        why: String,
+    },
+}
+
+/// The generated map a `suite:` spec names (`FAMILY-SIZE-INDEX`, the id `qfleet eval` prints,
+/// optionally `@SEED`, default [`DEFAULT_SUITE_SEED`]): the same map, start and goal as in the
+/// suite, so a map of the suite can be run with `learn`, `run`, `experiment` or `sweep`.
+pub fn from_spec(spec: &str) -> Result<SuiteTask, SpecError> {
+    let bad = |why: String| SpecError::Bad {
+        spec: spec.to_owned(),
+        why,
+    };
+    let (id, seed) = match spec.split_once('@') {
+        Some((id, seed)) => (
+            id,
+            seed.parse::<u64>()
+                .map_err(|_| bad(format!("seed '{seed}' is not a whole number")))?,
+        ),
+        None => (spec, DEFAULT_SUITE_SEED),
+    };
+    let mut parts = id.split('-');
+    let (Some(family), Some(size), Some(index), None) =
+        (parts.next(), parts.next(), parts.next(), parts.next())
+    else {
+        return Err(bad("not three parts joined by '-'".into()));
+    };
+    let family: Family = family.parse().map_err(bad)?;
+    if family == Family::Movingai {
+        return Err(bad(
+            "movingai maps are files: give the .map path instead".into()
+        ));
+    }
+    let size: usize = size
+        .parse()
+        .ok()
+        .filter(|s| (4..=crate::grid::MAX_SIDE).contains(s))
+        .ok_or_else(|| {
+            bad(format!(
+                "size '{size}' is not 4 to {}",
+                crate::grid::MAX_SIDE
+            ))
+        })?;
+    let index: usize = index
+        .parse()
+        .ok()
+        .filter(|i| *i < 1_000_000)
+        .ok_or_else(|| bad(format!("index '{index}' is not 0 to 999999")))?;
+    generate(family, size, index, seed).map_err(|e| bad(e.to_string()))
+}
+
 /// The whole generated suite: every family × size × index, in that order.
 pub fn generated(
     sizes: &[usize],
@@ -520,5 +586,44 @@ mod tests {
         assert!(t.task.optimal_len > 300, "{}", t.task.optimal_len);
         let t = generate(Family::Walls, 128, 1, 1).unwrap();
         assert!(t.task.optimal_len >= 254, "{}", t.task.optimal_len);
+    }
+
+    #[test]
+    fn a_suite_spec_names_the_same_map_pair_and_seed_as_the_suite() {
+        let t = from_spec("rooms-64-3").unwrap();
+        let g = generate(Family::Rooms, 64, 3, DEFAULT_SUITE_SEED).unwrap();
+        assert_eq!((t.id.as_str(), &t.task), ("rooms-64-3", &g.task));
+        let t7 = from_spec("rooms-64-3@7").unwrap();
+        assert_eq!(t7.task, generate(Family::Rooms, 64, 3, 7).unwrap().task);
+        assert_ne!(t7.task, g.task, "the seed is used");
+        let m = crate::map::load_map("suite:maze-32-0").unwrap();
+        let g = generate(Family::Maze, 32, 0, DEFAULT_SUITE_SEED).unwrap();
+        assert_eq!(m.name, "maze-32-0");
+        assert_eq!(m.grid, g.task.grid);
+        assert_eq!(
+            (m.start, m.goals.as_slice()),
+            (Some(g.task.start), &[g.task.goal][..])
+        );
+    }
+
+    #[test]
+    fn a_bad_suite_spec_says_what_is_wrong() {
+        for (spec, says) in [
+            ("rooms-64", "three parts"),
+            ("rooms-64-3-1", "three parts"),
+            ("hills-64-3", "unknown family 'hills'"),
+            ("movingai-64-3", "give the .map path"),
+            ("rooms-3-0", "size '3'"),
+            ("rooms-99999-0", "size '99999'"),
+            ("rooms-64-x", "index 'x'"),
+            ("rooms-64-1000000", "index '1000000'"),
+            ("rooms-64-1@-2", "seed '-2'"),
+            ("", "three parts"),
+        ] {
+            let e = crate::map::load_map(&format!("suite:{spec}")).unwrap_err();
+            let text = e.to_string();
+            assert!(text.contains(says), "{spec}: {text}");
+            assert!(text.contains("suite:FAMILY-SIZE-INDEX"), "{spec}: {text}");
+        }
     }
 }

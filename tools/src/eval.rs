@@ -51,7 +51,7 @@ pub struct EvalCmd {
     #[arg(long, default_value_t = suite::MAPS_PER_FAMILY as u32, value_parser = clap::value_parser!(u32).range(1..=1000))]
     maps: u32,
     /// Seed of the map generator.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = suite::DEFAULT_SUITE_SEED)]
     suite_seed: u64,
     /// Learner seeds per map and configuration.
     #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u32).range(1..=10_000))]

@@ -120,12 +120,6 @@ impl RemoteArgs {
 /// `qfleet run` nor `qfleet experiment` changes).
 const HINT_BUFFER: usize = 64;
 
-/// The coordinator's merged-hint buffer per connection for a fleet of `robots` (its
-/// `--merged-buffer 0` default).
-pub fn merged_buffer(robots: u32) -> usize {
-    (4096 / robots.max(1) as usize).clamp(8, 64)
-}
-
 /// A robot-agent command's options as text, without `--out DIR` (a joining host writes into
 /// its own directory).
 fn robot_cli(cmd: &Command) -> Vec<String> {
@@ -141,7 +135,7 @@ fn robot_cli(cmd: &Command) -> Vec<String> {
     out
 }
 
-/// Replaces the paths after `--map` (unless built-in) and `--scen` with `{file:NAME}` and keeps
+/// Replaces the paths after `--map` (unless built-in or generated) and `--scen` with `{file:NAME}` and keeps
 /// their content in `files`, so the joining host needs no copy of them.
 fn ship_files(cli: Vec<String>, files: &mut BTreeMap<String, String>) -> Result<Vec<String>> {
     let mut out = Vec::with_capacity(cli.len());
@@ -152,7 +146,7 @@ fn ship_files(cli: Vec<String>, files: &mut BTreeMap<String, String>) -> Result<
         let Some(v) = (if is_file_opt { it.next() } else { None }) else {
             continue;
         };
-        if v.starts_with("builtin:") {
+        if v.starts_with("builtin:") || v.starts_with("suite:") {
             out.push(v);
             continue;
         }

@@ -77,6 +77,9 @@ pub enum MapError {
         /// The name asked for, without the `builtin:` prefix.
         name: String,
     },
+    /// `suite:SPEC` names no generated map of the suite.
+    #[error(transparent)]
+    Suite(#[from] crate::suite::SpecError),
     /// The file holds no map rows or no scenario header: only blank lines or comments.
     #[error("{at}: empty file: {expected}")]
     Empty {
@@ -172,10 +175,11 @@ pub enum MapError {
 }
 
 impl MapError {
-    /// Where in the file the problem is, for parse errors (not for I/O or unknown built-ins).
+    /// Where in the file the problem is, for parse errors (not for I/O, unknown built-ins or
+    /// suite specs).
     pub fn location(&self) -> Option<&Location> {
         match self {
-            MapError::Io { .. } | MapError::UnknownBuiltin { .. } => None,
+            MapError::Io { .. } | MapError::UnknownBuiltin { .. } | MapError::Suite(_) => None,
             MapError::Empty { at, .. }
             | MapError::NotUtf8 { at }
             | MapError::UnknownChar { at, .. }

@@ -110,7 +110,9 @@ fn is_movingai(path: &Path, bytes: &[u8]) -> bool {
     ext_map || bytes.starts_with(b"type ")
 }
 
-/// Loads a map from `builtin:NAME` or a file path, picking the format as the user would.
+/// Loads a map from `builtin:NAME`, `suite:FAMILY-SIZE-INDEX[@SEED]` (a generated map of the
+/// suite, with its far pair as start and goal) or a file path, picking the format as the user
+/// would.
 ///
 /// `.map` files and files whose first line starts with `type ` are MovingAI maps; any other file
 /// is an ASCII map.
@@ -118,6 +120,15 @@ pub fn load_map(spec: &str) -> Result<GridMap, MapError> {
     if let Some(name) = spec.strip_prefix("builtin:") {
         return builtin(name).ok_or_else(|| MapError::UnknownBuiltin {
             name: name.to_owned(),
+        });
+    }
+    if let Some(name) = spec.strip_prefix("suite:") {
+        let t = crate::suite::from_spec(name)?;
+        return Ok(GridMap {
+            name: t.id,
+            grid: t.task.grid,
+            start: Some(t.task.start),
+            goals: vec![t.task.goal],
         });
     }
     let path = Path::new(spec);
