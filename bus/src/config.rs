@@ -15,8 +15,26 @@ use crate::files;
 ///
 /// Bounded so every service can be sized in advance (iceoryx2 allocates all buffers when a
 /// service or port is created): at 256 robots the largest segments, the merged-hints and ack
-/// broadcasts, stay around 10 MB of shared memory each.
+/// broadcasts, stay around 10 to 32 MB of shared memory each ([`MERGED_SEGMENT_BUDGET`]).
 pub const MAX_ROBOTS: u32 = 256;
+
+/// Shared memory the merged-hints broadcast may reserve (the coordinator's publisher segment:
+/// subscribers × per-robot buffer × one `MergedHintBatch`); [`merged_buffer_for`] sizes the
+/// buffer from it. Reserved, not touched: tmpfs pages are used only as samples are written.
+pub const MERGED_SEGMENT_BUDGET: usize = 32 << 20;
+
+/// Merged batches buffered per robot in a fleet of `robots`: as many as fit
+/// [`MERGED_SEGMENT_BUDGET`], 16 to 512 (512 at 4 robots, 77 at 64, 20 at 256).
+///
+/// Deep because merged batches are deltas: a batch a robot's latest-wins buffer overwrites is
+/// lost to it for good, and four unpaced planning robots on two cores overflowed a 64-batch
+/// buffer with about half of all merged batches (BENCHMARKS.md, "Value of sharing").
+pub fn merged_buffer_for(robots: u32) -> usize {
+    let subscribers =
+        robots.max(1) as usize + BusConfig::DEFAULT_SPARE_PORTS as usize + OBSERVER_SLOTS as usize;
+    let batch = std::mem::size_of::<bus_schema::MergedHintBatch>();
+    (MERGED_SEGMENT_BUDGET / (batch * subscribers)).clamp(16, 512)
+}
 
 /// Ports and node slots every service keeps for outside readers (monitors, recorders, `iox2`,
 /// Python) on top of the fleet and its `spare_ports`; see [`crate::Observer`].
@@ -269,4 +287,25 @@ pub fn quiet_library_logs() {
         };
         set_log_level_from_env_or(default);
     });
+}
+
+#[cfg(test)]
+mod merged_buffer_tests {
+    use super::*;
+
+    #[test]
+    fn the_merged_buffer_fills_its_budget_and_stays_in_bounds() {
+        let batch = std::mem::size_of::<bus_schema::MergedHintBatch>();
+        assert_eq!(merged_buffer_for(4), 512);
+        assert_eq!(merged_buffer_for(64), 77);
+        assert_eq!(merged_buffer_for(MAX_ROBOTS), 20);
+        assert_eq!(merged_buffer_for(0), merged_buffer_for(1));
+        for robots in 1..=MAX_ROBOTS {
+            let b = merged_buffer_for(robots);
+            assert!((16..=512).contains(&b) && b <= MAX_BUFFER);
+            let subscribers = robots as usize + 2 + OBSERVER_SLOTS as usize;
+            assert!(b == 512 || b * batch * subscribers <= MERGED_SEGMENT_BUDGET);
+            assert!(b <= merged_buffer_for(robots.saturating_sub(1).max(1)));
+        }
+    }
 }

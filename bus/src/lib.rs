@@ -57,7 +57,7 @@
 //! | `robot/hints` | `QHintBatch` | latest-wins | `hint_buffer` (8) | 0 | newer Q-values supersede older; a slow coordinator must not block robots |
 //! | `robot/report` | `FinalReport` | lossless | 4 | 0 | the results of the run |
 //! | `coord/control` | `Control` | lossless | 2·robots + 16 ([`control_buffer`]) | 0 | Start/Stop/goals must never be missed; the whole start burst (an Ack and a goal per robot) fits, so a robot that is not scheduled during it never blocks the coordinator |
-//! | `coord/merged` | `MergedHintBatch` | latest-wins | `merged_buffer` (4) | 1 | superseded by the next merge; one slow robot must not block the fleet |
+//! | `coord/merged` | `MergedHintBatch` | latest-wins | `merged_buffer` (4; runs: [`merged_buffer_for`], 16–512) | 1 | one slow robot must not block the fleet; deep, because a batch is a delta and one overwritten is lost to that robot |
 //! | `coord/ack` | `DiscoveryAck` | latest-wins | 2·robots + 8 | 0 | cumulative: a newer ack carries all older ones; room for a full round of acks |
 //! | `coord/discovery` | `DiscoveryRelay` | lossless | `discovery_buffer` (256) | 0 | each distinct discovery is relayed once and must reach every robot on its goal; rare (a few dozen per goal) |
 //!
@@ -170,8 +170,9 @@ pub use iceoryx2;
 
 pub use clock::monotonic_ns;
 pub use config::{
-    BusConfig, MAX_BUFFER, MAX_ROBOTS, OBSERVER_SLOTS, iceoryx_config_for_prefix,
-    quiet_library_logs, unique_run_id, validate_run_id,
+    BusConfig, MAX_BUFFER, MAX_ROBOTS, MERGED_SEGMENT_BUDGET, OBSERVER_SLOTS,
+    iceoryx_config_for_prefix, merged_buffer_for, quiet_library_logs, unique_run_id,
+    validate_run_id,
 };
 pub use endpoints::{CoordinatorBus, RobotBus};
 pub use error::BusError;

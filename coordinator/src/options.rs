@@ -56,7 +56,8 @@ pub struct CoordArgs {
     /// Hint batches buffered per robot (latest-wins).
     #[arg(long, default_value_t = 64)]
     pub hint_buffer: usize,
-    /// Merged batches buffered per robot (latest-wins); 0 = sized from the fleet.
+    /// Merged batches buffered per robot (latest-wins); 0 = sized from the fleet within a
+    /// shared-memory budget (`bus::merged_buffer_for`: 512 at 4 robots, 20 at 256).
     #[arg(long, default_value_t = 0)]
     pub merged_buffer: usize,
     /// Heartbeat deadline: a running robot silent this long (ms) is reported hung.
@@ -154,7 +155,7 @@ pub(crate) fn bus_config(args: &CoordArgs, robots: u32) -> Result<BusConfig, Coo
     let mut cfg = BusConfig::new(args.run_id.clone(), robots)?;
     cfg.hint_buffer = args.hint_buffer;
     cfg.merged_buffer = if args.merged_buffer == 0 {
-        (4096 / robots as usize).clamp(8, 64)
+        bus::merged_buffer_for(robots)
     } else {
         args.merged_buffer
     };

@@ -227,7 +227,7 @@ pub fn bridged_coordinator(
         robot_args: Vec::new(),
         files: Default::default(),
         hint_buffer: 64,
-        merged_buffer: (4096 / *robots as usize).clamp(8, 64),
+        merged_buffer: bus::merged_buffer_for(*robots),
     };
     let hub = bridge::Hub::start(bridge::HubOptions {
         listen: listen.to_string(),
