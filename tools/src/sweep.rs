@@ -48,21 +48,40 @@ pub struct SweepCmd {
     /// stay).
     #[arg(long)]
     learner: Option<planner::LearnerKind>,
-    /// Slow every robot to this many environment steps per second (robot-agent `--pace`), so
-    /// that the robots of a run learn at the same time: unpaced, a planning robot reaches its
-    /// optimum within a few scheduler time slices, and N robots on 2 cores learn mostly one
-    /// after another (the later ones warm-started from the earlier ones' fleet table).
-    #[arg(long, value_name = "STEPS_PER_S", value_parser = qfleet_args::parse_pace)]
-    pace: Option<f64>,
+    /// Slow every robot of a run that shares to this many environment steps per second
+    /// (robot-agent `--pace`), so that the robots of a run learn at the same time, as a fleet
+    /// does: unpaced, a planning robot reaches its optimum within a few scheduler time slices,
+    /// and N robots on 2 cores learn mostly one after another (the later ones warm-started from
+    /// the earlier ones' fleet table). Runs without sharing are never paced: nothing passes
+    /// between their robots, so their env steps are the same at any pace.
+    #[arg(long, value_name = "STEPS_PER_S", value_parser = qfleet_args::parse_pace,
+          default_value_t = DEFAULT_PACE)]
+    pace: f64,
+    /// Run every robot as fast as it can (no `--pace`).
+    #[arg(long, conflicts_with = "pace")]
+    unpaced: bool,
     /// Directory for the runs' files, sweep.json and sweep.md.
     #[arg(long, default_value = "results/sweep")]
     out: PathBuf,
-    /// Where to write the SVG plot of speedup against N.
-    #[arg(long, default_value = "docs/sharing-speedup.svg")]
-    svg: PathBuf,
+    /// Where to write the SVG plot of speedup against N (default: `speedup.svg` beside
+    /// sweep.json).
+    #[arg(long)]
+    svg: Option<PathBuf>,
     /// Run nothing: redraw the table and the plot from a previous sweep's `sweep.json`.
     #[arg(long)]
     replot: Option<PathBuf>,
+}
+
+/// The sweep's `--pace`, chosen on the suite's tuning half (BENCHMARKS.md, "Value of
+/// sharing"): slow enough that four robots and the coordinator share two cores without
+/// waiting for one another, fast enough that a lone robot's far pair on a 64×64 map takes
+/// seconds, not minutes.
+pub const DEFAULT_PACE: f64 = 100_000.0;
+
+/// The pace of one run: `pace` for a run that shares (hints or discoveries), none for a run
+/// that does not (its robots learn alone, so their env steps do not depend on the pace).
+pub fn pace_for(mode: ShareMode, pace: Option<f64>) -> Option<f64> {
+    if mode == ShareMode::None { None } else { pace }
 }
 
 /// One (map, N, sharing) cell of the sweep, averaged over seeds.
@@ -104,6 +123,9 @@ pub struct Row {
     pub speedup: Option<f64>,
     /// `robot_steps` / lone robot's steps.
     pub step_ratio: Option<f64>,
+    /// Steps per second each robot was paced to (`None`: unpaced).
+    #[serde(default)]
+    pub pace: Option<f64>,
 }
 
 /// The table label of a manifest: its file stem without a `sweep-`/`sharing-` prefix (e.g.
@@ -142,16 +164,25 @@ fn median(v: &mut [f64]) -> Option<f64> {
 impl SweepCmd {
     /// Runs the sweep.
     pub fn run(self) -> Result<()> {
+        let pace = (!self.unpaced).then_some(self.pace);
         if let Some(json) = &self.replot {
             let text = std::fs::read_to_string(json)
                 .with_context(|| format!("reading {}", json.display()))?;
             let rows: Vec<Row> = serde_json::from_str(&text)
                 .with_context(|| format!("parsing {}", json.display()))?;
-            plot(&self.svg, &rows)?;
+            let svg = self
+                .svg
+                .clone()
+                .unwrap_or_else(|| json.parent().unwrap_or(Path::new(".")).join("speedup.svg"));
+            plot(&svg, &rows)?;
             out!("{}", markdown(&rows, &[]).trim_end())?;
-            out!("wrote {}", self.svg.display())?;
+            out!("wrote {}", svg.display())?;
             return Ok(());
         }
+        let svg = self
+            .svg
+            .clone()
+            .unwrap_or_else(|| self.out.join("speedup.svg"));
         let mut modes = Vec::new();
         for s in &self.sharing {
             modes.push(
@@ -232,7 +263,7 @@ impl SweepCmd {
                         let mut attempt = 0;
                         let r = loop {
                             let sup = Supervision {
-                                pace: self.pace,
+                                pace: pace_for(mode, pace),
                                 ..Supervision::default()
                             };
                             match run_once(&plan, seed, rules, &id, &dir, sup, None, None) {
@@ -322,6 +353,7 @@ impl SweepCmd {
                         avg_steps: mean(&avg).unwrap_or(0.0),
                         speedup,
                         step_ratio: speedup.map(|s| 1.0 / s),
+                        pace: pace_for(mode, pace),
                     });
                 }
             }
@@ -339,15 +371,15 @@ impl SweepCmd {
             self.out.join("sweep.json"),
             serde_json::to_string_pretty(&rows)?,
         )?;
-        if let Some(dir) = self.svg.parent() {
+        if let Some(dir) = svg.parent() {
             std::fs::create_dir_all(dir)?;
         }
-        plot(&self.svg, &rows)?;
+        plot(&svg, &rows)?;
         out!("{}", md.trim_end())?;
         out!(
             "wrote {}/sweep.{{md,json}} and {}",
             self.out.display(),
-            self.svg.display()
+            svg.display()
         )?;
         Ok(())
     }
@@ -361,16 +393,16 @@ fn markdown(rows: &[Row], skipped: &[String]) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "| map | N | sharing | apply/merge | runs | median env steps/robot to own optimum (never = ∞) | ÷ lone robot | mean over robots that got there | ÷ lone robot | speedup (means) | env steps/robot to merged optimum | s to own optimum | s to merged optimum | avg steps/episode | robots optimal |"
+        "| map | N | sharing | apply/merge | runs | median env steps/robot to own optimum (never = ∞) | ÷ lone robot | mean over robots that got there | ÷ lone robot | speedup (means) | env steps/robot to merged optimum | s to own optimum | s to merged optimum | avg steps/episode | robots optimal | pace (steps/s) |"
     );
     let _ = writeln!(
         s,
-        "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+        "|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
     );
     for r in rows {
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.0} | {}/{} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.0} | {}/{} | {} |",
             r.map,
             r.robots,
             r.sharing,
@@ -392,7 +424,8 @@ fn markdown(rows: &[Row], skipped: &[String]) -> String {
             f(r.merged_time_s, 3),
             r.avg_steps,
             r.robots_optimal,
-            r.robots_total
+            r.robots_total,
+            f(r.pace, 0)
         );
     }
     for k in skipped {
@@ -504,7 +537,7 @@ fn progress_line(run: &str, own: Option<f64>, merged: Option<f64>) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::median;
+    use super::{DEFAULT_PACE, ShareMode, median, pace_for};
 
     #[test]
     fn median_counts_robots_that_never_got_there() {
@@ -513,6 +546,16 @@ mod tests {
         assert_eq!(median(&mut [4.0, 1.0, f64::INFINITY]), Some(4.0));
         assert_eq!(median(&mut [1.0, f64::INFINITY]), None);
         assert_eq!(median(&mut [1.0, 2.0, 3.0, f64::INFINITY]), Some(2.5));
+    }
+
+    #[test]
+    fn only_runs_that_share_are_paced() {
+        assert_eq!(pace_for(ShareMode::None, Some(1e5)), None);
+        for m in [ShareMode::Hints, ShareMode::Discoveries, ShareMode::Both] {
+            assert_eq!(pace_for(m, Some(1e5)), Some(1e5));
+            assert_eq!(pace_for(m, None), None);
+        }
+        assert!(qfleet_args::parse_pace(&DEFAULT_PACE.to_string()).is_ok());
     }
 
     #[test]
