@@ -160,6 +160,10 @@ pub struct LearnerArgs {
     /// Sweeps over every transition seen, after each episode (planning default 3, others 0).
     #[arg(long)]
     pub sweeps: Option<u32>,
+    /// Sweeps also every this many steps inside an episode, while the model grows (0 = after
+    /// episodes only; planning default 1024, others 0).
+    #[arg(long)]
+    pub sweep_every: Option<u32>,
     /// Backward replay of each episode: `true` or `false` (planning default true, others false).
     #[arg(long)]
     pub replay: Option<bool>,
@@ -188,6 +192,9 @@ impl LearnerArgs {
         }
         if let Some(k) = self.sweeps {
             cfg.extras.sweeps = k;
+        }
+        if let Some(k) = self.sweep_every {
+            cfg.extras.sweep_every = k;
         }
         if let Some(r) = self.replay {
             cfg.extras.replay = r;
@@ -255,6 +262,7 @@ impl LearnerArgs {
         opt("--gamma", self.gamma.map(|x| x.to_string()));
         opt("--optimistic", self.optimistic.map(|x| x.to_string()));
         opt("--sweeps", self.sweeps.map(|x| x.to_string()));
+        opt("--sweep-every", self.sweep_every.map(|x| x.to_string()));
         opt("--replay", self.replay.map(|x| x.to_string()));
         opt("--epsilon", self.epsilon.map(|x| x.to_string()));
         opt(

@@ -501,6 +501,7 @@ pub fn parse_manifest(source: &str, text: &str) -> Result<Manifest, ManifestErro
         gamma: l.gamma,
         optimistic: None,
         sweeps: None,
+        sweep_every: None,
         replay: None,
         epsilon: l.epsilon,
         epsilon_reading: parse_word::<EpsilonReading>(

@@ -69,6 +69,11 @@ pub struct Extras {
     /// Replays the episode backwards after it ends (full backups along the moves taken), so the
     /// goal's value reaches the start in one episode however long the path.
     pub replay: bool,
+    /// Also runs the sweeps every this many steps inside an episode when the model changed
+    /// since the last sweep (0: after episodes only): the long exploring episodes at the start
+    /// then act on what they have found so far (and, in a fleet, on the moves other robots
+    /// made) instead of only after they end.
+    pub sweep_every: u32,
 }
 
 impl Extras {
@@ -175,8 +180,9 @@ impl LearnerConfig {
     /// The planning learner (`qfleet learn`'s default): γ = 0.99 so values 1 000+ moves from the goal stay
     /// far above f32's smallest normal, ε-greedy with ε = 0.05 as the random-action
     /// probability, untried actions worth the goal reward, three sweeps over the seen
-    /// transitions and a backward replay after every episode, no pseudo targets. Chosen on the
-    /// suite's tuning half (README "Map suite and held-out evaluation").
+    /// transitions and a backward replay after every episode, the sweeps also every 1 024 steps
+    /// inside an episode while the model grows, no pseudo targets. Chosen on the suite's tuning
+    /// half (README "Map suite and held-out evaluation").
     pub fn planning(episodes: u32, seed: u64) -> Self {
         LearnerConfig {
             gamma: 0.99,
@@ -188,6 +194,7 @@ impl LearnerConfig {
                 optimistic: Some(1.0),
                 sweeps: 3,
                 replay: true,
+                sweep_every: 1024,
             },
             ..Self::traditional(episodes, seed)
         }
@@ -333,6 +340,7 @@ pub struct Learner {
     trail: Vec<u32>,
     model_dirty: bool,
     planned: bool,
+    swept_within: bool,
     // Updates never raise a value (see `keep_values_falling`).
     monotone: bool,
 }
@@ -376,6 +384,7 @@ impl Learner {
             },
             model_dirty: false,
             planned: false,
+            swept_within: false,
             monotone: false,
             optimal_len: task.optimal_len,
             max_steps,
@@ -564,6 +573,9 @@ impl Learner {
         }
         if !self.tried.is_empty() {
             self.record(s, a);
+            if self.cfg.extras.sweep_every != 0 {
+                self.sweep_within();
+            }
         }
         StepInfo {
             state: s,
@@ -673,9 +685,35 @@ impl Learner {
                 self.planned |= self.backup(sa);
             }
         }
-        if x.sweeps == 0 || !self.model_dirty {
-            return;
+        let swept = self.sweep_now();
+        self.planned |= swept;
+    }
+
+    /// The sweeps inside an episode, every [`Extras::sweep_every`] steps (see there).
+    #[inline(never)]
+    fn sweep_within(&mut self) {
+        if self.steps.is_multiple_of(self.cfg.extras.sweep_every) && self.sweep_now() {
+            self.swept_within = true;
         }
+    }
+
+    /// Whether sweeps inside the episode changed values since the last call (a fleet robot
+    /// then offers its values, as after an episode); clears the flag.
+    pub fn take_swept_within(&mut self) -> bool {
+        std::mem::take(&mut self.swept_within)
+    }
+
+    /// Runs the sweeps now, in the middle of an episode, if the model or the table changed
+    /// from outside since the last sweep ([`add_known_move`](Self::add_known_move),
+    /// [`table_changed`](Self::table_changed)): a fleet robot's values then reflect what the
+    /// others explored before its own long episode ends. No replay (the episode is not over);
+    /// returns whether a value changed.
+    pub fn sweep_now(&mut self) -> bool {
+        let x = self.cfg.extras;
+        if x.sweeps == 0 || !self.model_dirty {
+            return false;
+        }
+        let mut any = false;
         for k in 0..x.sweeps {
             let mut changed = false;
             if k.is_multiple_of(2) {
@@ -687,12 +725,13 @@ impl Learner {
                     changed |= self.backup(self.seen[i]);
                 }
             }
-            self.planned |= changed;
+            any |= changed;
             if !changed {
                 self.model_dirty = false;
-                return;
+                break;
             }
         }
+        any
     }
 
     /// Whether the replay or sweeps after the last episode changed any value (what a fleet

@@ -146,3 +146,55 @@ fn a_move_made_known_from_outside_is_backed_up_by_the_sweeps() {
     let mut t = Learner::new(&task, LearnerConfig::traditional(2, 1)).expect("config");
     assert!(!t.add_known_move(2, 1));
 }
+
+#[test]
+fn sweeps_within_episodes_find_the_optimum_in_fewer_steps_and_stop_once_the_model_is_whole() {
+    // env steps until the greedy path is first optimal, and the steps of the last episode
+    let run = |t: &Task, sweep_every: u32, seed: u64| {
+        let mut cfg = LearnerConfig::planning(200, seed);
+        cfg.extras.sweep_every = sweep_every;
+        let mut l = Learner::new(t, cfg).expect("config");
+        let (mut steps, mut first) = (0u64, None);
+        let (records, s) = l.run(|r| {
+            steps += u64::from(r.steps);
+            if first.is_none() && r.greedy_path_len == Some(t.optimal_len) {
+                first = Some(steps);
+            }
+        });
+        assert_eq!(
+            s.final_path_len,
+            Some(t.optimal_len),
+            "sweep_every {sweep_every}"
+        );
+        (first.expect("optimal at some episode"), records.len())
+    };
+    for (family, i) in [(Family::Rooms, 1), (Family::Maze, 0)] {
+        let t = generate(family, 64, i, 1).expect("map");
+        for seed in [1, 2] {
+            let (within, n) = run(&t.task, 1024, seed);
+            let (after, _) = run(&t.task, 0, seed);
+            assert!(
+                within < after,
+                "{}: {within} steps with sweeps within episodes, {after} without",
+                t.id
+            );
+            assert_eq!(n, 200);
+        }
+    }
+    // a learner whose model no longer changes does not sweep inside its episodes
+    let t = generate(Family::Rooms, 20, 0, 3).expect("map");
+    let mut cfg = LearnerConfig::planning(100, 1);
+    cfg.extras.sweep_every = 1;
+    let mut l = Learner::new(&t.task, cfg).expect("config");
+    l.run(|_| {});
+    let _ = l.take_swept_within();
+    let tried = l.tried_pairs().len();
+    l.begin_episode();
+    while !l.step().done {}
+    assert_eq!(
+        l.tried_pairs().len(),
+        tried,
+        "this episode found no new move"
+    );
+    assert!(!l.take_swept_within(), "so it swept nothing");
+}

@@ -396,6 +396,10 @@ impl Robot<'_> {
                         self.send_hints(p);
                     }
                     self.poll(Some(p))?;
+                    // sweeps inside the episode (`--sweep-every`) changed values no step noted
+                    if share && p.learner.take_swept_within() {
+                        self.offer_planned(p);
+                    }
                     if self.plan.stopped() {
                         break;
                     }

@@ -116,7 +116,7 @@ pub fn named() -> Vec<Named> {
         },
         Named {
             name: "planning",
-            what: "the default: γ 0.99, ε 0.05, optimistic 1, 3 sweeps, replay",
+            what: "the default: γ 0.99, ε 0.05, optimistic 1, 3 sweeps, replay, sweeps every 1 024 steps within episodes",
             cfg: |n| LearnerConfig::planning(n, 0),
         },
         Named {
@@ -148,6 +148,21 @@ pub fn named() -> Vec<Named> {
             name: "planning-10-sweeps",
             what: "default with up to ten sweeps per episode",
             cfg: |n| planning_with(n, |c| c.extras.sweeps = 10),
+        },
+        Named {
+            name: "planning-sweep-every-256",
+            what: "default with sweeps every 256 steps inside an episode (1 024)",
+            cfg: |n| planning_with(n, |c| c.extras.sweep_every = 256),
+        },
+        Named {
+            name: "planning-episode-sweeps",
+            what: "default sweeping after episodes only (the default until the sweeps within episodes)",
+            cfg: |n| planning_with(n, |c| c.extras.sweep_every = 0),
+        },
+        Named {
+            name: "planning-sweep-every-4096",
+            what: "default with sweeps every 4 096 steps inside an episode (1 024)",
+            cfg: |n| planning_with(n, |c| c.extras.sweep_every = 4096),
         },
         Named {
             name: "planning-eps0.2",
