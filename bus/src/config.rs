@@ -308,4 +308,15 @@ mod merged_buffer_tests {
             assert!(b <= merged_buffer_for(robots.saturating_sub(1).max(1)));
         }
     }
+
+    #[test]
+    fn a_default_four_robot_run_fits_a_containers_default_dev_shm() {
+        // Docker gives a container 64 MiB of /dev/shm unless told otherwise
+        let mut cfg = BusConfig::new("shm-budget", 4).unwrap();
+        cfg.hint_buffer = 64; // the coordinator's default
+        cfg.merged_buffer = merged_buffer_for(4);
+        let need = crate::files::shm_estimate(&cfg);
+        println!("4 robots: {} MiB reserved", need >> 20);
+        assert!(need < 64 << 20, "{need} bytes");
+    }
 }
