@@ -227,10 +227,7 @@ fn run(
         "qfleet: waiting for {remote} robot(s) from other hosts on {}: run `qfleet join {} --robots N` there",
         opts.listen, opts.listen
     );
-    let spin = link::spin_after();
-    let mut last_busy = Instant::now();
-    let mut last_data = Instant::now() - link::ACTIVE_FOR;
-    let mut expect_until = Instant::now();
+    let mut pacing = link::Pacing::new(Instant::now(), link::spin_after(), true);
     link::tighten_timer_slack();
     loop {
         let mut busy = false;
@@ -262,40 +259,24 @@ fn run(
             host.tick(now);
             if host.wake() {
                 // the coordinator answers hints and discoveries without a wakeup
-                expect_until = now + link::REPLY_WINDOW;
+                pacing.expect_reply(now);
             }
         }
         if stop.load(Ordering::SeqCst) {
             break;
         }
-        if data {
-            last_data = now;
-        }
-        if busy || data {
-            last_busy = now;
-            continue;
-        }
         // idle: keep looking a little (the coordinator's replies to what was just delivered
         // come without a wakeup), then block on the WaitSet until a frame, a join, a notified
         // message or the next periodic work
-        if now.duration_since(last_busy) < spin {
-            std::thread::yield_now();
-            continue;
-        }
-        if now < expect_until {
-            std::thread::sleep(link::REPLY_NAP);
-            continue;
-        }
         let due = hosts
             .iter()
             .filter(|h| !h.lost())
             .map(|h| h.last_beat + HEARTBEAT_EVERY)
             .min()
             .unwrap_or(now + HEARTBEAT_EVERY);
-        let timeout = link::wait_for(now, due, last_data);
-        if timeout.is_zero() {
+        let Some(timeout) = link::rest(pacing.after_pass(now, busy, data, due)) else {
             continue;
-        }
+        };
         // one proxy's inboxes are enough to hear the coordinator: a notify wakes every
         // listener of a topic, and every proxy subscribes to every coordinator topic
         let anchor = hosts.iter().find_map(|h| h.proxies.values().next());
@@ -697,19 +678,13 @@ impl Host {
         }
         if now.duration_since(self.last_beat) >= HEARTBEAT_EVERY {
             self.last_beat = now;
-            let t = monotonic_ns();
-            let hb = Heartbeat {
-                t_ns: t,
-                echo_ns: self.echo.0,
-                hold_ns: if self.echo.0 == 0 {
-                    0
-                } else {
-                    t.saturating_sub(self.echo.1)
-                },
-                acked: self.inc.acked(),
-                sent: self.out.next_seq(),
-                gone: Vec::new(),
-            };
+            let hb = Heartbeat::at(
+                monotonic_ns(),
+                self.echo,
+                self.inc.acked(),
+                self.out.next_seq(),
+                Vec::new(),
+            );
             // heartbeats go even while the link looks down: they are how it comes back
             self.tx.send(true, &wire::heartbeat_frame(&hb));
         }

@@ -266,6 +266,90 @@ pub fn wait_for(now: Instant, due: Instant, last_data: Instant) -> Duration {
     }
 }
 
+/// What a bridge loop does after a pass over both sides: the idle decision the hub and the
+/// joining side share, free of IO so it is tested as a specification ([`Pacing::after_pass`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Next {
+    /// Something moved, or periodic work is due: pass again at once.
+    Again,
+    /// Idle for less than the spin time: yield the CPU, then pass again.
+    Yield,
+    /// Waiting for an answer that comes without a wakeup: sleep this long, then pass again.
+    Nap(Duration),
+    /// Block on the `WaitSet` for at most this long.
+    Block(Duration),
+}
+
+/// The state behind [`Next`]: when the loop last moved anything, last moved a message, and until
+/// when an un-notified answer is expected.
+#[derive(Debug, Clone, Copy)]
+pub struct Pacing {
+    spin: Duration,
+    naps: bool,
+    last_busy: Instant,
+    last_data: Instant,
+    expect_until: Instant,
+}
+
+impl Pacing {
+    /// A loop starting at `now` that spins `spin` after each busy pass and, if `naps`, naps
+    /// for expected answers ([`expect_reply`](Self::expect_reply)).
+    pub fn new(now: Instant, spin: Duration, naps: bool) -> Self {
+        Pacing {
+            spin,
+            naps,
+            last_busy: now,
+            last_data: now.checked_sub(ACTIVE_FOR).unwrap_or(now),
+            expect_until: now,
+        }
+    }
+
+    /// Something was handed on at `now` whose answer comes without a wakeup: look for it
+    /// every [`REPLY_NAP`] for [`REPLY_WINDOW`].
+    pub fn expect_reply(&mut self, now: Instant) {
+        self.expect_until = now + REPLY_WINDOW;
+    }
+
+    /// After a pass at `now` that handled frames or joins (`busy`) and/or moved messages
+    /// (`data`), with the next periodic work `due`: what to do next.
+    pub fn after_pass(&mut self, now: Instant, busy: bool, data: bool, due: Instant) -> Next {
+        if data {
+            self.last_data = now;
+        }
+        if busy || data {
+            self.last_busy = now;
+            return Next::Again;
+        }
+        if now.duration_since(self.last_busy) < self.spin {
+            return Next::Yield;
+        }
+        if self.naps && now < self.expect_until {
+            return Next::Nap(REPLY_NAP);
+        }
+        match wait_for(now, due, self.last_data) {
+            t if t.is_zero() => Next::Again,
+            t => Next::Block(t),
+        }
+    }
+}
+
+/// Carries out the part of `next` that needs no `WaitSet`: yields or naps, and returns how long
+/// to block for when `next` says so (`None`: pass again).
+pub fn rest(next: Next) -> Option<Duration> {
+    match next {
+        Next::Again => None,
+        Next::Yield => {
+            std::thread::yield_now();
+            None
+        }
+        Next::Nap(d) => {
+            std::thread::sleep(d);
+            None
+        }
+        Next::Block(t) => Some(t),
+    }
+}
+
 /// Makes this thread's timed waits end on time: Linux lets a sleeping thread's wakeup slip by
 /// its timer slack (50 µs by default), which the hub's [`REPLY_NAP`]s would pay on every look.
 /// Best effort: without it the waits are only later.
@@ -279,6 +363,59 @@ pub fn tighten_timer_slack() {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_idle_loop_spins_then_naps_for_an_expected_answer_then_blocks() {
+        let t0 = Instant::now();
+        let us = Duration::from_micros;
+        let beat = t0 + Duration::from_millis(40);
+        let mut p = Pacing::new(t0, us(100), true);
+        // anything moved: pass again at once
+        assert_eq!(p.after_pass(t0, true, false, beat), Next::Again);
+        assert_eq!(p.after_pass(t0, false, true, beat), Next::Again);
+        p.expect_reply(t0);
+        // idle, within the spin time: yield
+        assert_eq!(p.after_pass(t0 + us(50), false, false, beat), Next::Yield);
+        // past the spin time, inside the reply window: nap
+        assert_eq!(
+            p.after_pass(t0 + us(500), false, false, beat),
+            Next::Nap(REPLY_NAP)
+        );
+        // past the reply window, a message moved within ACTIVE_FOR: block a millisecond
+        let later = t0 + REPLY_WINDOW + us(1);
+        assert_eq!(
+            p.after_pass(later, false, false, beat),
+            Next::Block(POLL_WHILE_ACTIVE)
+        );
+        // quiet past ACTIVE_FOR: block until the periodic work; once it is due: pass again
+        let quiet = t0 + ACTIVE_FOR + us(1);
+        let beat = quiet + Duration::from_millis(40);
+        assert_eq!(
+            p.after_pass(quiet, false, false, beat),
+            Next::Block(Duration::from_millis(40))
+        );
+        assert_eq!(p.after_pass(beat, false, false, beat), Next::Again);
+    }
+
+    #[test]
+    fn a_loop_without_naps_blocks_where_the_other_naps() {
+        let t0 = Instant::now();
+        let mut p = Pacing::new(t0, Duration::ZERO, false);
+        p.after_pass(t0, false, true, t0);
+        p.expect_reply(t0);
+        let now = t0 + Duration::from_micros(10);
+        let beat = now + Duration::from_millis(40);
+        assert_eq!(
+            p.after_pass(now, false, false, beat),
+            Next::Block(POLL_WHILE_ACTIVE)
+        );
+        // a fresh loop has moved nothing: it blocks to the heartbeat, not to the 1 ms poll
+        let mut fresh = Pacing::new(now, Duration::ZERO, true);
+        assert_eq!(
+            fresh.after_pass(now, false, false, beat),
+            Next::Block(Duration::from_millis(40))
+        );
+    }
 
     #[test]
     fn a_blocked_loop_polls_each_millisecond_while_messages_move_and_sleeps_to_the_heartbeat_after()

@@ -219,11 +219,8 @@ impl Joiner {
         let wake_guard = wakes.attach(&waitset)?;
         let mut last_beat = Instant::now() - HEARTBEAT_EVERY;
         let mut last_list = Instant::now();
-        let spin = link::spin_after();
-        let mut last_busy = Instant::now();
-        let mut last_data = Instant::now() - link::ACTIVE_FOR;
+        let mut pacing = link::Pacing::new(Instant::now(), link::spin_after(), link::reply_naps());
         let mut done_at: Option<Instant> = None;
-        let mut expect_until = Instant::now();
         link::tighten_timer_slack();
         let ending = loop {
             let now = Instant::now();
@@ -240,7 +237,7 @@ impl Joiner {
             if self.forward_up(now)? {
                 data = true;
                 // the coordinator's answer (merged hints, acks, relays) comes back over the link
-                expect_until = now + link::REPLY_WINDOW;
+                pacing.expect_reply(now);
             }
             self.wake_robots();
             if now.duration_since(last_list) >= LIST_EVERY {
@@ -274,28 +271,12 @@ impl Joiner {
                     break Ending::Done;
                 }
             }
-            if data {
-                last_data = now;
-            }
-            if busy || data {
-                last_busy = now;
-                continue;
-            }
             // idle: keep looking a little, then block on the WaitSet until a frame, a robot's
             // notified message, or the next heartbeat / robot listing
-            if now.duration_since(last_busy) < spin {
-                std::thread::yield_now();
-                continue;
-            }
-            if now < expect_until && link::reply_naps() {
-                std::thread::sleep(link::REPLY_NAP);
-                continue;
-            }
             let due = (last_beat + HEARTBEAT_EVERY).min(last_list + LIST_EVERY);
-            let timeout = link::wait_for(now, due, last_data);
-            if timeout.is_zero() {
+            let Some(timeout) = link::rest(pacing.after_pass(now, busy, data, due)) else {
                 continue;
-            }
+            };
             {
                 let _guards = self.bus.attach_all(&waitset)?;
                 waitset
@@ -480,19 +461,13 @@ impl Joiner {
     }
 
     fn heartbeat(&mut self) {
-        let t = monotonic_ns();
-        let hb = Heartbeat {
-            t_ns: t,
-            echo_ns: self.echo.0,
-            hold_ns: if self.echo.0 == 0 {
-                0
-            } else {
-                t.saturating_sub(self.echo.1)
-            },
-            acked: self.inc.acked(),
-            sent: self.out.next_seq(),
-            gone: self.gone.iter().copied().collect(),
-        };
+        let hb = Heartbeat::at(
+            monotonic_ns(),
+            self.echo,
+            self.inc.acked(),
+            self.out.next_seq(),
+            self.gone.iter().copied().collect(),
+        );
         self.tx.send(true, &wire::heartbeat_frame(&hb));
     }
 

@@ -217,6 +217,26 @@ pub struct Heartbeat {
     pub gone: Vec<u32>,
 }
 
+impl Heartbeat {
+    /// A heartbeat sent at `t_ns` that echoes `echo` (the `t_ns` of the last heartbeat
+    /// received and when it arrived, both 0 before the first), with the sender's stream
+    /// positions and gone robots.
+    pub fn at(t_ns: u64, echo: (u64, u64), acked: u64, sent: u64, gone: Vec<u32>) -> Self {
+        Heartbeat {
+            t_ns,
+            echo_ns: echo.0,
+            hold_ns: if echo.0 == 0 {
+                0
+            } else {
+                t_ns.saturating_sub(echo.1)
+            },
+            acked,
+            sent,
+            gone,
+        }
+    }
+}
+
 /// A heartbeat frame.
 pub fn heartbeat_frame(hb: &Heartbeat) -> Vec<u8> {
     let mut out = Vec::with_capacity(HEADER + 96);
@@ -238,6 +258,24 @@ pub fn goodbye_frame() -> Vec<u8> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_heartbeat_echoes_the_last_one_with_how_long_it_was_held() {
+        let first = Heartbeat::at(1_000, (0, 0), 3, 5, vec![2]);
+        assert_eq!(
+            (first.echo_ns, first.hold_ns),
+            (0, 0),
+            "nothing to echo yet"
+        );
+        assert_eq!((first.acked, first.sent, first.gone), (3, 5, vec![2]));
+        let hb = Heartbeat::at(9_000, (700, 8_250), 0, 0, Vec::new());
+        assert_eq!((hb.t_ns, hb.echo_ns, hb.hold_ns), (9_000, 700, 750));
+        // a clock read before the arrival (never on one host) holds for 0, not a wrap
+        assert_eq!(
+            Heartbeat::at(8_000, (700, 8_250), 0, 0, Vec::new()).hold_ns,
+            0
+        );
+    }
 
     #[test]
     fn a_message_survives_the_frame_round_trip() {
