@@ -22,8 +22,12 @@ use serde_json::Value;
 
 /// Robots of every run here; the forgeries name robots 0–3.
 const ROBOTS: u32 = 4;
-/// Episodes per robot: long enough that the forger acts while the robots learn.
-const EPISODES: &str = "100000";
+/// Episodes per robot, and the pace (env steps/s) that makes them last ~5 s on any machine
+/// (~80 steps each): the forger must act while the robots learn. Unpaced, 100 000 episodes
+/// ended in about a second on a fast machine, once before the forger had finished.
+const EPISODES: &str = "20000";
+/// See [`EPISODES`].
+const PACE: &str = "300000";
 /// Cells of `builtin:paper-20`.
 const CELLS: u32 = 20 * 20;
 
@@ -58,7 +62,14 @@ fn forge_during_run(tag: &str, forge: impl FnOnce(&Observer)) -> Ran {
         Command::new(bin("qfleet"))
             .args(["run", "--json", "--run-id", &id, "--out"])
             .arg(&dir)
-            .args(["--map", "builtin:paper-20", "--episodes", EPISODES])
+            .args([
+                "--map",
+                "builtin:paper-20",
+                "--episodes",
+                EPISODES,
+                "--pace",
+                PACE,
+            ])
             // the paper's learner: its episodes are long enough for the forger to meet every
             // robot mid-run (planning robots, the default, can be done before it has joined)
             .args(["--learner", "improved"])
