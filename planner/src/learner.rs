@@ -703,12 +703,11 @@ impl Learner {
         std::mem::take(&mut self.swept_within)
     }
 
-    /// Runs the sweeps now, in the middle of an episode, if the model or the table changed
-    /// from outside since the last sweep ([`add_known_move`](Self::add_known_move),
-    /// [`table_changed`](Self::table_changed)): a fleet robot's values then reflect what the
-    /// others explored before its own long episode ends. No replay (the episode is not over);
-    /// returns whether a value changed.
-    pub fn sweep_now(&mut self) -> bool {
+    /// Up to `sweeps` sweeps over every pair seen, alternating direction, stopping once one
+    /// changes nothing; skipped when the model (own moves, [`add_known_move`](Self::add_known_move),
+    /// [`table_changed`](Self::table_changed)) has not changed since such a sweep. Used after an
+    /// episode and inside one ([`Extras::sweep_every`]); returns whether a value changed.
+    fn sweep_now(&mut self) -> bool {
         let x = self.cfg.extras;
         if x.sweeps == 0 || !self.model_dirty {
             return false;
