@@ -178,6 +178,10 @@ pub fn generate(
 /// The suite seed of `qfleet eval` and of a `suite:` map spec that names none.
 pub const DEFAULT_SUITE_SEED: u64 = 1;
 
+/// Largest side a `suite:` spec may name: its square must fit [`crate::grid::MAX_CELLS`], so a
+/// too large spec is refused before anything is generated.
+pub const SPEC_MAX_SIDE: usize = crate::grid::MAX_CELLS.isqrt();
+
 /// Why a `suite:` map spec names no generated map.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum SpecError {
@@ -185,7 +189,7 @@ pub enum SpecError {
     #[error(
         "'suite:{spec}': {why} (expected suite:FAMILY-SIZE-INDEX[@SEED], e.g. suite:rooms-64-3, \
          FAMILY one of random, rooms, maze, walls, SIZE 4 to {max}, INDEX 0 to 999999)",
-        max = crate::grid::MAX_SIDE
+        max = SPEC_MAX_SIDE
     )]
     Bad {
         /// The spec after `suite:`.
@@ -226,13 +230,8 @@ pub fn from_spec(spec: &str) -> Result<SuiteTask, SpecError> {
     let size: usize = size
         .parse()
         .ok()
-        .filter(|s| (4..=crate::grid::MAX_SIDE).contains(s))
-        .ok_or_else(|| {
-            bad(format!(
-                "size '{size}' is not 4 to {}",
-                crate::grid::MAX_SIDE
-            ))
-        })?;
+        .filter(|s| (4..=SPEC_MAX_SIDE).contains(s))
+        .ok_or_else(|| bad(format!("size '{size}' is not 4 to {SPEC_MAX_SIDE}")))?;
     let index: usize = index
         .parse()
         .ok()
@@ -615,6 +614,7 @@ mod tests {
             ("movingai-64-3", "give the .map path"),
             ("rooms-3-0", "size '3'"),
             ("rooms-99999-0", "size '99999'"),
+            ("maze-4096-0", "size '4096' is not 4 to 2048"),
             ("rooms-64-x", "index 'x'"),
             ("rooms-64-1000000", "index '1000000'"),
             ("rooms-64-1@-2", "seed '-2'"),
