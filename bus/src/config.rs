@@ -143,9 +143,28 @@ impl BusConfig {
     }
 
     /// The iceoryx2 `Config` of this run, built in code (no config file is read).
+    ///
+    /// Every subscriber keeps the unread samples of as many departed publishers as a service
+    /// admits ([`Self::max_nodes`]). A robot sends its lossless final report and exits; from
+    /// then on its sample lives only in the subscriber's "expired connection", of which
+    /// iceoryx2 keeps 128 by default and silently discards the rest: 256 robots stopping
+    /// together lost up to half their reports (`bus/tests/lossless.rs` shows it with 160).
     pub fn iceoryx_config(&self) -> Result<Config, BusError> {
         self.validate()?;
-        iceoryx_config_for_prefix(&self.prefix())
+        let mut config = iceoryx_config_for_prefix(&self.prefix())?;
+        let expired = &mut config
+            .defaults
+            .publish_subscribe
+            .subscriber_expired_connection_buffer;
+        *expired = (*expired).max(self.max_nodes());
+        Ok(config)
+    }
+
+    /// The most processes (nodes) a service of this run admits — every robot, the coordinator,
+    /// the spare ports of restarted processes and the outside readers' slots — and so a bound
+    /// on the publishers or subscribers of any one topic.
+    pub fn max_nodes(&self) -> usize {
+        self.robots as usize + 1 + self.spare_ports as usize + OBSERVER_SLOTS as usize
     }
 
     /// Creates this process's iceoryx2 node in the run (one per process).

@@ -70,7 +70,9 @@
 //! send goes on ([`Outbox::outsider_drops`] counts them), so a stalled monitor never blocks or
 //! aborts a run. The handler runs only when a buffer is full: a send into free buffers costs
 //! the same as before. Latest-wins = safe overflow on: a full buffer drops its oldest sample;
-//! sequence gaps show it.
+//! sequence gaps show it. A sample stays receivable after its publisher's process exited: every
+//! subscriber keeps the unread samples of up to [`BusConfig::max_nodes`] departed publishers
+//! (iceoryx2's own default, 128, discarded the final reports of 256 robots stopping together).
 //!
 //! Limits, from `robots` = R, `spare_ports` = S (2: a restarted process whose dead
 //! predecessor is not cleaned yet) and [`OBSERVER_SLOTS`] = O (4: outside readers, see

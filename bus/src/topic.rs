@@ -202,7 +202,7 @@ pub fn limits(cfg: &BusConfig, topic: Topic) -> TopicLimits {
     TopicLimits {
         max_publishers,
         max_subscribers,
-        max_nodes: robots + 1 + spare,
+        max_nodes: cfg.max_nodes(),
         subscriber_buffer,
         subscriber_borrowed,
         publisher_loans: 2,

@@ -165,3 +165,38 @@ fn before_the_handshake_connects_a_subscriber_overflow_is_reported_not_silent() 
     coordinator.close().unwrap();
     assert_no_leftovers(&cfg);
 }
+
+#[test]
+fn reports_of_more_robots_than_iceoryx2_keeps_by_default_survive_their_senders_exit() {
+    // A robot sends its final report and exits; its connection to the coordinator's inbox then
+    // lives on only as an "expired connection" holding the unread sample. iceoryx2 keeps 128
+    // of those per subscriber by default and discards the rest: 256 robots stopping together
+    // lost reports (CI, tests/scale.rs: "robot 150 is gone ... without a final report").
+    // 160 robots here all send, all leave, and only then does the coordinator read.
+    const R: u32 = 160;
+    let cfg = config("expired", R);
+    let coordinator = CoordinatorBus::create(&cfg).unwrap();
+    let robots: Vec<RobotBus> = (0..R)
+        .map(|id| RobotBus::open(&cfg, id, PATIENCE).unwrap())
+        .collect();
+    coordinator.connect_all().unwrap();
+    for (id, robot) in robots.iter().enumerate() {
+        robot
+            .report
+            .send(&bus::bus_schema::FinalReport {
+                robot_id: id as u32,
+                ..Default::default()
+            })
+            .unwrap();
+    }
+    drop(robots);
+    let mut seen = vec![false; R as usize];
+    coordinator
+        .report
+        .drain(usize::MAX, |r| seen[r.robot_id as usize] = true)
+        .unwrap();
+    let missing: Vec<usize> = (0..R as usize).filter(|&i| !seen[i]).collect();
+    assert!(missing.is_empty(), "reports lost: {missing:?}");
+    coordinator.close().unwrap();
+    assert_no_leftovers(&cfg);
+}
