@@ -78,7 +78,7 @@ impl Link {
         let now = Instant::now();
         if now.duration_since(self.last_check) >= CHECK_EVERY {
             self.last_check = now;
-            self.look(bus)?;
+            self.look(bus, false)?;
         }
         if self.rejoining.is_some()
             && self
@@ -102,10 +102,23 @@ impl Link {
         Ok(())
     }
 
-    fn look(&mut self, bus: &RobotBus) -> Result<(), BusError> {
+    /// Looks for the coordinator now, by a full listing of the run's nodes, instead of at the
+    /// next periodic check; returns whether the robot is alone after it.
+    ///
+    /// For a lossless send that reached nobody: the coordinator may have died since the last
+    /// look (up to 250 ms ago), and its process may still exist as a zombie, which the periodic
+    /// check's `/proc` test would take for alive.
+    pub fn look_now(&mut self, bus: &RobotBus) -> Result<bool, BusError> {
+        self.last_check = Instant::now();
+        self.look(bus, true)?;
+        Ok(self.alone())
+    }
+
+    fn look(&mut self, bus: &RobotBus, full: bool) -> Result<(), BusError> {
         // the usual case costs one stat(2): listing the run's nodes reads a file per node, and
         // with many robots on few cores that would eat a robot's whole share of the CPU
-        if let Some(pid) = self.coordinator_pid
+        if !full
+            && let Some(pid) = self.coordinator_pid
             && !self.alone()
             && Path::new(&format!("/proc/{pid}")).exists()
         {
@@ -288,5 +301,42 @@ fn wait_start(
             });
         }
         bus.control.wait(deadline - now)?;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use bus::{BusConfig, CoordinatorBus, leftover_files, unique_run_id};
+
+    #[test]
+    fn a_coordinator_gone_since_the_last_look_is_seen_at_once_by_look_now() {
+        let cfg = BusConfig::new(unique_run_id("looknow"), 1).unwrap();
+        let coordinator = CoordinatorBus::create(&cfg).unwrap();
+        let robot = RobotBus::open(&cfg, 0, Duration::from_secs(20)).unwrap();
+        let mut link = Link::new(Register {
+            robot_id: 0,
+            ..Register::ZEROED
+        });
+        link.tick(&robot).unwrap();
+        assert!(!link.alone(), "the first look finds the coordinator");
+        coordinator.close().unwrap();
+        // the periodic check looks again only after CHECK_EVERY, and then only at /proc (the
+        // coordinator here is this very process, alive, like a zombie would look)
+        link.tick(&robot).unwrap();
+        assert!(!link.alone());
+        assert!(
+            link.look_now(&robot).unwrap(),
+            "the full listing finds no coordinator"
+        );
+        assert!(link.alone());
+        assert_eq!(link.counters.coordinator_losses, 1);
+        drop(robot);
+        // the last node of the run to leave was a robot's, which does not clean up after itself
+        bus::clean_run(&cfg).unwrap();
+        assert_eq!(
+            leftover_files(&cfg.prefix()),
+            Vec::<std::path::PathBuf>::new()
+        );
     }
 }
