@@ -12,7 +12,7 @@
 //! when the joining host says the robot's process is gone, or when the host stays silent past
 //! the deadline.
 
-use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::collections::{BTreeMap, BTreeSet};
 use std::ops::Range;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -37,7 +37,7 @@ use zenoh::sample::Sample;
 use crate::health::{ClockSync, LinkEvent, LinkState, LinkWatch};
 use crate::join::{Admission, JOIN_KEY, JoinPlan, JoinReply, JoinRequest, RemotePlan};
 use crate::link::{self, Tuning, Tx};
-use crate::reliable::{Arrival, Incoming, Outgoing};
+use crate::reliable::{Arrival, Incoming, Outgoing, Pending};
 use crate::stats::{HostEntry, HostReport, Percentiles, new_hist, record};
 use crate::topics::{FromRobot, ToRobot};
 use crate::wire::{self, HEADER, Heartbeat, Kind};
@@ -156,9 +156,7 @@ struct Host {
     echo: (u64, u64),
     last_beat: Instant,
     /// Lossless frames in order, waiting to be written into this host's bus.
-    deliver: VecDeque<Vec<u8>>,
-    /// Buffers of delivered frames, reused for the next ones.
-    spare: Vec<Vec<u8>>,
+    pending: Pending,
     proxies: BTreeMap<u32, Proxy>,
     /// Robots the host reported gone, applied once every frame it sent before is delivered.
     gone_after: Vec<(u64, Vec<u32>)>,
@@ -407,8 +405,7 @@ fn answer_join(
         clock: ClockSync::default(),
         echo: (0, 0),
         last_beat: now - HEARTBEAT_EVERY,
-        deliver: VecDeque::new(),
-        spare: Vec::new(),
+        pending: Pending::default(),
         proxies: BTreeMap::new(),
         gone_after: Vec::new(),
         gone: BTreeSet::new(),
@@ -469,15 +466,11 @@ impl Host {
                     self.gone_after.push((hb.sent, hb.gone));
                 }
             }
-            Kind::Lossless => match self.inc.arrive(h.seq) {
-                Arrival::Next => {
-                    let mut buf = self.spare.pop().unwrap_or_default();
-                    buf.clear();
-                    buf.extend_from_slice(frame);
-                    self.deliver.push_back(buf);
+            Kind::Lossless => {
+                if self.inc.arrive(h.seq) == Arrival::Next {
+                    self.pending.push(frame);
                 }
-                Arrival::Duplicate | Arrival::Gap => {}
-            },
+            }
             Kind::Latest => {
                 let _ = self.put(h.topic, &frame[HEADER..], cfg);
             }
@@ -491,21 +484,12 @@ impl Host {
 
     /// Writes the in-order lossless frames into the bus until one has to wait.
     fn deliver_in_order(&mut self, cfg: &BusConfig) -> bool {
-        let mut any = false;
-        while let Some(frame) = self.deliver.pop_front() {
-            let put = match wire::header(&frame) {
-                Ok(h) => self.put(h.topic, &frame[HEADER..], cfg),
-                Err(_) => Put::Rejected,
-            };
-            if let Put::Later = put {
-                self.deliver.push_front(frame);
-                break;
-            }
-            any = true;
-            if self.spare.len() < 1024 {
-                self.spare.push(frame);
-            }
-        }
+        let mut pending = std::mem::take(&mut self.pending);
+        let any = pending.deliver(|frame| match wire::header(frame) {
+            Ok(h) => !matches!(self.put(h.topic, &frame[HEADER..], cfg), Put::Later),
+            Err(_) => true,
+        });
+        self.pending = pending;
         any
     }
 
@@ -573,7 +557,7 @@ impl Host {
 
     /// Drops proxies of robots the host reported gone, once their last frames are delivered.
     fn apply_gone(&mut self) {
-        let delivered = self.inc.acked() - self.deliver.len() as u64;
+        let delivered = self.inc.acked() - self.pending.len() as u64;
         let mut i = 0;
         while i < self.gone_after.len() {
             if self.gone_after[i].0 <= delivered {

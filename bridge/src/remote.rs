@@ -9,7 +9,7 @@
 //! in the next heartbeat. While the link is down the robots keep learning; their lossless
 //! messages wait here and are resent when it is back.
 
-use std::collections::{BTreeSet, VecDeque};
+use std::collections::BTreeSet;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::Receiver;
 use std::time::{Duration, Instant};
@@ -30,7 +30,7 @@ use zenoh::sample::Sample;
 use crate::health::{ClockSync, LinkEvent, LinkState, LinkWatch};
 use crate::join::{JOIN_KEY, JoinPlan, JoinReply, JoinRequest};
 use crate::link::{self, Tuning, Tx};
-use crate::reliable::{Arrival, Incoming, Outgoing};
+use crate::reliable::{Arrival, Incoming, Outgoing, Pending};
 use crate::stats::{HostReport, Percentiles, new_hist, record};
 use crate::topics::{FromRobot, ToRobot};
 use crate::wire::{self, HEADER, Heartbeat, Kind};
@@ -105,9 +105,8 @@ pub struct Joiner {
     watch: LinkWatch,
     clock: ClockSync,
     echo: (u64, u64),
-    deliver: VecDeque<Vec<u8>>,
-    /// Buffers of delivered frames, reused for the next ones.
-    spare: Vec<Vec<u8>>,
+    /// Lossless frames in order, waiting to be written into this host's bus.
+    pending: Pending,
     seen: BTreeSet<u32>,
     gone: BTreeSet<u32>,
     rtt: Histogram<u64>,
@@ -178,8 +177,7 @@ impl Joiner {
             watch,
             clock,
             echo: (0, 0),
-            deliver: VecDeque::new(),
-            spare: Vec::new(),
+            pending: Pending::default(),
             seen: BTreeSet::new(),
             gone: BTreeSet::new(),
             rtt: new_hist(),
@@ -342,10 +340,7 @@ impl Joiner {
             }
             Kind::Lossless => {
                 if self.inc.arrive(h.seq) == Arrival::Next {
-                    let mut buf = self.spare.pop().unwrap_or_default();
-                    buf.clear();
-                    buf.extend_from_slice(frame);
-                    self.deliver.push_back(buf);
+                    self.pending.push(frame);
                 }
             }
             Kind::Latest => {
@@ -357,21 +352,12 @@ impl Joiner {
     }
 
     fn deliver_in_order(&mut self) -> bool {
-        let mut any = false;
-        while let Some(frame) = self.deliver.pop_front() {
-            let later = match wire::header(&frame) {
-                Ok(h) => self.put(h.topic, &frame[HEADER..]) == Some(false),
-                Err(_) => false,
-            };
-            if later {
-                self.deliver.push_front(frame);
-                break;
-            }
-            any = true;
-            if self.spare.len() < 1024 {
-                self.spare.push(frame);
-            }
-        }
+        let mut pending = std::mem::take(&mut self.pending);
+        let any = pending.deliver(|frame| match wire::header(frame) {
+            Ok(h) => self.put(h.topic, &frame[HEADER..]) != Some(false),
+            Err(_) => true,
+        });
+        self.pending = pending;
         any
     }
 
