@@ -30,6 +30,9 @@ pub struct Row {
     pub hist: Histogram<u64>,
     /// Samples recorded.
     pub count: u64,
+    /// Round trips without an answer, given up on and sent again (not samples; see
+    /// [`crate::roles::fleet::LOOP_RETRY`]).
+    pub lost: u64,
     /// Smallest sample, ns.
     pub min_ns: u64,
     /// Mean, ns.
@@ -77,6 +80,7 @@ impl Row {
             label: label.to_string(),
             bytes,
             count: hist.len(),
+            lost: m.batches_lost,
             min_ns: if hist.is_empty() { 0 } else { hist.min() },
             mean_ns: hist.mean(),
             p50_ns: q(0.5),
@@ -181,6 +185,23 @@ fn io(path: &Path) -> impl Fn(std::io::Error) -> BenchError + '_ {
 }
 
 impl Report {
+    /// One line per row that gave up on round trips (a dropped latest-wins message), empty
+    /// when none did: the samples of such a row are the round trips that were answered.
+    fn losses(&self) -> String {
+        let mut s = String::new();
+        for r in self.rows.iter().filter(|r| r.lost > 0) {
+            let _ = writeln!(
+                s,
+                "\n{}: {} round trip(s) had no answer within {} ms and were sent again (not \
+                 samples: a latest-wins hint or merged batch was dropped)",
+                r.label,
+                r.lost,
+                crate::roles::fleet::LOOP_RETRY.as_millis()
+            );
+        }
+        s
+    }
+
     /// The row with this label.
     pub fn row(&self, label: &str) -> Option<&Row> {
         self.rows.iter().find(|r| r.label == label)
@@ -351,6 +372,7 @@ impl Report {
                         .map_or("-".into(), |c| format!("{c:.1}")),
                 );
             }
+            s.push_str(&self.losses());
         }
         if !self.scale.is_empty() {
             let _ = writeln!(
@@ -433,6 +455,7 @@ impl Report {
                         .map_or("–".into(), |c| format!("{c:.1}"))
                 );
             }
+            s.push_str(&self.losses());
         }
         if !self.scale.is_empty() {
             s.push_str("\n| robots | batch | Q-updates merged/s | offered/s | loop p50 µs | loop p99 µs | CPU % | coordinator % | robots % | status |\n");

@@ -244,7 +244,8 @@ pub struct ChildReport {
     pub batches_sent: u64,
     /// Q-updates sent in those batches (scale robots).
     pub updates_sent: u64,
-    /// Batches never seen merged within 20 ms (scale robots' flow control gave up on them).
+    /// Batches never seen merged: within 20 ms (scale robots' flow control gave up on them),
+    /// or within [`crate::roles::fleet::LOOP_RETRY`] (a loop's round trip, sent again).
     pub batches_lost: u64,
     /// Merged entries applied or looked at (loop samples from foreign robots).
     pub merged_seen: u64,

@@ -197,9 +197,16 @@ fn finish(buses: Vec<RobotBus>, timeout: Duration) -> Result<(), BenchError> {
     Ok(())
 }
 
+/// How long the loop waits for one update's merged answer before it counts the round trip as
+/// lost and sends the next update. Hints and merged batches are latest-wins: one dropped (a full
+/// buffer, or a bridge that held latest-wins frames back while its link looked down) has no
+/// answer, and waiting on it stopped cross-host rows with "no answer within 10000 ms".
+pub const LOOP_RETRY: Duration = Duration::from_millis(250);
+
 /// The update loop, closed: robot 0 makes one Q update and sends it as a one-entry hint
 /// batch; the coordinator merges it and publishes a merged batch; robot 1 (same process)
-/// applies it; the next update is made once it was applied.
+/// applies it; the next update is made once it was applied, or after [`LOOP_RETRY`] without
+/// an answer (counted in `batches_lost`, not a sample).
 pub fn loop_robots(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
     let RoleSpec::LoopRobots {
         run_id,
@@ -232,21 +239,28 @@ pub fn loop_robots(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
     };
     let mut applier = MergedApplier::new(ctx);
     let updates = Updates::new(cells, 64, 0);
+    // no answer at all for `timeout` (every retry included) ends the row with an error
     let mut deadline = Deadline::new(timeout, "the coordinator's merged hint", Some(*peer_pid));
     let mut window = None;
+    let mut lost = 0;
     let mut i = 0;
+    // `n`: updates sent, so that a retried sample is a new update (a new value to merge)
+    let mut n = 0;
     while plan.more(i, || window_ns(&window)) {
-        if i == plan.warmup {
+        if i == plan.warmup && window.is_none() {
             window = Some(Window::start(Some(*peer_pid)));
             applier.clear_loop_hist(); // warm-up samples are not reported
+            lost = 0;
         }
-        let (cell, action, q) = updates.get(i, cells);
-        batcher.note(cell, action, q, i, monotonic_ns);
-        send_hints(&r0, &mut batcher, i, *notify)?;
+        let (cell, action, q) = updates.get(n, cells);
+        batcher.note(cell, action, q, n, monotonic_ns);
+        send_hints(&r0, &mut batcher, n, *notify)?;
+        n += 1;
         // robot 1 polls its inbox until the merged hint is applied
         let seen = applier.counters().entries_seen;
-        deadline.reset();
+        let asked = Instant::now();
         let mut spins: u32 = 0;
+        let mut answered = true;
         while applier.counters().entries_seen == seen {
             match r1.merged.receive_sample()? {
                 Some(sample) => applier.apply(sample.payload(), &mut q1, &visits1, monotonic_ns()),
@@ -254,6 +268,10 @@ pub fn loop_robots(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
                     spins = spins.wrapping_add(1);
                     if spins.is_multiple_of(4096) {
                         deadline.check()?;
+                        if asked.elapsed() >= LOOP_RETRY {
+                            answered = false;
+                            break;
+                        }
                     }
                     core::hint::spin_loop();
                 }
@@ -261,12 +279,18 @@ pub fn loop_robots(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
         }
         // robot 0 sees the same broadcast (its own values: skipped by a real robot)
         while r0.merged.receive_sample()?.is_some() {}
-        i += 1;
+        if answered {
+            deadline.reset();
+            i += 1;
+        } else {
+            lost += 1;
+        }
     }
     let h = applier.loop_hist();
     let mut r = ChildReport {
         samples: h.len(),
         merged_seen: applier.counters().entries_seen,
+        batches_lost: lost,
         ..ChildReport::default()
     };
     if let Some(w) = &window {
