@@ -26,7 +26,9 @@ mod wait;
 
 pub use engine::exited_file;
 pub use merge::{FleetTable, MergeRule};
-pub use options::{CoordArgs, CoordError, WaitStrategy};
+pub use options::{
+    BRIDGED_SPIN_US, CoordArgs, CoordError, DEFAULT_SPIN_US, WaitStrategy, spin_us_for,
+};
 pub use report::run::{
     LivenessEvent, LivenessKind, LivenessReport, RobotEntry, RobotOutcome, RunResult, Throughput,
 };

@@ -9,6 +9,11 @@
 //!   `event`. Bursts are served at spin latency, idle time costs nothing.
 //!
 //! All three also wake every 50 ms for the periodic work: progress lines, the end-of-run check.
+//!
+//! A coordinator beside a bridge hub (robots on other hosts) spins [`BRIDGED_SPIN_US`] instead
+//! of [`DEFAULT_SPIN_US`] ([`spin_us_for`]): the hub forwards every remote message through the
+//! coordinator's host, and on a 2-core machine a coordinator spinning 200 µs after each one
+//! kept the hub's thread off the CPU it needed to answer.
 
 use std::path::PathBuf;
 use std::time::Duration;
@@ -20,6 +25,27 @@ use qfleet_args::MapArgs;
 use crate::merge::MergeRule;
 
 pub use report::run::WaitStrategy;
+
+/// Hybrid wait: µs the coordinator spins after the last message when all robots are local
+/// (a local loop is answered at spin latency, ~2 µs, instead of an event wakeup).
+pub const DEFAULT_SPIN_US: u64 = 200;
+
+/// Hybrid wait with robots on other hosts: no spinning, the coordinator blocks at once.
+///
+/// Measured with `qfleet bench --cross-host --only xhost-loop --spin-us S` (2 vCPU, two
+/// network namespaces, 2026-12-02): update-loop p50 84–89 µs at S = 0, 122 µs at 20, 300 µs
+/// at 200, against a Zenoh ping-pong floor of 55–61 µs (BENCHMARKS.md "Across machines").
+pub const BRIDGED_SPIN_US: u64 = 0;
+
+/// The hybrid spin of a run's coordinator: `asked` if the user chose one, else
+/// [`BRIDGED_SPIN_US`] when robots join from other hosts and [`DEFAULT_SPIN_US`] otherwise.
+pub fn spin_us_for(asked: Option<u64>, remote_robots: u32) -> u64 {
+    asked.unwrap_or(if remote_robots > 0 {
+        BRIDGED_SPIN_US
+    } else {
+        DEFAULT_SPIN_US
+    })
+}
 
 /// Every option of the coordinator process.
 #[derive(Debug, Clone, Args)]
@@ -36,8 +62,9 @@ pub struct CoordArgs {
     /// How to wait for messages.
     #[arg(long, value_enum, default_value_t = WaitStrategy::Hybrid)]
     pub wait: WaitStrategy,
-    /// Hybrid: microseconds to keep spinning after the last message before blocking.
-    #[arg(long, default_value_t = 200)]
+    /// Hybrid: microseconds to keep spinning after the last message before blocking
+    /// (`qfleet run` passes 0 when robots join from other hosts, see [`spin_us_for`]).
+    #[arg(long, default_value_t = DEFAULT_SPIN_US)]
     pub spin_us: u64,
     /// How Q hints are merged into the fleet table (`qfleet run` and `experiment` always pass
     /// the rule that fits the learner, `min` for planning; this default is for a coordinator
@@ -176,4 +203,17 @@ pub(crate) fn secs(s: f64, option: &'static str) -> Result<Duration, CoordError>
             must: "a positive number of seconds",
             value: s.to_string(),
         })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_coordinator_beside_a_hub_does_not_spin_unless_asked() {
+        assert_eq!(spin_us_for(None, 0), DEFAULT_SPIN_US);
+        assert_eq!(spin_us_for(None, 4), BRIDGED_SPIN_US);
+        assert_eq!(spin_us_for(Some(50), 4), 50);
+        assert_eq!(spin_us_for(Some(0), 0), 0);
+    }
 }

@@ -267,6 +267,7 @@ pub fn run_once(
         .context(Exit::BadInput)
     })?;
     let hang_ms = remote.map(|r| r.hang_ms(DEFAULT_HANG_MS));
+    let spin_us = coordinator::spin_us_for(None, remote_robots);
     // the coordinator waits for a lost robot while the launcher may still restart it
     let restarts = match sup.policy {
         RestartPolicy::Never => 0,
@@ -278,6 +279,7 @@ pub fn run_once(
             .arg("--plan")
             .arg(&plan_file)
             .args(["--merge", &rules.merge.to_string()])
+            .args(["--spin-us", &spin_us.to_string()])
             .args(["--restarts", &restarts.to_string()])
             .args(
                 hang_ms

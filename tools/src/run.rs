@@ -42,9 +42,11 @@ pub struct RunCmd {
     /// How the coordinator waits for messages.
     #[arg(long, value_enum, default_value_t = WaitStrategy::Hybrid)]
     wait: WaitStrategy,
-    /// Hybrid wait: microseconds of spinning after the last message before blocking.
-    #[arg(long, default_value_t = 200)]
-    spin_us: u64,
+    /// Hybrid wait: microseconds of spinning after the last message before blocking [default:
+    /// 200, or 0 when robots join from other hosts (`--remote-robots`): a spinning coordinator
+    /// starves the bridge hub beside it]
+    #[arg(long)]
+    spin_us: Option<u64>,
     /// How the coordinator merges Q hints (default: the rule that fits the learner, `min` for
     /// planning, `max` for the paper's learners; see `--apply`).
     #[arg(long, value_enum)]
@@ -347,7 +349,7 @@ impl RunCmd {
                     "--wait",
                     &self.wait.to_string(),
                     "--spin-us",
-                    &self.spin_us.to_string(),
+                    &coordinator::spin_us_for(self.spin_us, self.remote.remote_robots).to_string(),
                 ])
                 .args(["--merge", &self.merge_rule().to_string(), "--progress"])
                 .args(["--hang-ms", &self.remote.hang_ms(self.hang_ms).to_string()])
