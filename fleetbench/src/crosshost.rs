@@ -197,7 +197,7 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
                     run_id: bus::unique_run_id("bench-xhost"),
                     robots: 2,
                     wait: WaitStrategy::Hybrid,
-                    spin_us: opts.spin_us,
+                    spin_us: coordinator::spin_us_for(opts.spin_us, 2),
                     map: opts.map.clone(),
                     out: dir.join("coordinator"),
                     timeout_s: quiet_ms as f64 / 1e3,

@@ -54,8 +54,9 @@ pub struct Options {
     pub idle_ms: u64,
     /// Map of the loop rows.
     pub map: String,
-    /// Hybrid wait: µs the coordinator spins after the last message.
-    pub spin_us: u64,
+    /// Hybrid wait: µs the coordinator spins after the last message; `None`: what a run
+    /// would use ([`coordinator::spin_us_for`]: 200 on one host, 0 beside a bridge hub).
+    pub spin_us: Option<u64>,
     /// Fleet sizes of the scale section (batch = `scale_main_batch`).
     pub scale_robots: Vec<u32>,
     /// Hint batch sizes of the scale section (at `scale_batch_robots` robots).
@@ -95,7 +96,7 @@ impl Options {
             warmup: 10_000,
             idle_ms: 1_000,
             map: "builtin:paper-20".into(),
-            spin_us: 200,
+            spin_us: None,
             scale_robots: vec![1, 2, 4, 8, 16, 32, 64],
             scale_batches: vec![1, 16, 64, 256],
             scale_main_batch: 256,
@@ -467,7 +468,7 @@ fn run_row(label: &str, opts: &Options, l: &Launcher, tmp: &Path) -> Result<Row,
                     run_id: run_id.clone(),
                     robots: 2,
                     wait,
-                    spin_us: opts.spin_us,
+                    spin_us: coordinator::spin_us_for(opts.spin_us, 0),
                     map: opts.map.clone(),
                     out: dir.join("coordinator"),
                     timeout_s: quiet_ms as f64 / 1e3,
@@ -583,7 +584,7 @@ fn scale_point_inner(
             run_id: run_id.clone(),
             robots: n,
             wait: WaitStrategy::Hybrid,
-            spin_us: opts.spin_us,
+            spin_us: coordinator::spin_us_for(opts.spin_us, 0),
             map: opts.scale_map.clone(),
             out: dir.join("coordinator"),
             timeout_s: timeout_ms as f64 / 1e3,

@@ -34,9 +34,10 @@ pub struct BenchCmd {
     /// Warm-up round trips per row (default 10000, --quick 1000).
     #[arg(long)]
     warmup: Option<u64>,
-    /// Hybrid wait: µs the coordinator keeps spinning after the last message.
-    #[arg(long, default_value_t = 200)]
-    spin_us: u64,
+    /// Hybrid wait: µs the coordinator keeps spinning after the last message [default: 200, and
+    /// 0 for the cross-host loop, as `qfleet run` does with remote robots]
+    #[arg(long)]
+    spin_us: Option<u64>,
     /// Fleet sizes of the scale section (comma-separated).
     #[arg(long, value_delimiter = ',')]
     robots: Vec<u32>,
