@@ -225,7 +225,7 @@ fn run(
         "qfleet: waiting for {remote} robot(s) from other hosts on {}: run `qfleet join {} --robots N` there",
         opts.listen, opts.listen
     );
-    let mut pacing = link::Pacing::new(Instant::now(), link::spin_after(), true);
+    let mut pacing = link::Pacing::new(Instant::now(), opts.tuning.spin);
     link::tighten_timer_slack();
     loop {
         let mut busy = false;

@@ -24,15 +24,19 @@ pub struct Tuning {
     pub express: bool,
     /// Zenoh's low-latency transport (no QoS priorities, no batching; both ends must agree).
     pub lowlatency: bool,
+    /// How long a bridge loop keeps looking at both sides after a message moved, yielding its
+    /// CPU, before it waits ([`SPIN_AFTER`]; `qfleet bench --cross-host --bridge-spin-us`).
+    pub spin: Duration,
 }
 
 impl Default for Tuning {
     /// Express on, low-latency transport off (it must match on both hosts and gives up
-    /// priorities; see BENCHMARKS.md for what each moves).
+    /// priorities; see BENCHMARKS.md for what each moves), [`SPIN_AFTER`].
     fn default() -> Self {
         Tuning {
             express: true,
             lowlatency: false,
+            spin: SPIN_AFTER,
         }
     }
 }
@@ -227,25 +231,6 @@ pub const REPLY_WINDOW: Duration = Duration::from_millis(2);
 /// wait in whole milliseconds).
 pub const REPLY_NAP: Duration = Duration::from_micros(50);
 
-/// The spin time in use: [`SPIN_AFTER`] unless `QFLEET_BRIDGE_SPIN_US` says otherwise
-/// (measurement only).
-pub fn spin_after() -> Duration {
-    static SPIN: std::sync::OnceLock<Duration> = std::sync::OnceLock::new();
-    *SPIN.get_or_init(|| {
-        std::env::var("QFLEET_BRIDGE_SPIN_US")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .map_or(SPIN_AFTER, Duration::from_micros)
-    })
-}
-
-/// Whether the joining side naps for the hub's answer too (`QFLEET_BRIDGE_JOIN_NAPS=0` turns it
-/// off; measurement only).
-pub fn reply_naps() -> bool {
-    static NAPS: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *NAPS.get_or_init(|| std::env::var("QFLEET_BRIDGE_JOIN_NAPS").map_or(true, |v| v != "0"))
-}
-
 /// While messages move, the longest a blocked bridge loop waits before it looks at its host's
 /// bus again for messages whose sender did not notify (an iceoryx2 `WaitSet` waits in whole
 /// milliseconds).
@@ -285,19 +270,17 @@ pub enum Next {
 #[derive(Debug, Clone, Copy)]
 pub struct Pacing {
     spin: Duration,
-    naps: bool,
     last_busy: Instant,
     last_data: Instant,
     expect_until: Instant,
 }
 
 impl Pacing {
-    /// A loop starting at `now` that spins `spin` after each busy pass and, if `naps`, naps
-    /// for expected answers ([`expect_reply`](Self::expect_reply)).
-    pub fn new(now: Instant, spin: Duration, naps: bool) -> Self {
+    /// A loop starting at `now` that spins `spin` after each busy pass and naps for expected
+    /// answers ([`expect_reply`](Self::expect_reply)).
+    pub fn new(now: Instant, spin: Duration) -> Self {
         Pacing {
             spin,
-            naps,
             last_busy: now,
             last_data: now.checked_sub(ACTIVE_FOR).unwrap_or(now),
             expect_until: now,
@@ -323,7 +306,7 @@ impl Pacing {
         if now.duration_since(self.last_busy) < self.spin {
             return Next::Yield;
         }
-        if self.naps && now < self.expect_until {
+        if now < self.expect_until {
             return Next::Nap(REPLY_NAP);
         }
         match wait_for(now, due, self.last_data) {
@@ -369,7 +352,7 @@ mod tests {
         let t0 = Instant::now();
         let us = Duration::from_micros;
         let beat = t0 + Duration::from_millis(40);
-        let mut p = Pacing::new(t0, us(100), true);
+        let mut p = Pacing::new(t0, us(100));
         // anything moved: pass again at once
         assert_eq!(p.after_pass(t0, true, false, beat), Next::Again);
         assert_eq!(p.after_pass(t0, false, true, beat), Next::Again);
@@ -398,11 +381,11 @@ mod tests {
     }
 
     #[test]
-    fn a_loop_without_naps_blocks_where_the_other_naps() {
+    fn a_loop_expecting_no_answer_blocks_and_a_fresh_one_blocks_to_the_heartbeat() {
         let t0 = Instant::now();
-        let mut p = Pacing::new(t0, Duration::ZERO, false);
+        let mut p = Pacing::new(t0, Duration::ZERO);
+        // a message moved, but nothing was handed on that answers without a wakeup
         p.after_pass(t0, false, true, t0);
-        p.expect_reply(t0);
         let now = t0 + Duration::from_micros(10);
         let beat = now + Duration::from_millis(40);
         assert_eq!(
@@ -410,7 +393,7 @@ mod tests {
             Next::Block(POLL_WHILE_ACTIVE)
         );
         // a fresh loop has moved nothing: it blocks to the heartbeat, not to the 1 ms poll
-        let mut fresh = Pacing::new(now, Duration::ZERO, true);
+        let mut fresh = Pacing::new(now, Duration::ZERO);
         assert_eq!(
             fresh.after_pass(now, false, false, beat),
             Next::Block(Duration::from_millis(40))

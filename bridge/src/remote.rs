@@ -113,6 +113,8 @@ pub struct Joiner {
     one_way: Histogram<u64>,
     wake: [bool; 4],
     report: HostReport,
+    /// How long the loop keeps looking after a message moved ([`Tuning::spin`]).
+    spin: Duration,
 }
 
 /// How [`Joiner::serve`] ended.
@@ -184,6 +186,7 @@ impl Joiner {
             one_way: new_hist(),
             wake: [false; 4],
             report,
+            spin: tuning.spin,
         })
     }
 
@@ -217,7 +220,7 @@ impl Joiner {
         let wake_guard = wakes.attach(&waitset)?;
         let mut last_beat = Instant::now() - HEARTBEAT_EVERY;
         let mut last_list = Instant::now();
-        let mut pacing = link::Pacing::new(Instant::now(), link::spin_after(), link::reply_naps());
+        let mut pacing = link::Pacing::new(Instant::now(), self.spin);
         let mut done_at: Option<Instant> = None;
         link::tighten_timer_slack();
         let ending = loop {

@@ -177,6 +177,9 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
     let hist_path = dir.join("latency.bin");
     let quiet_ms = plan.timeout_ms + plan.idle_ms + 5_000;
     let endpoint = format!("tcp/{A_ADDR}:7447");
+    let bridge_spin_us = opts
+        .bridge_spin_us
+        .unwrap_or(bridge::SPIN_AFTER.as_micros() as u64);
     let (express, lowlatency) = match label {
         "xhost-zenoh-batched" => (false, false),
         "xhost-zenoh-lowlatency" => (true, true),
@@ -205,6 +208,7 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
                 listen: endpoint.clone(),
                 express,
                 lowlatency,
+                bridge_spin_us,
             },
             ["robots + bridge (host B)", "coordinator + bridge (host A)"],
             size_of::<QHintBatch>(),
@@ -244,6 +248,7 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
                 endpoint: endpoint.clone(),
                 express,
                 lowlatency,
+                bridge_spin_us,
             }
         }
         _ => RoleSpec::ZenohPing {

@@ -57,6 +57,9 @@ pub struct Options {
     /// Hybrid wait: µs the coordinator spins after the last message; `None`: what a run
     /// would use ([`coordinator::spin_us_for`]: 200 on one host, 0 beside a bridge hub).
     pub spin_us: Option<u64>,
+    /// Cross-host rows: µs each bridge keeps looking after a message moved; `None`:
+    /// `bridge::SPIN_AFTER`, what a run uses.
+    pub bridge_spin_us: Option<u64>,
     /// Fleet sizes of the scale section (batch = `scale_main_batch`).
     pub scale_robots: Vec<u32>,
     /// Hint batch sizes of the scale section (at `scale_batch_robots` robots).
@@ -97,6 +100,7 @@ impl Options {
             idle_ms: 1_000,
             map: "builtin:paper-20".into(),
             spin_us: None,
+            bridge_spin_us: None,
             scale_robots: vec![1, 2, 4, 8, 16, 32, 64],
             scale_batches: vec![1, 16, 64, 256],
             scale_main_batch: 256,

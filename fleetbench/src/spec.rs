@@ -185,6 +185,8 @@ pub enum RoleSpec {
         express: bool,
         /// Zenoh's low-latency transport.
         lowlatency: bool,
+        /// µs the bridge keeps looking after a message moved (`bridge::Tuning::spin`).
+        bridge_spin_us: u64,
     },
     /// Cross-host loop: the loop robots plus a joining bridge (measures).
     BridgedRobots {
@@ -196,6 +198,8 @@ pub enum RoleSpec {
         express: bool,
         /// Zenoh's low-latency transport.
         lowlatency: bool,
+        /// µs the bridge keeps looking after a message moved (`bridge::Tuning::spin`).
+        bridge_spin_us: u64,
     },
     /// A lightweight robot of the scale benchmark: emits hint batches as fast as the
     /// coordinator's buffer allows and applies the fleet's merged hints.

@@ -38,6 +38,10 @@ pub struct BenchCmd {
     /// 0 for the cross-host loop, as `qfleet run` does with remote robots]
     #[arg(long)]
     spin_us: Option<u64>,
+    /// Cross-host rows: µs each bridge keeps looking (yielding its CPU) after a message moved
+    /// before it waits [default: 100, what a run uses]
+    #[arg(long)]
+    bridge_spin_us: Option<u64>,
     /// Fleet sizes of the scale section (comma-separated).
     #[arg(long, value_delimiter = ',')]
     robots: Vec<u32>,
@@ -96,6 +100,7 @@ impl BenchCmd {
             opts.scale_ms = ms;
         }
         opts.spin_us = self.spin_us;
+        opts.bridge_spin_us = self.bridge_spin_us;
         opts.scale_in_flight = self.in_flight.max(1);
         opts.scale_notify_gap_us = self.notify_gap_us;
         let launcher = fleetbench::Launcher {

@@ -79,6 +79,7 @@ pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
             bridge::Tuning {
                 express,
                 lowlatency,
+                ..bridge::Tuning::default()
             },
             Duration::from_millis(timeout_ms),
         )?,
@@ -94,6 +95,7 @@ pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
             bridge::Tuning {
                 express,
                 lowlatency,
+                ..bridge::Tuning::default()
             },
             &plan,
             peer_pid,
@@ -104,12 +106,14 @@ pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
             listen,
             express,
             lowlatency,
+            bridge_spin_us,
         } => xhost::bridged_coordinator(
             &inner,
             &listen,
             bridge::Tuning {
                 express,
                 lowlatency,
+                spin: Duration::from_micros(bridge_spin_us),
             },
         )?,
         RoleSpec::BridgedRobots {
@@ -117,12 +121,14 @@ pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
             endpoint,
             express,
             lowlatency,
+            bridge_spin_us,
         } => xhost::bridged_robots(
             &inner,
             &endpoint,
             bridge::Tuning {
                 express,
                 lowlatency,
+                spin: Duration::from_micros(bridge_spin_us),
             },
         )?,
     };
