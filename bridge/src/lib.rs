@@ -34,7 +34,7 @@ use std::time::Duration;
 pub use health::{ClockSync, LinkState, LinkWatch};
 pub use hub::{Hub, HubOptions, HubReport};
 pub use join::{JoinPlan, JoinReply, JoinRequest, RemotePlan};
-pub use link::{SPIN_AFTER, Tuning};
+pub use link::{RUNTIME_THREADS, SPIN_AFTER, Tuning, prefer_runtime_threads};
 pub use remote::{Ending, Joiner, request};
 pub use stats::{HostEntry, HostLink, HostReport, HostState, Percentiles};
 

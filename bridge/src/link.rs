@@ -41,6 +41,27 @@ impl Default for Tuning {
     }
 }
 
+/// Zenoh's runtime threads as the bridge wants them, in the syntax of Zenoh's `ZENOH_RUNTIME`
+/// environment variable: one receiving worker thread instead of Zenoh's two.
+///
+/// Measured on 2 vCPUs (`qfleet bench --cross-host`, BENCHMARKS.md "Across machines"): the
+/// cross-host update loop's p50 67–77 µs against 79–99 µs with two, its p99 133–203 µs against
+/// 172–700 µs; a second thread only competes with the bridge loops for the same two cores.
+pub const RUNTIME_THREADS: &str = "(rx: (worker_threads: 1))";
+
+/// Sets `ZENOH_RUNTIME` to [`RUNTIME_THREADS`] unless the user set it; Zenoh reads it once, when
+/// its runtimes first start, so this must run before any Zenoh call.
+///
+/// # Safety
+/// Changes the process environment: call it before the process has started any other thread
+/// (first thing in `main`), as [`std::env::set_var`] requires.
+pub unsafe fn prefer_runtime_threads() {
+    if std::env::var_os("ZENOH_RUNTIME").is_none() {
+        // SAFETY: the caller guarantees that no other thread exists yet
+        unsafe { std::env::set_var("ZENOH_RUNTIME", RUNTIME_THREADS) };
+    }
+}
+
 fn base_config(tuning: Tuning) -> Result<zenoh::Config, BridgeError> {
     let mut c = zenoh::Config::default();
     let mut set = |k: &str, v: &str| {

@@ -78,6 +78,8 @@ pub fn catch_interrupts() -> anyhow::Result<()> {
 }
 
 fn main() {
+    // SAFETY: first thing in main, before this process starts any thread
+    unsafe { bridge::prefer_runtime_threads() };
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Learn(c) => c.run(),
