@@ -470,9 +470,16 @@ fn qfleet_clean_removes_a_crashed_run_and_leaves_a_live_one_alone() {
         "{}",
         describe(&clash)
     );
+    // the killed launcher's lock file is still there: nobody holds it
+    // SAFETY: getuid(2) cannot fail.
+    let lock = std::path::PathBuf::from(format!("/tmp/qfleet-{}/{dead}.lock", unsafe {
+        libc::getuid()
+    }));
+    assert!(lock.exists(), "the killed launcher left no lock to clean");
     let said = clean(&["--run-id", &dead]);
     assert!(said.contains("removed"), "{said}");
     assert!(leftovers(&dead).is_empty(), "{:?}", leftovers(&dead));
+    assert!(!lock.exists(), "the stale lock stays: {said}");
     let (r, out) = finish(child);
     assert!(out.status.success(), "{}", describe(&out));
     assert!(r.is_some());

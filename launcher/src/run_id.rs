@@ -216,6 +216,52 @@ impl RunClaim {
     }
 }
 
+/// Removes the lock file of run `id` that a launcher which died left behind (a SIGKILL skips
+/// [`RunClaim`]'s drop): `Some(path)` when one was removed, `None` when there was none or a live
+/// launcher holds it (that run is not touched). For `qfleet clean`.
+pub fn release_stale(id: &str) -> Result<Option<PathBuf>, RunIdError> {
+    validate(id)?;
+    release_stale_in(id, &private_dir(id)?)
+}
+
+/// [`release_stale`] with the lock files in `dir`.
+pub fn release_stale_in(id: &str, dir: &Path) -> Result<Option<PathBuf>, RunIdError> {
+    let path = dir.join(format!("{id}.lock"));
+    if std::fs::symlink_metadata(&path).is_err() {
+        return Ok(None);
+    }
+    match RunClaim::acquire_in(id, dir) {
+        // nobody held it: dropping our claim unlinks the file
+        Ok(claim) => {
+            drop(claim);
+            Ok(Some(path))
+        }
+        Err(RunIdError::InUse { .. }) => Ok(None),
+        Err(e) => Err(e),
+    }
+}
+
+/// Run ids with a lock file in the user's private directory (live or stale), for `qfleet clean`
+/// to look at runs that never reached shared memory; unreadable entries and names that are not
+/// valid run ids are skipped.
+pub fn claimed_ids() -> Vec<String> {
+    // SAFETY: getuid(2) cannot fail.
+    let uid = unsafe { libc::getuid() };
+    let Ok(entries) = std::fs::read_dir(format!("/tmp/qfleet-{uid}")) else {
+        return Vec::new();
+    };
+    let mut ids: Vec<String> = entries
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().into_string().ok()?;
+            let id = name.strip_suffix(".lock")?;
+            validate(id).ok().map(|()| id.to_string())
+        })
+        .collect();
+    ids.sort();
+    ids
+}
+
 impl Drop for RunClaim {
     fn drop(&mut self) {
         // unlink while still holding the lock; a waiter that opened the old inode re-checks it
@@ -226,6 +272,29 @@ impl Drop for RunClaim {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_dead_launchers_lock_is_released_and_a_live_ones_is_left_alone() {
+        let dir = tempfile::tempdir().unwrap();
+        // no lock file at all
+        assert_eq!(release_stale_in("r1", dir.path()).unwrap(), None);
+        // a lock file nobody holds (its launcher was killed)
+        let stale = dir.path().join("r1.lock");
+        std::fs::write(&stale, "123\n").unwrap();
+        assert_eq!(
+            release_stale_in("r1", dir.path()).unwrap(),
+            Some(stale.clone())
+        );
+        assert!(!stale.exists());
+        // a live launcher's claim stays, and stays held
+        let claim = RunClaim::acquire_in("r2", dir.path()).unwrap();
+        assert_eq!(release_stale_in("r2", dir.path()).unwrap(), None);
+        assert!(claim.path().exists());
+        assert!(matches!(
+            RunClaim::acquire_in("r2", dir.path()),
+            Err(RunIdError::InUse { .. })
+        ));
+    }
 
     #[test]
     fn valid_ids_pass() {

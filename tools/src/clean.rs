@@ -6,7 +6,9 @@
 //! any process of the run is alive the run is left alone and reported; otherwise dead nodes are
 //! cleaned through iceoryx2 and the remaining files removed (`bus::clean_stale`). Leftovers never
 //! block a new run (iceoryx2 cleans dead nodes when a node is created), but they take shared
-//! memory until removed.
+//! memory until removed. A killed launcher also leaves its run's lock file in
+//! `/tmp/qfleet-<uid>/`; a lock file nobody holds is removed with the rest (one a live launcher
+//! holds is left alone), also for runs that never reached shared memory.
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
@@ -33,7 +35,17 @@ impl CleanCmd {
                 bus::validate_run_id(id)?;
                 vec![bus_schema::names::iceoryx_prefix(id)]
             }
-            None => bus::find_run_prefixes(),
+            None => {
+                let mut p = bus::find_run_prefixes();
+                // runs whose launcher died before any process made a file in shared memory
+                for id in launcher::run_id::claimed_ids() {
+                    let prefix = bus_schema::names::iceoryx_prefix(&id);
+                    if !p.contains(&prefix) {
+                        p.push(prefix);
+                    }
+                }
+                p
+            }
         };
         let mut removed = 0usize;
         let mut live = 0usize;
@@ -67,6 +79,9 @@ impl CleanCmd {
                 continue;
             }
             if files.is_empty() {
+                if !self.dry_run {
+                    removed += release_lock(run_id, &mut errors)?;
+                }
                 continue;
             }
             let dead = nodes.dead().count();
@@ -98,6 +113,7 @@ impl CleanCmd {
                         out!("  {}", f.display())?;
                     }
                     removed += gone.len();
+                    removed += release_lock(run_id, &mut errors)?;
                 }
                 Err(e) => errors.push(format!("run {run_id}: {e}")),
             }
@@ -109,5 +125,24 @@ impl CleanCmd {
             bail!("{}", errors.join("; "));
         }
         Ok(())
+    }
+}
+
+/// Removes run `run_id`'s lock file if its launcher is gone (see the module doc); returns how
+/// many files that removed (0 or 1) and keeps an error for the summary.
+fn release_lock(run_id: &str, errors: &mut Vec<String>) -> Result<usize> {
+    match launcher::run_id::release_stale(run_id) {
+        Ok(Some(path)) => {
+            out!(
+                "run {run_id}: removed its launcher's stale lock {}",
+                path.display()
+            )?;
+            Ok(1)
+        }
+        Ok(None) => Ok(0),
+        Err(e) => {
+            errors.push(format!("run {run_id}: {e}"));
+            Ok(0)
+        }
     }
 }
