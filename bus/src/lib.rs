@@ -184,8 +184,8 @@ pub use files::{
 };
 pub use handshake::{Admission, Expected, check_register, control, reason, set_reason};
 pub use liveness::{
-    CleanReport, Liveness, NodeInfo, NodeReport, check_nodes, clean_run, clean_stale,
-    find_run_prefixes, iceoryx_root, leftover_files,
+    CleanReport, EMPTY_NODE_DIR_AGE, Liveness, NodeInfo, NodeReport, check_nodes, clean_run,
+    clean_stale, find_run_prefixes, iceoryx_root, leftover_files, remove_empty_node_dirs,
 };
 pub use observer::{OBSERVER_NODE_PREFIX, Observer};
 pub use topic::{

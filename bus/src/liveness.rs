@@ -142,6 +142,41 @@ pub struct CleanReport {
     pub dead_cleaned: usize,
     /// Leftover files removed afterwards.
     pub removed: Vec<PathBuf>,
+    /// Empty iceoryx2 node directories removed, of any run ([`remove_empty_node_dirs`]).
+    pub empty_node_dirs: usize,
+}
+
+/// How old an empty iceoryx2 node directory must be before [`clean_stale`] removes it: far
+/// longer than iceoryx2 takes between creating a node's directory and its first file.
+pub const EMPTY_NODE_DIR_AGE: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// Removes the directories in `nodes_dir` (iceoryx2's `<root>/nodes/`) that are empty and were
+/// last changed at least `min_age` ago; returns how many.
+///
+/// A process killed (or out of file descriptors) between iceoryx2's creating its node directory
+/// and the node's files leaves one behind (seen twice in CI). It is named by node id only, so no
+/// prefix tells whose it is; but an empty one holds no node, and the age keeps a node that is
+/// being created right now out of reach. A directory that is not empty, or not ours to remove,
+/// stays.
+pub fn remove_empty_node_dirs(nodes_dir: &Path, min_age: std::time::Duration) -> usize {
+    let Ok(entries) = std::fs::read_dir(nodes_dir) else {
+        return 0;
+    };
+    let now = std::time::SystemTime::now();
+    let mut n = 0;
+    for e in entries.flatten() {
+        let Ok(meta) = e.metadata() else { continue };
+        let old = meta
+            .modified()
+            .ok()
+            .and_then(|t| now.duration_since(t).ok())
+            .is_some_and(|age| age >= min_age);
+        // remove_dir refuses a directory that is not empty
+        if meta.is_dir() && old && std::fs::remove_dir(e.path()).is_ok() {
+            n += 1;
+        }
+    }
+    n
 }
 
 /// Cleans up everything a run with iceoryx2 prefix `prefix` (e.g. `qfleet.<run-id>.`) left
@@ -157,6 +192,7 @@ pub fn clean_stale(prefix: &str) -> Result<CleanReport, BusError> {
         dead_cleaned: nodes.cleaned,
         alive,
         removed: Vec::new(),
+        empty_node_dirs: remove_empty_node_dirs(&iceoryx_root().join("nodes"), EMPTY_NODE_DIR_AGE),
     };
     if !report.alive.is_empty() {
         return Ok(report);
@@ -249,4 +285,31 @@ pub fn find_run_prefixes() -> Vec<String> {
     prefixes.sort();
     prefixes.dedup();
     prefixes
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    #[test]
+    fn only_empty_node_directories_old_enough_are_removed() {
+        let root = std::env::temp_dir().join(format!("qfleet-nodes-test-{}", std::process::id()));
+        let (empty, full) = (root.join("111"), root.join("222"));
+        std::fs::create_dir_all(&empty).unwrap();
+        std::fs::create_dir_all(&full).unwrap();
+        std::fs::write(full.join("qfleet.x.node_monitor"), b"").unwrap();
+        // too young: a node may be being created in it right now
+        assert_eq!(remove_empty_node_dirs(&root, Duration::from_secs(3600)), 0);
+        assert!(empty.exists());
+        // old enough: the empty one goes, the one holding a node's file stays
+        assert_eq!(remove_empty_node_dirs(&root, Duration::ZERO), 1);
+        assert!(!empty.exists() && full.exists());
+        // a missing directory is nothing to do, not an error
+        assert_eq!(
+            remove_empty_node_dirs(&root.join("absent"), Duration::ZERO),
+            0
+        );
+        std::fs::remove_dir_all(&root).unwrap();
+    }
 }

@@ -8,7 +8,8 @@
 //! block a new run (iceoryx2 cleans dead nodes when a node is created), but they take shared
 //! memory until removed. A killed launcher also leaves its run's lock file in
 //! `/tmp/qfleet-<uid>/`; a lock file nobody holds is removed with the rest (one a live launcher
-//! holds is left alone), also for runs that never reached shared memory.
+//! holds is left alone), also for runs that never reached shared memory. Empty iceoryx2 node
+//! directories older than `bus::EMPTY_NODE_DIR_AGE` go too (`bus::remove_empty_node_dirs`).
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
@@ -118,7 +119,18 @@ impl CleanCmd {
                 Err(e) => errors.push(format!("run {run_id}: {e}")),
             }
         }
-        if prefixes.is_empty() || (removed == 0 && live == 0 && !self.dry_run) {
+        if !self.dry_run {
+            // empty node directories carry no run prefix: swept for every run at once
+            let n = bus::remove_empty_node_dirs(
+                &bus::iceoryx_root().join("nodes"),
+                bus::EMPTY_NODE_DIR_AGE,
+            );
+            if n > 0 {
+                out!("removed {n} empty iceoryx2 node director(ies) left by killed processes")?;
+                removed += n;
+            }
+        }
+        if removed == 0 && live == 0 && (prefixes.is_empty() || !self.dry_run) {
             out!("nothing to clean")?;
         }
         if !errors.is_empty() {
