@@ -45,8 +45,9 @@ impl Default for Tuning {
 /// environment variable: one receiving worker thread instead of Zenoh's two.
 ///
 /// Measured on 2 vCPUs (`qfleet bench --cross-host`, BENCHMARKS.md "Across machines"): the
-/// cross-host update loop's p50 67–77 µs against 79–99 µs with two, its p99 133–203 µs against
-/// 172–700 µs; a second thread only competes with the bridge loops for the same two cores.
+/// cross-host update loop's p50 67.5 / 70.7 µs against 82.5 / 99.1 µs with two in alternated runs,
+/// its p99 133 / 141 µs against 300 / 699 µs (every two-thread run of that session: p50 70–99
+/// µs); a second thread only competes with the bridge loops for the same two cores.
 pub const RUNTIME_THREADS: &str = "(rx: (worker_threads: 1))";
 
 /// Sets `ZENOH_RUNTIME` to [`RUNTIME_THREADS`] unless the user set it; Zenoh reads it once, when

@@ -179,6 +179,11 @@ pub fn remove_empty_node_dirs(nodes_dir: &Path, min_age: std::time::Duration) ->
     n
 }
 
+/// [`remove_empty_node_dirs`] in iceoryx2's own node directory, [`EMPTY_NODE_DIR_AGE`] old.
+pub fn sweep_empty_node_dirs() -> usize {
+    remove_empty_node_dirs(&iceoryx_root().join("nodes"), EMPTY_NODE_DIR_AGE)
+}
+
 /// Cleans up everything a run with iceoryx2 prefix `prefix` (e.g. `qfleet.<run-id>.`) left
 /// behind: first dead nodes through iceoryx2, then — only if no node of the prefix is alive —
 /// every remaining file of the prefix in `/dev/shm` and under iceoryx2's root path (a clean exit
@@ -192,7 +197,7 @@ pub fn clean_stale(prefix: &str) -> Result<CleanReport, BusError> {
         dead_cleaned: nodes.cleaned,
         alive,
         removed: Vec::new(),
-        empty_node_dirs: remove_empty_node_dirs(&iceoryx_root().join("nodes"), EMPTY_NODE_DIR_AGE),
+        empty_node_dirs: sweep_empty_node_dirs(),
     };
     if !report.alive.is_empty() {
         return Ok(report);

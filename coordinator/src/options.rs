@@ -33,7 +33,7 @@ pub const DEFAULT_SPIN_US: u64 = 200;
 /// Hybrid wait with robots on other hosts: no spinning, the coordinator blocks at once.
 ///
 /// Measured with `qfleet bench --cross-host --only xhost-loop --spin-us S` (2 vCPU, two
-/// network namespaces, 2026-12-02): update-loop p50 84–89 µs at S = 0, 122 µs at 20, 300 µs
+/// network namespaces, 2026-12-02): update-loop p50 76–89 µs at S = 0, 122 µs at 20, 300 µs
 /// at 200, against a Zenoh ping-pong floor of 55–61 µs (BENCHMARKS.md "Across machines").
 pub const BRIDGED_SPIN_US: u64 = 0;
 

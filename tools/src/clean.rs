@@ -9,7 +9,7 @@
 //! memory until removed. A killed launcher also leaves its run's lock file in
 //! `/tmp/qfleet-<uid>/`; a lock file nobody holds is removed with the rest (one a live launcher
 //! holds is left alone), also for runs that never reached shared memory. Empty iceoryx2 node
-//! directories older than `bus::EMPTY_NODE_DIR_AGE` go too (`bus::remove_empty_node_dirs`).
+//! directories older than `bus::EMPTY_NODE_DIR_AGE` go too (`bus::sweep_empty_node_dirs`).
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
@@ -49,6 +49,8 @@ impl CleanCmd {
             }
         };
         let mut removed = 0usize;
+        // empty node directories carry no run prefix: every clean_stale sweeps them for all runs
+        let mut empty_dirs = 0usize;
         let mut live = 0usize;
         let mut errors = Vec::new();
         for prefix in &prefixes {
@@ -96,7 +98,11 @@ impl CleanCmd {
                 }
                 continue;
             }
-            match bus::clean_stale(prefix) {
+            let cleaned = bus::clean_stale(prefix);
+            if let Ok(r) = &cleaned {
+                empty_dirs += r.empty_node_dirs;
+            }
+            match cleaned {
                 Ok(r) if !r.alive.is_empty() => {
                     live += 1;
                     out!("run {run_id}: came alive meanwhile, left alone")?;
@@ -120,14 +126,13 @@ impl CleanCmd {
             }
         }
         if !self.dry_run {
-            // empty node directories carry no run prefix: swept for every run at once
-            let n = bus::remove_empty_node_dirs(
-                &bus::iceoryx_root().join("nodes"),
-                bus::EMPTY_NODE_DIR_AGE,
-            );
-            if n > 0 {
-                out!("removed {n} empty iceoryx2 node director(ies) left by killed processes")?;
-                removed += n;
+            // also when no run had anything to clean
+            empty_dirs += bus::sweep_empty_node_dirs();
+            if empty_dirs > 0 {
+                out!(
+                    "removed {empty_dirs} empty iceoryx2 node director(ies) left by killed processes"
+                )?;
+                removed += empty_dirs;
             }
         }
         if removed == 0 && live == 0 && (prefixes.is_empty() || !self.dry_run) {
