@@ -100,6 +100,22 @@ fn bench(c: &mut Criterion) {
         })
     });
     g.finish();
+    // what a liveness check costs: a full listing (the coordinator's and a joining host's
+    // lister make one at most every second) against a re-check (every 100-200 ms)
+    let mut g = c.benchmark_group("liveness");
+    g.bench_function("check_nodes-2-nodes", |b| {
+        b.iter(|| black_box(bus::check_nodes(&cfg, false).map(|r| r.nodes.len()).ok()))
+    });
+    g.bench_function("check_nodes-2-nodes-clean-dead", |b| {
+        b.iter(|| black_box(bus::check_nodes(&cfg, true).map(|r| r.nodes.len()).ok()))
+    });
+    // what the lister does between full listings: one /proc read per node
+    if let Ok(listed) = bus::check_nodes(&cfg, false) {
+        g.bench_function("recheck-2-nodes", |b| {
+            b.iter(|| black_box(bus::lister::recheck(&listed, bus::process_state).1))
+        });
+    }
+    g.finish();
     drop(robot);
     if let Err(e) = coord.close() {
         eprintln!("cleanup: {e}");

@@ -20,7 +20,7 @@ use bus::bus_schema::{
 };
 use bus::iceoryx2::prelude::{CallbackProgression, SignalHandlingMode, WaitSetBuilder, ipc};
 use bus::{
-    BusConfig, BusError, CoordinatorBus, WakeListener, check_nodes, monotonic_ns, wake_pair,
+    BusConfig, BusError, CoordinatorBus, Lister, Listing, WakeListener, monotonic_ns, wake_pair,
 };
 use hdrhistogram::Histogram;
 use zenoh::Wait;
@@ -36,7 +36,8 @@ use crate::topics::{FromRobot, ToRobot};
 use crate::wire::{self, HEADER, Heartbeat, Kind};
 use crate::{BridgeError, HEARTBEAT_EVERY, down_key, up_key};
 
-/// How often the joining side lists this host's robot processes.
+/// How often the joining side looks at this host's robot processes (a full listing at most
+/// every [`bus::lister::FULL_EVERY`]).
 const LIST_EVERY: Duration = Duration::from_millis(200);
 
 /// Asks `endpoint` to let `req.robots` robots join; the session stays open for [`Joiner`].
@@ -218,6 +219,10 @@ impl Joiner {
             .take()
             .ok_or_else(|| BridgeError::Link("served twice".into()))?;
         let wake_guard = wakes.attach(&waitset)?;
+        // the robots' liveness, looked at on a thread of its own: a full listing costs
+        // hundreds of µs, which this loop would hold a frame up for
+        let lister = Lister::start(self.bus.config(), LIST_EVERY, true, "qfleet-join-live")
+            .map_err(|e| BridgeError::Thread(format!("starting the liveness thread: {e}")))?;
         let mut last_beat = Instant::now() - HEARTBEAT_EVERY;
         let mut last_list = Instant::now();
         let mut pacing = link::Pacing::new(Instant::now(), self.spin);
@@ -243,7 +248,9 @@ impl Joiner {
             self.wake_robots();
             if now.duration_since(last_list) >= LIST_EVERY {
                 last_list = now;
-                self.list_robots()?;
+                if let Some(listing) = lister.poll() {
+                    self.robots_listed(listing)?;
+                }
             }
             match self.watch.tick(now) {
                 Some(LinkEvent::WentDown) => eprintln!(
@@ -460,10 +467,10 @@ impl Joiner {
         self.tx.send(true, &wire::heartbeat_frame(&hb));
     }
 
-    /// Lists this host's robot nodes (cleaning up after dead ones): a robot seen before and
-    /// not alive now is gone.
-    fn list_robots(&mut self) -> Result<(), BridgeError> {
-        let nodes = check_nodes(self.bus.config(), true)?;
+    /// Takes a listing of this host's robot nodes (the lister cleans up after dead ones): a
+    /// robot seen before and not alive now is gone.
+    fn robots_listed(&mut self, listing: Listing) -> Result<(), BridgeError> {
+        let nodes = listing.report?;
         let alive: BTreeSet<u32> = nodes
             .alive()
             .filter_map(|n| n.name.strip_prefix("qfleet-robot-")?.parse().ok())

@@ -141,7 +141,10 @@
 //! ## Liveness and cleanup
 //!
 //! [`check_nodes`] lists the run's nodes (alive, dead after e.g. SIGKILL) and optionally removes
-//! dead ones' resources, so a restarted process can take their place. [`clean_stale`] (for
+//! dead ones' resources, so a restarted process can take their place. A listing is expensive
+//! (hundreds of µs); a process that watches its peers runs a [`Lister`], which lists on a
+//! thread of its own, fully once a second and by one `/proc` read per process in between
+//! ([`lister`]). [`clean_stale`] (for
 //! `qfleet clean`) additionally removes every leftover file of a prefix once no node of it is
 //! alive — a clean exit still leaves one small management file, which
 //! [`CoordinatorBus::close`]/[`RobotBus::close`] remove when the last process leaves.
@@ -162,6 +165,7 @@ mod error;
 mod files;
 mod handshake;
 pub mod limits;
+pub mod lister;
 mod liveness;
 mod observer;
 mod topic;
@@ -183,6 +187,7 @@ pub use files::{
     preflight, restrict_run_files, shm_estimate,
 };
 pub use handshake::{Admission, Expected, check_register, control, reason, set_reason};
+pub use lister::{Lister, Listing, ProcessState, process_state};
 pub use liveness::{
     CleanReport, EMPTY_NODE_DIR_AGE, Liveness, NodeInfo, NodeReport, check_nodes, clean_run,
     clean_stale, find_run_prefixes, iceoryx_root, leftover_files, remove_empty_node_dirs,

@@ -2,7 +2,7 @@
 //! draining every inbox with each message checked against its sender and its fields, discovery
 //! acks and relays, one fleet table per goal with merged batches going out, late
 //! registrations (a restarted robot warm-started from its goal's table), node liveness from the
-//! [`Lister`](crate::liveness::Lister) thread, heartbeat deadlines.
+//! [`bus::Lister`] thread, heartbeat deadlines.
 //!
 //! The decisions live in IO-free types ([`Roster`], [`Discoveries`], [`validate`], [`Life`]);
 //! the engine only carries them out on the bus. A plain run is a one-goal, one-phase plan: its
@@ -19,7 +19,8 @@ use bus::bus_schema::{
 };
 use bus::iceoryx2::prelude::*;
 use bus::{
-    BusConfig, BusError, CoordinatorBus, Expected, Inbox, Message, check_nodes, monotonic_ns,
+    BusConfig, BusError, CoordinatorBus, Expected, Inbox, Listing, Message, check_nodes,
+    monotonic_ns,
 };
 use hdrhistogram::Histogram;
 use planner::Cell;
@@ -28,7 +29,7 @@ use report::{CoordinatorCheckpoint, RobotCheckpoint};
 
 use crate::admission::{Roster, Sender, Verdict};
 use crate::discovery::{Discoveries, Seen};
-use crate::liveness::{Life, Listing, alive_in, robot_of_node};
+use crate::liveness::{Life, alive_in, robot_of_node};
 use crate::merge::{FleetTable, MergeRule};
 use crate::options::CoordError;
 use crate::validate::{self, Shape};

@@ -1,31 +1,19 @@
 //! Robot liveness beyond iceoryx2's node states: losses from node listings, heartbeat
 //! deadlines (a hung robot), restarts and re-joins, as a state without IO ([`Life`], driven
-//! with explicit `Instant`s and tested as a specification), plus the [`Lister`] thread that
-//! makes the node listings off the receive loop.
+//! with explicit `Instant`s and tested as a specification). The listings come from a
+//! [`bus::Lister`] thread, off the receive loop.
 //!
 //! Every liveness event is also printed on stdout as `event <kind> <robot id> <monotonic ns>`
 //! (by the engine, see [`Life::take_new`]) so the launcher can act on it (kill and restart a
 //! hung robot).
 
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::ROBOT_ID_ALL;
-use bus::{BusConfig, BusError, Liveness, NodeReport, check_nodes, monotonic_ns};
-use crossbeam::channel::{Receiver, TrySendError, bounded};
+use bus::{Liveness, NodeReport, monotonic_ns};
 
 use report::RobotCheckpoint;
 pub use report::run::{LivenessEvent, LivenessKind};
-
-/// One listing of the run's nodes, made by the [`Lister`] thread.
-pub(crate) struct Listing {
-    /// When the listing started: a robot that registered after it cannot be in it.
-    pub(crate) at: Instant,
-    /// The nodes, or why they could not be listed.
-    pub(crate) report: Result<NodeReport, BusError>,
-}
 
 /// The node name of robot `id` (the one `bus::RobotBus::open` creates).
 pub(crate) fn robot_of_node(name: &str) -> Option<usize> {
@@ -53,82 +41,6 @@ pub(crate) fn alive_in(report: &NodeReport, robots: usize) -> Option<Vec<bool>> 
         }
     }
     Some(alive)
-}
-
-/// Lists the run's nodes on a thread of its own, every `every` (and at once after
-/// [`Lister::now`]), and hands the newest listing to the coordinator's loop.
-///
-/// Listing (iceoryx2 `Node::list`) costs ~3.6 M instructions, about 1 ms: on the loop's own
-/// thread that was a 1 ms stall every 100 ms for the spinning coordinator. The loop only polls a
-/// channel ([`Lister::poll`], one atomic load when nothing is there). The channel holds one
-/// listing: a newer one replaces an unread older one.
-pub(crate) struct Lister {
-    rx: Receiver<Listing>,
-    stop: Arc<AtomicBool>,
-    thread: Option<JoinHandle<()>>,
-}
-
-impl Lister {
-    /// Starts the thread; its first listing is made right away.
-    pub(crate) fn start(cfg: &BusConfig, every: Duration) -> std::io::Result<Self> {
-        let (tx, rx) = bounded::<Listing>(1);
-        let stale = rx.clone();
-        let stop = Arc::new(AtomicBool::new(false));
-        let stopped = Arc::clone(&stop);
-        let cfg = cfg.clone();
-        let thread = std::thread::Builder::new()
-            .name("qfleet-liveness".into())
-            .spawn(move || {
-                while !stopped.load(Ordering::Relaxed) {
-                    let at = Instant::now();
-                    let mut listing = Listing {
-                        at,
-                        report: check_nodes(&cfg, false),
-                    };
-                    // latest wins: drop an unread older listing
-                    loop {
-                        match tx.try_send(listing) {
-                            Ok(()) => break,
-                            Err(TrySendError::Full(l)) => {
-                                listing = l;
-                                let _ = stale.try_recv();
-                            }
-                            Err(TrySendError::Disconnected(_)) => return,
-                        }
-                    }
-                    // `now` unparks: a peer-death notice is answered without waiting
-                    std::thread::park_timeout(every);
-                }
-            })?;
-        Ok(Lister {
-            rx,
-            stop,
-            thread: Some(thread),
-        })
-    }
-
-    /// The newest listing not yet taken, if any (never blocks).
-    #[inline]
-    pub(crate) fn poll(&self) -> Option<Listing> {
-        self.rx.try_recv().ok()
-    }
-
-    /// Asks for a listing now (a wake service reported a dead peer).
-    pub(crate) fn now(&self) {
-        if let Some(t) = &self.thread {
-            t.thread().unpark();
-        }
-    }
-}
-
-impl Drop for Lister {
-    fn drop(&mut self) {
-        self.stop.store(true, Ordering::Relaxed);
-        if let Some(t) = self.thread.take() {
-            t.thread().unpark();
-            let _ = t.join();
-        }
-    }
 }
 
 /// Per-robot liveness state.

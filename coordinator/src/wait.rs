@@ -10,10 +10,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use bus::iceoryx2::prelude::*;
-use bus::{BusError, CoordinatorBus};
+use bus::{BusError, CoordinatorBus, Lister};
 
 use crate::engine::Engine;
-use crate::liveness::Lister;
 use crate::options::{CoordError, WaitStrategy};
 
 /// How the loop waits.
