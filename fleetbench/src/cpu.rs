@@ -51,14 +51,52 @@ pub fn assigned_cpus() -> Vec<usize> {
 
 /// Pins the calling thread (and threads it starts later) to `cpu`; false if that failed.
 pub fn pin_current_thread(cpu: usize) -> bool {
+    pin_thread(0, cpu)
+}
+
+/// Pins the calling thread to `own` and every other thread of this process to `rest`; false if
+/// a thread could not be moved.
+///
+/// For a measuring thread that busy-polls while its process has helper threads (a bridge,
+/// Zenoh's runtime): they must not queue behind it on one CPU, as they would not on a robot's
+/// own computer. Threads started afterwards inherit their starter's CPU.
+pub fn pin_apart(own: usize, rest: usize) -> bool {
+    // SAFETY: gettid has no preconditions
+    let me = unsafe { libc::gettid() };
+    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
+        return false;
+    };
+    let mut all = true;
+    for task in tasks.flatten() {
+        let Some(tid) = task
+            .file_name()
+            .to_str()
+            .and_then(|t| t.parse::<i32>().ok())
+        else {
+            continue;
+        };
+        all &= pin_thread(tid, if tid == me { own } else { rest });
+    }
+    all
+}
+
+/// [`pin_apart`] onto the two CPUs the harness assigned (`FLEETBENCH_CPUS=OWN,REST`); does
+/// nothing when it assigned fewer.
+pub fn keep_apart() {
+    if let [own, rest] = assigned_cpus()[..] {
+        pin_apart(own, rest);
+    }
+}
+
+fn pin_thread(tid: i32, cpu: usize) -> bool {
+    if cpu >= 8 * size_of::<libc::cpu_set_t>() {
+        return false;
+    }
     // SAFETY: an all-zero cpu_set_t is the empty set; CPU_SET/sched_setaffinity only touch it.
     unsafe {
         let mut set: libc::cpu_set_t = core::mem::zeroed();
-        if cpu >= 8 * size_of::<libc::cpu_set_t>() {
-            return false;
-        }
         libc::CPU_SET(cpu, &mut set);
-        libc::sched_setaffinity(0, size_of::<libc::cpu_set_t>(), &set) == 0
+        libc::sched_setaffinity(tid, size_of::<libc::cpu_set_t>(), &set) == 0
     }
 }
 
@@ -85,5 +123,64 @@ mod tests {
         assert!(pid_cpu_ns(std::process::id()).is_some());
         assert!(pid_alive(std::process::id()));
         assert!(!pid_alive(u32::MAX - 1));
+    }
+
+    #[test]
+    fn pin_apart_moves_the_other_threads_and_keeps_this_one() {
+        // SAFETY: sched_getaffinity only writes the set it is given
+        let cpus_of = |tid: i32| unsafe {
+            let mut set: libc::cpu_set_t = core::mem::zeroed();
+            libc::sched_getaffinity(tid, size_of::<libc::cpu_set_t>(), &mut set);
+            (0..8)
+                .filter(|&c| libc::CPU_ISSET(c, &set))
+                .collect::<Vec<usize>>()
+        };
+        // SAFETY: gettid has no preconditions
+        let me = unsafe { libc::gettid() };
+        let allowed = cpus_of(me);
+        if !(allowed.contains(&0) && allowed.contains(&1)) {
+            eprintln!(
+                "SKIPPED pin_apart test: this process may not use CPUs 0 and 1 ({allowed:?})"
+            );
+            return;
+        }
+        // run on a thread of our own, so the test harness's threads are not pinned for good
+        let (tid_tx, tid_rx) = std::sync::mpsc::channel();
+        let (done_tx, done_rx) = std::sync::mpsc::channel::<()>();
+        let helper = std::thread::spawn(move || {
+            // SAFETY: as above
+            let _ = tid_tx.send(unsafe { libc::gettid() });
+            let _ = done_rx.recv();
+        });
+        let helper_tid = tid_rx.recv().unwrap();
+        let checker = std::thread::spawn(move || {
+            // SAFETY: as above
+            let me = unsafe { libc::gettid() };
+            assert!(pin_apart(0, 1));
+            (cpus_of(me), cpus_of(helper_tid))
+        });
+        let (own, helper_cpus) = checker.join().unwrap();
+        let _ = done_tx.send(());
+        helper.join().unwrap();
+        assert_eq!(own, [0]);
+        assert_eq!(helper_cpus, [1]);
+        // every thread of the test binary was moved along: give them back their CPUs
+        for task in std::fs::read_dir("/proc/self/task").unwrap().flatten() {
+            let Some(tid) = task
+                .file_name()
+                .to_str()
+                .and_then(|t| t.parse::<i32>().ok())
+            else {
+                continue;
+            };
+            // SAFETY: an all-zero cpu_set_t is the empty set; the calls only touch it
+            unsafe {
+                let mut set: libc::cpu_set_t = core::mem::zeroed();
+                for &c in &allowed {
+                    libc::CPU_SET(c, &mut set);
+                }
+                libc::sched_setaffinity(tid, size_of::<libc::cpu_set_t>(), &set);
+            }
+        }
     }
 }

@@ -10,6 +10,12 @@
 //!   other: robot 0's Q update → bridge → coordinator merge → bridge → applied at robot 1, timed
 //!   on the robots' host (one clock).
 //!
+//! With two CPUs or more, every row runs its measuring thread (host B's ping or robot, which
+//! busy-polls for the answer) alone on CPU 0 and every other thread of both hosts (Zenoh's,
+//! the bridges', the coordinator's, the pong's) on CPU 1, as the local rows pin their two
+//! sides: otherwise a thread woken on the poller's CPU waits for its time slice, which is not
+//! what two computers do (BENCHMARKS.md "Across machines", "The poller on a CPU of its own").
+//!
 //! Needs root (namespaces); each row makes its own pair and removes it afterwards.
 
 use std::path::Path;
@@ -224,7 +230,14 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
             crate::roles::xhost::PING_BYTES,
         ),
     };
-    let peer = spawn_on(&la, &peer_spec, None)?;
+    // with two CPUs or more: the measuring thread (it busy-polls) on CPU 0, every other thread
+    // of both hosts on CPU 1, so none queues behind it (`cpu::keep_apart`)
+    let (m_cpus, peer_cpus) = if opts.pin {
+        (Some("0,1"), Some("1"))
+    } else {
+        (None, None)
+    };
+    let peer = spawn_on(&la, &peer_spec, peer_cpus)?;
     let m_spec = match &peer_spec {
         RoleSpec::TcpEcho { addr, .. } => RoleSpec::TcpPing {
             addr: addr.clone(),
@@ -260,7 +273,7 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
             hist_path: hist_path.clone(),
         },
     };
-    let measurer = spawn_on(&lb, &m_spec, None)?;
+    let measurer = spawn_on(&lb, &m_spec, m_cpus)?;
     let m = measurer.wait(row_timeout(&plan));
     let p = peer.wait(Duration::from_secs(60));
     let m = m?;

@@ -78,7 +78,9 @@ pub struct Options {
     /// Scale robots notify the coordinator at most once per this many µs (0 = every batch).
     pub scale_notify_gap_us: u64,
     /// Pin the two sides of each latency row to different CPUs (0 and 1), so every row
-    /// measures a cross-CPU round trip whatever else the machine runs.
+    /// measures a cross-CPU round trip whatever else the machine runs; in the cross-host rows,
+    /// the measuring thread to CPU 0 and every other thread of both hosts to CPU 1
+    /// ([`crate::cpu::keep_apart`]). On by default with two CPUs or more.
     pub pin: bool,
     /// Shortest measurement window per row, ms (fast rows record more than `samples`).
     pub min_window_ms: u64,

@@ -54,6 +54,11 @@ pub struct BenchCmd {
     /// Scale robots: notify the coordinator at most once per this many µs (0 = every batch).
     #[arg(long, default_value_t = 0)]
     notify_gap_us: u64,
+    /// Do not pin the rows' processes and threads to CPUs (by default, with two CPUs or more,
+    /// each latency row's two sides run on CPUs 0 and 1; across hosts, the measuring thread on
+    /// 0 and every other thread on 1).
+    #[arg(long)]
+    no_pin: bool,
     /// Only the cross-host rows (needs root): TCP and Zenoh ping-pong floors and the update
     /// loop across two network namespaces joined by a veth pair (BENCHMARKS.md "Across machines").
     #[arg(long, conflicts_with = "scale")]
@@ -98,6 +103,9 @@ impl BenchCmd {
         }
         if let Some(ms) = self.scale_ms {
             opts.scale_ms = ms;
+        }
+        if self.no_pin {
+            opts.pin = false;
         }
         opts.spin_us = self.spin_us;
         opts.bridge_spin_us = self.bridge_spin_us;

@@ -248,6 +248,8 @@ pub fn loop_robots(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
     let mut n = 0;
     while plan.more(i, || window_ns(&window)) {
         if i == plan.warmup && window.is_none() {
+            // across hosts: the bridge's and Zenoh's threads away from this busy-polling one
+            crate::cpu::keep_apart();
             window = Some(Window::start(Some(*peer_pid)));
             applier.clear_loop_hist(); // warm-up samples are not reported
             lost = 0;

@@ -83,6 +83,8 @@ pub fn tcp_ping(
     let mut i = 0;
     while plan.more(i, || window_ns(&window)) {
         if i == plan.warmup {
+            // helper threads (Zenoh's) away from this busy-polling one, if the harness says
+            crate::cpu::keep_apart();
             window = Some(Window::start(Some(peer_pid)));
         }
         let t0 = monotonic_ns();
@@ -184,6 +186,8 @@ pub fn zenoh_ping(
     let mut i: u64 = 0;
     while plan.more(i, || window_ns(&window)) {
         if i == plan.warmup {
+            // helper threads (Zenoh's) away from this busy-polling one, if the harness says
+            crate::cpu::keep_apart();
             window = Some(Window::start(Some(peer_pid)));
         }
         msg[..8].copy_from_slice(&i.to_le_bytes());
@@ -267,9 +271,6 @@ pub fn bridged_robots(
             let _ = ready_tx.send(j.as_ref().map(|_| ()).map_err(Clone::clone));
             let mut j = j?;
             // iceoryx2 ports belong to the thread that made them: serve here
-            if let Some(&cpu) = crate::cpu::assigned_cpus().get(1) {
-                crate::cpu::pin_current_thread(cpu);
-            }
             let r = j.serve(&stop, || done.load(Ordering::SeqCst));
             j.finish();
             r.map(drop).map_err(|e| e.to_string())
