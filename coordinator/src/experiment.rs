@@ -33,7 +33,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use bus::bus_schema::{Command, ROBOT_ID_ALL};
-use bus::{CoordinatorBus, Expected, Lister, monotonic_ns};
+use bus::{CoordinatorBus, Expected, monotonic_ns};
 use planner::map::GridMap;
 use planner::{Cell, Env};
 use report::{OutDir, OutFile, ReadError};
@@ -41,11 +41,10 @@ use report::{OutDir, OutFile, ReadError};
 use crate::assemble::{self, GoalTrack};
 use crate::checkpoint::{Checkpoint, LifeCounts};
 use crate::engine::{Assignment, Engine, tolerate};
-use crate::liveness::Life;
+use crate::liveness::{Life, start_lister};
 use crate::merge::FleetTable;
 use crate::options::{CoordArgs, CoordError, bus_config, secs};
 pub use crate::plan::ExperimentPlan;
-use crate::run::LIST_EVERY;
 use crate::wait::{Serving, Waiting, serve};
 pub use report::run::{ExperimentResult, GoalPhase, PhaseResult, RobotPhase};
 
@@ -191,13 +190,7 @@ fn drive(
 ) -> Result<ExperimentResult, CoordError> {
     let plan = ctx.plan;
     engine.admit_fleet(bus, stop, ctx.timeout)?;
-    let lister =
-        Lister::start(bus.config(), LIST_EVERY, false, "qfleet-liveness").map_err(|source| {
-            CoordError::Thread {
-                what: "liveness",
-                source,
-            }
-        })?;
+    let lister = start_lister(bus)?;
     let how = Waiting {
         strategy: ctx.args.wait,
         spin: Duration::from_micros(ctx.args.spin_us),

@@ -10,10 +10,26 @@
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::ROBOT_ID_ALL;
-use bus::{Liveness, NodeReport, monotonic_ns};
+use bus::{CoordinatorBus, Lister, Liveness, NodeReport, monotonic_ns};
+
+use crate::options::CoordError;
 
 use report::RobotCheckpoint;
 pub use report::run::{LivenessEvent, LivenessKind};
+
+/// How often the liveness thread looks at the run's nodes: a re-check of their processes, and
+/// a full listing at most every [`bus::lister::FULL_EVERY`].
+pub(crate) const LIST_EVERY: Duration = Duration::from_millis(100);
+
+/// Starts the coordinator's liveness thread (`qfleet-liveness`) for the run on `bus`.
+pub(crate) fn start_lister(bus: &CoordinatorBus) -> Result<Lister, CoordError> {
+    Lister::start(bus.config(), LIST_EVERY, false, "qfleet-liveness").map_err(|source| {
+        CoordError::Thread {
+            what: "liveness",
+            source,
+        }
+    })
+}
 
 /// The node name of robot `id` (the one `bus::RobotBus::open` creates).
 pub(crate) fn robot_of_node(name: &str) -> Option<usize> {

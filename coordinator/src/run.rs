@@ -20,7 +20,7 @@ use bus::{CoordinatorBus, Expected, Lister, monotonic_ns};
 
 use crate::assemble::{FleetHists, RunEnd};
 use crate::engine::{Assignment, Engine, tolerate};
-use crate::liveness::Life;
+use crate::liveness::{Life, start_lister};
 use crate::options::{CoordArgs, CoordError, bus_config, secs};
 use crate::wait::{Serving, Waiting, serve};
 use crate::{assemble, output};
@@ -28,10 +28,6 @@ use report::{
     CoordinatorCheckpoint, Durability, OutDir, OutFile, ReadError, RunResult,
     write_json_atomic_with,
 };
-
-/// How often the liveness thread looks at the run's nodes: a re-check of their processes, and
-/// a full listing at most every [`bus::lister::FULL_EVERY`].
-pub(crate) const LIST_EVERY: Duration = Duration::from_millis(100);
 
 /// How often the checkpoint is written while the run is served.
 const CHECKPOINT_EVERY: Duration = Duration::from_secs(1);
@@ -200,13 +196,7 @@ fn drive(
     cp: &mut Checkpoints,
 ) -> Result<(f64, bool), CoordError> {
     engine.admit_fleet(bus, stop, timeout)?;
-    let lister =
-        Lister::start(bus.config(), LIST_EVERY, false, "qfleet-liveness").map_err(|source| {
-            CoordError::Thread {
-                what: "liveness",
-                source,
-            }
-        })?;
+    let lister = start_lister(bus)?;
     engine.start_phase(bus, plan, Command::Start)?;
     // a coordinator that took over keeps the run's first Start as the throughput's time base
     let started_ns = *engine.started_ns.get_or_insert_with(monotonic_ns);

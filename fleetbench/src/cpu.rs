@@ -63,21 +63,24 @@ pub fn pin_current_thread(cpu: usize) -> bool {
 pub fn pin_apart(own: usize, rest: usize) -> bool {
     // SAFETY: gettid has no preconditions
     let me = unsafe { libc::gettid() };
-    let Ok(tasks) = std::fs::read_dir("/proc/self/task") else {
-        return false;
-    };
-    let mut all = true;
-    for task in tasks.flatten() {
-        let Some(tid) = task
-            .file_name()
-            .to_str()
-            .and_then(|t| t.parse::<i32>().ok())
-        else {
-            continue;
-        };
+    let tids = thread_ids();
+    let mut all = !tids.is_empty();
+    for tid in tids {
         all &= pin_thread(tid, if tid == me { own } else { rest });
     }
     all
+}
+
+/// The ids of this process's threads (`/proc/self/task`; empty if it cannot be read).
+fn thread_ids() -> Vec<i32> {
+    std::fs::read_dir("/proc/self/task")
+        .map(|tasks| {
+            tasks
+                .flatten()
+                .filter_map(|t| t.file_name().to_str()?.parse().ok())
+                .collect()
+        })
+        .unwrap_or_default()
 }
 
 /// [`pin_apart`] onto the two CPUs the harness assigned (`FLEETBENCH_CPUS=OWN,REST`); does
@@ -165,14 +168,7 @@ mod tests {
         assert_eq!(own, [0]);
         assert_eq!(helper_cpus, [1]);
         // every thread of the test binary was moved along: give them back their CPUs
-        for task in std::fs::read_dir("/proc/self/task").unwrap().flatten() {
-            let Some(tid) = task
-                .file_name()
-                .to_str()
-                .and_then(|t| t.parse::<i32>().ok())
-            else {
-                continue;
-            };
+        for tid in thread_ids() {
             // SAFETY: an all-zero cpu_set_t is the empty set; the calls only touch it
             unsafe {
                 let mut set: libc::cpu_set_t = core::mem::zeroed();
