@@ -453,6 +453,11 @@ fn qfleet_clean_removes_a_crashed_run_and_leaves_a_live_one_alone() {
     // dry run: says what it would remove, removes nothing
     let said = clean(&["--dry-run", "--run-id", &dead]);
     assert!(said.contains("would remove"), "{said}");
+    // the killed launcher's lock too, told by its process id without taking the lock
+    assert!(
+        said.contains("would remove its launcher's stale lock"),
+        "{said}"
+    );
     assert_eq!(leftovers(&dead).len(), files.len());
     // a live run is reported and left alone, and finishes normally
     let child = launch(&live, &live_dir, &["--robots", "2", "--episodes", "200000"]);

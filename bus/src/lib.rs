@@ -190,8 +190,8 @@ pub use handshake::{Admission, Expected, check_register, control, reason, set_re
 pub use lister::{Lister, Listing, ProcessState, process_state};
 pub use liveness::{
     CleanReport, EMPTY_NODE_DIR_AGE, Liveness, NodeInfo, NodeReport, check_nodes, clean_run,
-    clean_stale, find_run_prefixes, iceoryx_root, leftover_files, remove_empty_node_dirs,
-    sweep_empty_node_dirs,
+    clean_stale, empty_node_dirs, find_run_prefixes, iceoryx_root, leftover_files,
+    remove_empty_node_dirs, stale_empty_node_dirs, sweep_empty_node_dirs,
 };
 pub use observer::{OBSERVER_NODE_PREFIX, Observer};
 pub use topic::{

@@ -159,29 +159,47 @@ pub const EMPTY_NODE_DIR_AGE: std::time::Duration = std::time::Duration::from_se
 /// being created right now out of reach. A directory that is not empty, or not ours to remove,
 /// stays.
 pub fn remove_empty_node_dirs(nodes_dir: &Path, min_age: std::time::Duration) -> usize {
+    empty_node_dirs(nodes_dir, min_age)
+        .into_iter()
+        // remove_dir refuses a directory that is not empty (any more)
+        .filter(|d| std::fs::remove_dir(d).is_ok())
+        .count()
+}
+
+/// The directories [`remove_empty_node_dirs`] would remove: empty, and last changed at least
+/// `min_age` ago.
+pub fn empty_node_dirs(nodes_dir: &Path, min_age: std::time::Duration) -> Vec<PathBuf> {
     let Ok(entries) = std::fs::read_dir(nodes_dir) else {
-        return 0;
+        return Vec::new();
     };
     let now = std::time::SystemTime::now();
-    let mut n = 0;
-    for e in entries.flatten() {
-        let Ok(meta) = e.metadata() else { continue };
-        let old = meta
-            .modified()
-            .ok()
-            .and_then(|t| now.duration_since(t).ok())
-            .is_some_and(|age| age >= min_age);
-        // remove_dir refuses a directory that is not empty
-        if meta.is_dir() && old && std::fs::remove_dir(e.path()).is_ok() {
-            n += 1;
-        }
-    }
-    n
+    entries
+        .flatten()
+        .filter(|e| {
+            let Ok(meta) = e.metadata() else {
+                return false;
+            };
+            let old = meta
+                .modified()
+                .ok()
+                .and_then(|t| now.duration_since(t).ok())
+                .is_some_and(|age| age >= min_age);
+            meta.is_dir()
+                && old
+                && std::fs::read_dir(e.path()).is_ok_and(|mut d| d.next().is_none())
+        })
+        .map(|e| e.path())
+        .collect()
 }
 
 /// [`remove_empty_node_dirs`] in iceoryx2's own node directory, [`EMPTY_NODE_DIR_AGE`] old.
 pub fn sweep_empty_node_dirs() -> usize {
     remove_empty_node_dirs(&iceoryx_root().join("nodes"), EMPTY_NODE_DIR_AGE)
+}
+
+/// What [`sweep_empty_node_dirs`] would remove now (for `qfleet clean --dry-run`).
+pub fn stale_empty_node_dirs() -> Vec<PathBuf> {
+    empty_node_dirs(&iceoryx_root().join("nodes"), EMPTY_NODE_DIR_AGE)
 }
 
 /// Cleans up everything a run with iceoryx2 prefix `prefix` (e.g. `qfleet.<run-id>.`) left
@@ -307,7 +325,11 @@ mod tests {
         // too young: a node may be being created in it right now
         assert_eq!(remove_empty_node_dirs(&root, Duration::from_secs(3600)), 0);
         assert!(empty.exists());
-        // old enough: the empty one goes, the one holding a node's file stays
+        assert!(empty_node_dirs(&root, Duration::from_secs(3600)).is_empty());
+        // old enough: the empty one goes, the one holding a node's file stays; a dry run names
+        // exactly that one and removes nothing
+        assert_eq!(empty_node_dirs(&root, Duration::ZERO), [empty.clone()]);
+        assert!(empty.exists());
         assert_eq!(remove_empty_node_dirs(&root, Duration::ZERO), 1);
         assert!(!empty.exists() && full.exists());
         // a missing directory is nothing to do, not an error

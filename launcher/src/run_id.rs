@@ -241,6 +241,21 @@ pub fn release_stale_in(id: &str, dir: &Path) -> Result<Option<PathBuf>, RunIdEr
     }
 }
 
+/// Run `id`'s lock file, if there is one, and the process id its launcher wrote in it (`None`:
+/// unreadable, or not written yet): for `qfleet clean --dry-run`, which must not take the lock
+/// to tell whether a launcher still holds it.
+pub fn lock_file(id: &str) -> Result<Option<(PathBuf, Option<i32>)>, RunIdError> {
+    validate(id)?;
+    let path = private_dir(id)?.join(format!("{id}.lock"));
+    if std::fs::symlink_metadata(&path).is_err() {
+        return Ok(None);
+    }
+    let pid = std::fs::read_to_string(&path)
+        .ok()
+        .and_then(|s| s.trim().parse().ok());
+    Ok(Some((path, pid)))
+}
+
 /// Run ids with a lock file in the user's private directory (live or stale), for `qfleet clean`
 /// to look at runs that never reached shared memory; unreadable entries and names that are not
 /// valid run ids are skipped.

@@ -10,6 +10,8 @@
 //! `/tmp/qfleet-<uid>/`; a lock file nobody holds is removed with the rest (one a live launcher
 //! holds is left alone), also for runs that never reached shared memory. Empty iceoryx2 node
 //! directories older than `bus::EMPTY_NODE_DIR_AGE` go too (`bus::sweep_empty_node_dirs`).
+//! `--dry-run` lists all of it and removes nothing; it tells a stale lock by the launcher's
+//! process id written in the file, without taking the lock.
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
@@ -52,6 +54,8 @@ impl CleanCmd {
         // empty node directories carry no run prefix: every clean_stale sweeps them for all runs
         let mut empty_dirs = 0usize;
         let mut live = 0usize;
+        // what a dry run would remove
+        let mut would = 0usize;
         let mut errors = Vec::new();
         for prefix in &prefixes {
             let files = bus::leftover_files(prefix);
@@ -81,21 +85,23 @@ impl CleanCmd {
                 )?;
                 continue;
             }
-            if files.is_empty() {
-                if !self.dry_run {
-                    removed += release_lock(run_id, &mut errors)?;
+            if self.dry_run {
+                if !files.is_empty() {
+                    out!(
+                        "run {run_id}: would remove {} file(s) ({} dead process(es)):",
+                        files.len(),
+                        nodes.dead().count()
+                    )?;
+                    for f in &files {
+                        out!("  {}", f.display())?;
+                    }
+                    would += files.len();
                 }
+                would += would_release_lock(run_id, &mut errors)?;
                 continue;
             }
-            let dead = nodes.dead().count();
-            if self.dry_run {
-                out!(
-                    "run {run_id}: would remove {} file(s) ({dead} dead process(es)):",
-                    files.len()
-                )?;
-                for f in &files {
-                    out!("  {}", f.display())?;
-                }
+            if files.is_empty() {
+                removed += release_lock(run_id, &mut errors)?;
                 continue;
             }
             let cleaned = bus::clean_stale(prefix);
@@ -125,7 +131,19 @@ impl CleanCmd {
                 Err(e) => errors.push(format!("run {run_id}: {e}")),
             }
         }
-        if !self.dry_run {
+        if self.dry_run {
+            let dirs = bus::stale_empty_node_dirs();
+            if !dirs.is_empty() {
+                out!(
+                    "would remove {} empty iceoryx2 node director(ies) left by killed processes:",
+                    dirs.len()
+                )?;
+                for d in &dirs {
+                    out!("  {}", d.display())?;
+                }
+                would += dirs.len();
+            }
+        } else {
             // also when no run had anything to clean
             empty_dirs += bus::sweep_empty_node_dirs();
             if empty_dirs > 0 {
@@ -135,13 +153,48 @@ impl CleanCmd {
                 removed += empty_dirs;
             }
         }
-        if removed == 0 && live == 0 && (prefixes.is_empty() || !self.dry_run) {
+        if removed == 0 && would == 0 && live == 0 {
             out!("nothing to clean")?;
         }
         if !errors.is_empty() {
             bail!("{}", errors.join("; "));
         }
         Ok(())
+    }
+}
+
+/// What [`release_lock`] would do, told without taking the lock: by the launcher's process id
+/// written in the file (a file without one, from a launcher killed right after creating it, is
+/// reported as removable if no launcher holds it). Returns 1 if the lock would go.
+fn would_release_lock(run_id: &str, errors: &mut Vec<String>) -> Result<usize> {
+    match launcher::run_id::lock_file(run_id) {
+        Ok(Some((path, Some(pid)))) if bus::process_state(pid) == bus::ProcessState::Running => {
+            out!(
+                "run {run_id}: its lock {} is held by a live launcher (pid {pid}), left alone",
+                path.display()
+            )?;
+            Ok(0)
+        }
+        Ok(Some((path, Some(_)))) => {
+            out!(
+                "run {run_id}: would remove its launcher's stale lock {}",
+                path.display()
+            )?;
+            Ok(1)
+        }
+        Ok(Some((path, None))) => {
+            out!(
+                "run {run_id}: would remove its launcher's lock {} unless a live launcher holds \
+                 it (no process id in it)",
+                path.display()
+            )?;
+            Ok(1)
+        }
+        Ok(None) => Ok(0),
+        Err(e) => {
+            errors.push(format!("run {run_id}: {e}"));
+            Ok(0)
+        }
     }
 }
 
