@@ -328,7 +328,10 @@ mod tests {
         assert!(empty_node_dirs(&root, Duration::from_secs(3600)).is_empty());
         // old enough: the empty one goes, the one holding a node's file stays; a dry run names
         // exactly that one and removes nothing
-        assert_eq!(empty_node_dirs(&root, Duration::ZERO), [empty.clone()]);
+        assert_eq!(
+            empty_node_dirs(&root, Duration::ZERO),
+            std::slice::from_ref(&empty)
+        );
         assert!(empty.exists());
         assert_eq!(remove_empty_node_dirs(&root, Duration::ZERO), 1);
         assert!(!empty.exists() && full.exists());
