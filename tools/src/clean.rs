@@ -97,11 +97,11 @@ impl CleanCmd {
                     }
                     would += files.len();
                 }
-                would += would_release_lock(run_id, &mut errors)?;
+                would += lock(run_id, true, &mut errors)?;
                 continue;
             }
             if files.is_empty() {
-                removed += release_lock(run_id, &mut errors)?;
+                removed += lock(run_id, false, &mut errors)?;
                 continue;
             }
             let cleaned = bus::clean_stale(prefix);
@@ -126,7 +126,7 @@ impl CleanCmd {
                         out!("  {}", f.display())?;
                     }
                     removed += gone.len();
-                    removed += release_lock(run_id, &mut errors)?;
+                    removed += lock(run_id, false, &mut errors)?;
                 }
                 Err(e) => errors.push(format!("run {run_id}: {e}")),
             }
@@ -163,51 +163,48 @@ impl CleanCmd {
     }
 }
 
-/// What [`release_lock`] would do, told without taking the lock: by the launcher's process id
-/// written in the file (a file without one, from a launcher killed right after creating it, is
-/// reported as removable if no launcher holds it). Returns 1 if the lock would go.
-fn would_release_lock(run_id: &str, errors: &mut Vec<String>) -> Result<usize> {
-    match launcher::run_id::lock_file(run_id) {
-        Ok(Some((path, Some(pid)))) if bus::process_state(pid) == bus::ProcessState::Running => {
-            out!(
-                "run {run_id}: its lock {} is held by a live launcher (pid {pid}), left alone",
-                path.display()
-            )?;
-            Ok(0)
-        }
-        Ok(Some((path, Some(_)))) => {
-            out!(
-                "run {run_id}: would remove its launcher's stale lock {}",
-                path.display()
-            )?;
-            Ok(1)
-        }
-        Ok(Some((path, None))) => {
-            out!(
-                "run {run_id}: would remove its launcher's lock {} unless a live launcher holds \
-                 it (no process id in it)",
-                path.display()
-            )?;
-            Ok(1)
-        }
-        Ok(None) => Ok(0),
-        Err(e) => {
-            errors.push(format!("run {run_id}: {e}"));
-            Ok(0)
-        }
-    }
-}
-
-/// Removes run `run_id`'s lock file if its launcher is gone (see the module doc); returns how
-/// many files that removed (0 or 1) and keeps an error for the summary.
-fn release_lock(run_id: &str, errors: &mut Vec<String>) -> Result<usize> {
-    match launcher::run_id::release_stale(run_id) {
-        Ok(Some(path)) => {
-            out!(
-                "run {run_id}: removed its launcher's stale lock {}",
-                path.display()
-            )?;
-            Ok(1)
+/// Run `run_id`'s launcher lock (see the module doc): with `dry_run`, what removing it would
+/// do, told without taking the lock by the launcher's process id written in the file (a file
+/// without one, from a launcher killed right after creating it, is removable if no launcher
+/// holds it); else removes it if its launcher is gone. Prints what it did or would do and
+/// returns how many files that is (0 or 1); an error is kept for the summary.
+fn lock(run_id: &str, dry_run: bool, errors: &mut Vec<String>) -> Result<usize> {
+    let said = if dry_run {
+        launcher::run_id::lock_file(run_id).map(|found| {
+            found.map(|(path, pid)| match pid {
+                Some(pid) if bus::process_state(pid) == bus::ProcessState::Running => (
+                    format!(
+                        "its lock {} is held by a live launcher (pid {pid}), left alone",
+                        path.display()
+                    ),
+                    0,
+                ),
+                Some(_) => (
+                    format!("would remove its launcher's stale lock {}", path.display()),
+                    1,
+                ),
+                None => (
+                    format!(
+                        "would remove its launcher's lock {} unless a live launcher holds it \
+                         (no process id in it)",
+                        path.display()
+                    ),
+                    1,
+                ),
+            })
+        })
+    } else {
+        launcher::run_id::release_stale(run_id).map(|gone| {
+            gone.map(|path| {
+                let line = format!("removed its launcher's stale lock {}", path.display());
+                (line, 1)
+            })
+        })
+    };
+    match said {
+        Ok(Some((line, n))) => {
+            out!("run {run_id}: {line}")?;
+            Ok(n)
         }
         Ok(None) => Ok(0),
         Err(e) => {
