@@ -317,6 +317,7 @@ fn wait_learning(id: &str, robots: u32, robot: u32) {
         }),
         "robot {robot} of run {id} never started learning"
     );
+    qfleet_suite::leave_run(probe, id);
 }
 
 /// Starts `qfleet experiment` on [`LONG_TWO_PHASES`] with the restart policy in a scratch

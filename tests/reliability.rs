@@ -82,6 +82,7 @@ fn wait_learning(id: &str, robots: u32, ids: &[u32]) {
         );
         std::thread::sleep(Duration::from_millis(10));
     }
+    qfleet_suite::leave_run(node, id);
 }
 
 fn signal(pid: i32, sig: libc::c_int) {
@@ -497,6 +498,8 @@ fn qfleet_clean_removes_a_crashed_run_and_leaves_a_live_one_alone() {
 fn malformed_messages_on_a_live_run_are_dropped_not_panicked() {
     let id = run_id("inject");
     let dir = scratch(&id);
+    // long enough (1.5–3 s here) that the injection (0.2 s) ends while the run still lives;
+    // at 100 000 episodes (0.5 s) the run sometimes ended first
     let child = launch(
         &id,
         &dir,
@@ -504,7 +507,7 @@ fn malformed_messages_on_a_live_run_are_dropped_not_panicked() {
             "--map",
             "builtin:paper-20",
             "--episodes",
-            "100000",
+            "500000",
             "--robots",
             "2",
         ],
@@ -588,8 +591,7 @@ fn malformed_messages_on_a_live_run_are_dropped_not_panicked() {
         }
         std::thread::sleep(Duration::from_millis(10));
     }
-    drop((state, disc, hints, reg, control, merged));
-    drop(node);
+    qfleet_suite::leave_run((state, disc, hints, reg, control, merged, node), &id);
     let (r, out) = finish(child);
     let r = r.unwrap_or_else(|| panic!("no result: {}", describe(&out)));
     assert!(out.status.success(), "{}", describe(&out));

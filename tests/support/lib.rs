@@ -1,5 +1,6 @@
 //! Support for the end-to-end tests: builds the real binaries once, runs processes with a
-//! time bound, makes unique run ids, and finds files a run left in shared memory.
+//! time bound, makes unique run ids, and finds (and, for a test's own nodes, sweeps) files a run
+//! left in shared memory.
 //!
 //! `cargo test` builds only the package under test, so the first test that needs a binary runs
 //! `cargo build --bins -p robot-agent -p coordinator -p qfleet` into the same target directory
@@ -187,6 +188,16 @@ pub fn leftovers(run_id: &str) -> Vec<PathBuf> {
     walk(Path::new("/dev/shm"), run_id, &mut found);
     walk(Path::new("/tmp/iceoryx2"), run_id, &mut found);
     found
+}
+
+/// Ends a test's own iceoryx2 node of run `run_id` (with its ports, passed in `node`) the way
+/// the run's own processes end theirs: drops it, then removes the run's files if no process of
+/// the run is alive any more. When the run ended while the test still held a node, the run's
+/// processes rightly left the files to that live node; iceoryx2 removes the node's own files on
+/// drop but never the run's management segment (`…global_mgmt`), so the last one out sweeps.
+pub fn leave_run<T>(node: T, run_id: &str) {
+    drop(node);
+    let _ = bus::clean_stale(&bus::bus_schema::names::iceoryx_prefix(run_id));
 }
 
 /// Exit status and both streams of a process, for assertion messages.
