@@ -1,18 +1,28 @@
 //! Attaching to a live run as an outside reader: wait until the run's services exist (never
 //! create a node in a run's prefix before that: `qfleet run` would then refuse the id), then
-//! open one subscriber on every topic and drain them all, fast, without ever publishing.
+//! open one subscriber on every topic of a [`Topics`] and drain them all, fast, without ever
+//! publishing.
 //!
 //! What an outsider costs the run: one node and one subscriber per topic, taken from the
 //! spare ports the bus sizes every service with (`BusConfig::spare_ports`). A lossless send
 //! never waits for an outside reader: a full buffer of ours drops that sample for us alone, so
 //! [`Observer::poll`] must be called in a tight loop to see everything; it takes everything
 //! buffered on every topic each time.
+//!
+//! A reader sees a publisher's samples only once one of its receives has connected to that
+//! publisher; samples of a publisher that left before then are gone for it (iceoryx2 keeps a
+//! *connected* publisher's undelivered samples readable after it left, never an unconnected
+//! one's). A reader that may not run for a while (the recorder's idle-class thread) therefore
+//! reads the lossless topics with a second observer ([`Topics::Lossless`]) on a thread that
+//! blocks on their wake events ([`Observer::attach_all`]) and so runs within a wakeup of every
+//! lossless send (see [`crate::watch`]).
 
 use std::time::{Duration, Instant};
 
+use bus::iceoryx2::port::listener::Listener;
 use bus::iceoryx2::prelude::*;
-use bus::{BusConfig, Inbox, monotonic_ns};
-use bus_schema::names::Topic;
+use bus::{BusConfig, Inbox, Message, monotonic_ns};
+use bus_schema::names::{Delivery, Topic};
 use bus_schema::{
     Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
     QHintBatch, Register, RobotState,
@@ -39,18 +49,42 @@ pub fn run_services_exist(run_id: &str) -> Result<bool, ObserveError> {
     Ok(true)
 }
 
-/// An outside reader of one run: a node and one subscriber per topic.
+/// Which of a run's topics an [`Observer`] subscribes to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Topics {
+    /// All nine.
+    All,
+    /// The lossless ones (registrations, discoveries, reports, control, relays): few messages,
+    /// each of which must be seen.
+    Lossless,
+    /// The latest-wins ones (states, hints, merged hints, acks): the many messages a reader may
+    /// fall behind on.
+    LatestWins,
+}
+
+impl Topics {
+    /// Whether `topic` is among these.
+    pub fn has(self, topic: Topic) -> bool {
+        match self {
+            Topics::All => true,
+            Topics::Lossless => topic.delivery() == Delivery::Lossless,
+            Topics::LatestWins => topic.delivery() == Delivery::LatestWins,
+        }
+    }
+}
+
+/// An outside reader of one run: a node and one subscriber on each topic of a [`Topics`].
 pub struct Observer {
     // ports before the node: they are dropped first
-    register: Inbox<Register>,
-    state: Inbox<RobotState>,
-    discovery: Inbox<PseudoTargetDiscovery>,
-    hints: Inbox<QHintBatch>,
-    report: Inbox<FinalReport>,
-    control: Inbox<Control>,
-    merged: Inbox<MergedHintBatch>,
-    ack: Inbox<DiscoveryAck>,
-    relay: Inbox<DiscoveryRelay>,
+    register: Option<Inbox<Register>>,
+    state: Option<Inbox<RobotState>>,
+    discovery: Option<Inbox<PseudoTargetDiscovery>>,
+    hints: Option<Inbox<QHintBatch>>,
+    report: Option<Inbox<FinalReport>>,
+    control: Option<Inbox<Control>>,
+    merged: Option<Inbox<MergedHintBatch>>,
+    ack: Option<Inbox<DiscoveryAck>>,
+    relay: Option<Inbox<DiscoveryRelay>>,
     _node: Node<ipc::Service>,
     run_id: String,
 }
@@ -59,11 +93,24 @@ pub struct Observer {
 /// the others; more than any topic's buffer.
 const DRAIN_MAX: usize = 4096;
 
+/// Takes up to [`DRAIN_MAX`] messages of `inbox` (if this observer has it) into `f`.
+fn drain<T: Message>(
+    inbox: &Option<Inbox<T>>,
+    f: &mut impl FnMut(u64, Msg<'_>),
+    wrap: impl for<'m> Fn(&'m T) -> Msg<'m>,
+) -> Result<usize, ObserveError> {
+    match inbox {
+        Some(i) => Ok(i.drain(DRAIN_MAX, |m| f(monotonic_ns(), wrap(m)))?),
+        None => Ok(0),
+    }
+}
+
 impl Observer {
     /// Waits (polling every 5 ms, up to `timeout`) until run `run_id`'s services exist, then
-    /// joins it. `give_up` is asked between polls (e.g. "the run already ended").
+    /// joins it on `topics`. `give_up` is asked between polls (e.g. "the run already ended").
     pub fn attach(
         run_id: &str,
+        topics: Topics,
         timeout: Duration,
         give_up: &dyn Fn() -> bool,
     ) -> Result<Self, ObserveError> {
@@ -72,7 +119,7 @@ impl Observer {
             if run_services_exist(run_id)? {
                 // the coordinator creates the services one after the other: a failed open
                 // while it is still at it is retried
-                match Self::open(run_id) {
+                match Self::open(run_id, topics) {
                     Ok(o) => return Ok(o),
                     Err(e) if t0.elapsed() >= timeout => return Err(e),
                     Err(_) => {}
@@ -91,24 +138,40 @@ impl Observer {
         }
     }
 
-    /// Joins run `run_id` now (its services must exist).
-    pub fn open(run_id: &str) -> Result<Self, ObserveError> {
+    /// Joins run `run_id` now (its services must exist) on `topics`, with a node named
+    /// `qfleet-observer-<pid>` (`…-lossless` for [`Topics::Lossless`]).
+    pub fn open(run_id: &str, topics: Topics) -> Result<Self, ObserveError> {
+        fn inbox<T: Message>(
+            topics: Topics,
+            node: &Node<ipc::Service>,
+            cfg: &BusConfig,
+        ) -> Result<Option<Inbox<T>>, ObserveError> {
+            if topics.has(T::TOPIC) {
+                Ok(Some(Inbox::open(node, cfg)?))
+            } else {
+                Ok(None)
+            }
+        }
+        let suffix = match topics {
+            Topics::Lossless => "-lossless",
+            Topics::All | Topics::LatestWins => "",
+        };
         let cfg = BusConfig::new(run_id, 1)?;
         let node = cfg.create_node(&format!(
-            "{}{}",
+            "{}{}{suffix}",
             bus::OBSERVER_NODE_PREFIX,
             std::process::id()
         ))?;
         Ok(Self {
-            register: Inbox::open(&node, &cfg)?,
-            state: Inbox::open(&node, &cfg)?,
-            discovery: Inbox::open(&node, &cfg)?,
-            hints: Inbox::open(&node, &cfg)?,
-            report: Inbox::open(&node, &cfg)?,
-            control: Inbox::open(&node, &cfg)?,
-            merged: Inbox::open(&node, &cfg)?,
-            ack: Inbox::open(&node, &cfg)?,
-            relay: Inbox::open(&node, &cfg)?,
+            register: inbox(topics, &node, &cfg)?,
+            state: inbox(topics, &node, &cfg)?,
+            discovery: inbox(topics, &node, &cfg)?,
+            hints: inbox(topics, &node, &cfg)?,
+            report: inbox(topics, &node, &cfg)?,
+            control: inbox(topics, &node, &cfg)?,
+            merged: inbox(topics, &node, &cfg)?,
+            ack: inbox(topics, &node, &cfg)?,
+            relay: inbox(topics, &node, &cfg)?,
             _node: node,
             run_id: run_id.to_string(),
         })
@@ -119,39 +182,84 @@ impl Observer {
         &self.run_id
     }
 
-    /// Takes every buffered message of every topic and hands each to `f` with its receive
-    /// time (monotonic ns); returns how many there were.
+    /// Takes every buffered message of every topic it has and hands each to `f` with its
+    /// receive time (monotonic ns); returns how many there were.
     pub fn poll(&self, mut f: impl FnMut(u64, Msg<'_>)) -> Result<usize, ObserveError> {
-        let mut n = 0;
+        let f = &mut f;
         // lossless topics first: a full buffer there loses messages for us
-        n += self
-            .control
-            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Control(m)))?;
-        n += self
-            .register
-            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Register(m)))?;
-        n += self
-            .discovery
-            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Discovery(m)))?;
-        n += self
-            .relay
-            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Relay(m)))?;
-        n += self
-            .report
-            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Report(m)))?;
-        n += self
-            .state
-            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::State(m)))?;
-        n += self
-            .hints
-            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Hints(m)))?;
-        n += self
-            .merged
-            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Merged(m)))?;
-        n += self
-            .ack
-            .drain(DRAIN_MAX, |m| f(monotonic_ns(), Msg::Ack(m)))?;
-        Ok(n)
+        Ok(drain(&self.control, f, |m| Msg::Control(m))?
+            + drain(&self.register, f, |m| Msg::Register(m))?
+            + drain(&self.discovery, f, |m| Msg::Discovery(m))?
+            + drain(&self.relay, f, |m| Msg::Relay(m))?
+            + drain(&self.report, f, |m| Msg::Report(m))?
+            + drain(&self.state, f, |m| Msg::State(m))?
+            + drain(&self.hints, f, |m| Msg::Hints(m))?
+            + drain(&self.merged, f, |m| Msg::Merged(m))?
+            + drain(&self.ack, f, |m| Msg::Ack(m))?)
+    }
+
+    /// Connects every subscriber of this observer to the publishers that appeared since its
+    /// last receive (a receive does it for its own topic): from then on their samples stay
+    /// readable, even after they leave.
+    pub fn connect_all(&self) -> Result<(), ObserveError> {
+        fn connect<T: Message>(inbox: &Option<Inbox<T>>) -> Result<(), ObserveError> {
+            match inbox {
+                Some(i) => Ok(i.connect()?),
+                None => Ok(()),
+            }
+        }
+        connect(&self.register)?;
+        connect(&self.state)?;
+        connect(&self.discovery)?;
+        connect(&self.hints)?;
+        connect(&self.report)?;
+        connect(&self.control)?;
+        connect(&self.merged)?;
+        connect(&self.ack)?;
+        connect(&self.relay)
+    }
+
+    /// Attaches the wake listeners of this observer's topics to `waitset` (publishers notify
+    /// them after every lossless send), so a reader can block until there is something to
+    /// read; keep the guards as long as the attachment should last, and call
+    /// [`clear_wakeups`](Self::clear_wakeups) after every wakeup.
+    pub fn attach_all<'w, 'a>(
+        &'a self,
+        waitset: &'w WaitSet<ipc::Service>,
+    ) -> Result<Vec<WaitSetGuard<'w, 'a, ipc::Service>>, ObserveError> {
+        self.listeners()
+            .into_iter()
+            .map(|l| {
+                waitset
+                    .attach_notification(l)
+                    .map_err(|e| ObserveError::Bus(format!("cannot attach to the WaitSet: {e:?}")))
+            })
+            .collect()
+    }
+
+    /// Consumes the pending wakeups of every topic this observer has, without blocking.
+    pub fn clear_wakeups(&self) -> Result<(), ObserveError> {
+        for l in self.listeners() {
+            l.try_wait(|_| {})
+                .map_err(|e| ObserveError::Bus(format!("wake listener: {e:?}")))?;
+        }
+        Ok(())
+    }
+
+    /// The wake listeners of the topics this observer has.
+    fn listeners(&self) -> Vec<&Listener<ipc::Service>> {
+        let all = [
+            self.register.as_ref().map(Inbox::listener),
+            self.state.as_ref().map(Inbox::listener),
+            self.discovery.as_ref().map(Inbox::listener),
+            self.hints.as_ref().map(Inbox::listener),
+            self.report.as_ref().map(Inbox::listener),
+            self.control.as_ref().map(Inbox::listener),
+            self.merged.as_ref().map(Inbox::listener),
+            self.ack.as_ref().map(Inbox::listener),
+            self.relay.as_ref().map(Inbox::listener),
+        ];
+        all.into_iter().flatten().collect()
     }
 
     /// Whether any process of the run is alive, outside readers (this one and others) not

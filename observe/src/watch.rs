@@ -1,6 +1,9 @@
 //! `--live` and `--record` for a launcher: one thread that joins the run as an outside reader
 //! once its services exist, feeds every message to the live view and/or the MCAP recorder, and
-//! leaves when the launcher says the run is over ([`Watch::finish`]).
+//! leaves when the launcher says the run is over ([`Watch::finish`]). It reads the latest-wins
+//! topics itself (at the lowest priority when it only records) and takes the lossless ones
+//! from a second reader on a thread of normal priority that a wakeup runs (`LosslessReader`):
+//! a starved reader would lose the samples of robots that exit before it first reads.
 //!
 //! The launcher calls [`start`] before starting the run's processes (the thread only reads
 //! iceoryx2's bookkeeping until the services exist, so the run id stays free),
@@ -9,8 +12,8 @@
 //! observer's node must be gone by then.
 
 use std::path::PathBuf;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
+use std::sync::{Arc, mpsc};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -18,7 +21,10 @@ use planner::grid::Cell;
 use planner::task::Task;
 
 use crate::ObserveError;
-use crate::attach::Observer;
+use bus::iceoryx2::prelude::{CallbackProgression, SignalHandlingMode, WaitSetBuilder, ipc};
+
+use crate::attach::{Observer, Topics};
+use crate::decode::{Msg, Owned};
 use crate::record::{BackgroundRecorder, Recorder, RunInfo};
 use crate::stats::TopicCounts;
 use crate::tui::{self, Exit, Feed};
@@ -186,18 +192,21 @@ fn watch_thread(
     joined: &AtomicU8,
     on_quit: &dyn Fn(),
 ) -> Result<WatchReport, ObserveError> {
-    let observer = match Observer::attach(run_id, ATTACH_TIMEOUT, &|| done.load(Ordering::SeqCst)) {
-        Ok(o) => {
+    let give_up = || done.load(Ordering::SeqCst);
+    let joining = Observer::attach(run_id, Topics::LatestWins, ATTACH_TIMEOUT, &give_up)
+        .and_then(|o| Ok((o, LosslessReader::start(run_id)?)));
+    let (observer, lossless) = match joining {
+        Ok(both) => {
             joined.store(JOINED, Ordering::SeqCst);
-            // Joined (before the robots started: see `Watch::wait_joined`), a recorder reads at
-            // the lowest priority, so it takes from a run that fills every core only what the
-            // run leaves: a lossless topic's samples wait in our buffers (256 discoveries per
-            // robot), a latest-wins topic's older samples are dropped for us alone. The live
-            // view keeps its priority: a person is watching it.
+            // Joined (before the robots started: see `Watch::wait_joined`), a recorder reads the
+            // latest-wins topics at the lowest priority, so it takes from a run that fills every
+            // core only what the run leaves: their older samples are dropped for us alone. The
+            // lossless topics have a thread of their own that a wakeup runs (see
+            // `LosslessReader`). The live view keeps its priority: a person is watching it.
             if !opts.live {
                 crate::record::lower_priority();
             }
-            o
+            both
         }
         Err(e) => {
             if let Some(r) = rec.take() {
@@ -206,15 +215,25 @@ fn watch_thread(
             return Err(e);
         }
     };
+    let mut lossless = Some(lossless);
     let mut feed = |vm: &mut ViewModel| -> Result<Feed, ObserveError> {
         let over = done.load(Ordering::SeqCst);
-        let n = observer.poll(|t, m| {
+        let mut take = |t: u64, m: Msg<'_>| {
             vm.apply(t, m);
             if let Some(r) = rec.as_mut() {
                 r.record(t, m);
             }
-        })?;
+        };
+        let mut n = 0;
+        if let Some(l) = &lossless {
+            n += l.take(&mut take);
+        }
+        n += observer.poll(&mut take)?;
         if over {
+            // the lossless reader's last drain comes after the run's last process ended
+            if let Some(l) = lossless.take() {
+                l.finish(&mut take)?;
+            }
             return Ok(Feed::Ended);
         }
         if n == 0 {
@@ -242,6 +261,141 @@ fn watch_thread(
     Ok(report)
 }
 
+/// How long the lossless reader may take to join once the watch thread has joined.
+const JOIN_LOSSLESS: Duration = Duration::from_secs(10);
+
+/// How long the lossless reader blocks at most between two looks at the stop flag (a wakeup
+/// ends the wait at once).
+const LOSSLESS_TICK: Duration = Duration::from_millis(20);
+
+/// The reader of a run's lossless topics (registrations, discoveries, reports, control,
+/// relays) for a watch whose own thread may be starved: an [`Observer`] of
+/// [`Topics::Lossless`] on a thread of normal priority that blocks on the topics' wake events,
+/// so it runs within a wakeup of every lossless send and connects to every publisher before
+/// the publisher can leave (a reader that never connected to a publisher that left has lost
+/// its samples: see [`crate::attach`]). It copies what it reads into a channel that the watch
+/// thread empties; its CPU cost is one wakeup per lossless message, a few hundred in a run.
+struct LosslessReader {
+    rx: mpsc::Receiver<(u64, Owned)>,
+    stop: Arc<AtomicBool>,
+    handle: Option<JoinHandle<Result<(), ObserveError>>>,
+}
+
+impl LosslessReader {
+    /// Starts the thread and waits until its observer has joined run `run_id` (the run's
+    /// services must exist); it reads until [`finish`](Self::finish), then once more.
+    fn start(run_id: &str) -> Result<Self, ObserveError> {
+        let (tx, rx) = mpsc::channel();
+        let stop = Arc::new(AtomicBool::new(false));
+        let done = Arc::clone(&stop);
+        let (joined_tx, joined_rx) = mpsc::sync_channel(1);
+        let run_id = run_id.to_string();
+        let handle = std::thread::Builder::new()
+            .name("qfleet-watch-lossless".into())
+            .spawn(move || {
+                // iceoryx2 ports stay on the thread that made them: join here (retrying an
+                // open that fails while the coordinator still creates a service)
+                let quit = || done.load(Ordering::SeqCst);
+                let joined = Observer::attach(&run_id, Topics::Lossless, JOIN_LOSSLESS, &quit);
+                let observer = match joined {
+                    Ok(o) => {
+                        let _ = joined_tx.send(Ok(()));
+                        o
+                    }
+                    Err(e) => {
+                        let _ = joined_tx.send(Err(e));
+                        return Ok(());
+                    }
+                };
+                read_lossless(&observer, &done, &tx)
+            })
+            .map_err(|e| ObserveError::Io {
+                path: "the lossless reader thread".into(),
+                source: e,
+            })?;
+        match joined_rx.recv() {
+            Ok(Ok(())) => Ok(Self {
+                rx,
+                stop,
+                handle: Some(handle),
+            }),
+            Ok(Err(e)) => Err(e),
+            Err(_) => Err(ObserveError::Bus(
+                "the lossless reader thread ended before it joined".into(),
+            )),
+        }
+    }
+
+    /// Hands everything read so far to `f`; returns how many messages.
+    fn take(&self, f: &mut impl FnMut(u64, Msg<'_>)) -> usize {
+        let mut n = 0;
+        for (t, m) in self.rx.try_iter() {
+            f(t, m.as_msg());
+            n += 1;
+        }
+        n
+    }
+
+    /// Stops the thread after one last read (call it once the run's processes all ended),
+    /// waits for it to leave the run, and hands the rest to `f`.
+    fn finish(mut self, f: &mut impl FnMut(u64, Msg<'_>)) -> Result<(), ObserveError> {
+        let r = self.stop_and_join();
+        self.take(f);
+        r
+    }
+
+    fn stop_and_join(&mut self) -> Result<(), ObserveError> {
+        self.stop.store(true, Ordering::SeqCst);
+        match self.handle.take().map(JoinHandle::join) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => Err(ObserveError::Bus(
+                "the lossless reader thread panicked".into(),
+            )),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for LosslessReader {
+    /// A watch thread that ends early (an error) still leaves no node of ours in the run.
+    fn drop(&mut self) {
+        let _ = self.stop_and_join();
+    }
+}
+
+/// The lossless reader's loop: read, then block until a wakeup or [`LOSSLESS_TICK`]; after
+/// `done` is set, one last read.
+fn read_lossless(
+    observer: &Observer,
+    done: &AtomicBool,
+    tx: &mpsc::Sender<(u64, Owned)>,
+) -> Result<(), ObserveError> {
+    let waitset = WaitSetBuilder::new()
+        // iceoryx2's own SIGINT/SIGTERM handler would replace the launcher's
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<ipc::Service>()
+        .map_err(|e| ObserveError::Bus(format!("cannot create a WaitSet: {e:?}")))?;
+    let _guards = observer.attach_all(&waitset)?;
+    loop {
+        let over = done.load(Ordering::SeqCst);
+        // cleared before the read: a send after it wakes the next wait
+        observer.clear_wakeups()?;
+        // every topic connected before any is read: a message seen here means its sender's
+        // other publishers (a robot opens them all before it registers) are connected too
+        observer.connect_all()?;
+        observer.poll(|t, m| {
+            // the receiving end lives as long as the watch thread, which joins us first
+            let _ = tx.send((t, Owned::of(m)));
+        })?;
+        if over {
+            return Ok(());
+        }
+        waitset
+            .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, LOSSLESS_TICK)
+            .map_err(|e| ObserveError::Bus(format!("WaitSet: {e:?}")))?;
+    }
+}
+
 /// A [`ViewModel`] for a recording: its map attachment and start/goal metadata.
 pub fn view_of_recording(r: &crate::replay::Recording) -> Result<ViewModel, ObserveError> {
     let text = r
@@ -255,4 +409,90 @@ pub fn view_of_recording(r: &crate::replay::Recording) -> Result<ViewModel, Obse
     let goal = cell("goal").unwrap_or(start);
     let name = r.meta.get("map").cloned().unwrap_or(map.name);
     Ok(ViewModel::new(&name, map.grid, start, goal))
+}
+
+#[cfg(test)]
+mod tests {
+    use bus::bus_schema::names::Topic;
+    use bus::bus_schema::{FinalReport, PseudoTargetDiscovery, Register};
+    use bus::{BusConfig, CoordinatorBus, Outbox, leftover_files, unique_run_id};
+
+    use super::*;
+
+    /// A robot-like process on a thread of its own: joins run `cfg`, sends a registration,
+    /// waits for `go`, then sends two discoveries and a report (each notified, as the robots
+    /// do) and leaves at once.
+    fn visiting_robot(cfg: &BusConfig, go: mpsc::Receiver<()>) -> JoinHandle<()> {
+        let cfg = cfg.clone();
+        std::thread::spawn(move || {
+            let node = cfg.create_node("visitor").expect("node");
+            let reg = Outbox::<Register>::open(&node, &cfg).expect("register outbox");
+            let disc = Outbox::<PseudoTargetDiscovery>::open(&node, &cfg).expect("outbox");
+            let report = Outbox::<FinalReport>::open(&node, &cfg).expect("report outbox");
+            reg.send_with(|m| m.robot_id = 0).expect("send");
+            reg.notify().expect("notify");
+            go.recv_timeout(Duration::from_secs(20)).expect("go");
+            for cell_x in [3, 4] {
+                disc.send_with(|m| m.cell_x = cell_x).expect("send");
+                disc.notify().expect("notify");
+            }
+            report.send_with(|m| m.robot_id = 0).expect("send");
+            report.notify().expect("notify");
+        })
+    }
+
+    fn topics_of(msgs: &[(u64, Owned)]) -> Vec<Topic> {
+        msgs.iter().map(|(_, m)| m.as_msg().topic()).collect()
+    }
+
+    #[test]
+    fn the_lossless_reader_keeps_what_a_publisher_sent_before_it_left() {
+        let cfg = BusConfig::new(unique_run_id("obs-lossless"), 1).unwrap();
+        let coordinator = CoordinatorBus::create(&cfg).expect("the run's services");
+        let reader = LosslessReader::start(&cfg.run_id).expect("joins");
+        // an observer that does not read while the visitor is there: what an idle-class
+        // reader on a saturated machine is
+        let idle = Observer::open(&cfg.run_id, Topics::Lossless).expect("joins");
+        let (go, wait) = mpsc::channel();
+        let visitor = visiting_robot(&cfg, wait);
+        // the reader wakes on the registration (as on a robot's, whose process then lives on
+        // for the run); once it has read it, the visitor sends the rest and leaves at once
+        let mut kept = Vec::new();
+        let t0 = Instant::now();
+        while kept.is_empty() {
+            assert!(
+                t0.elapsed() < Duration::from_secs(20),
+                "no registration read"
+            );
+            reader.take(&mut |t, m| kept.push((t, Owned::of(m))));
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        go.send(()).unwrap();
+        visitor.join().expect("visitor");
+        // the visitor's node is gone: its publishers, and their data segments, with it
+        let mut late = Vec::new();
+        idle.poll(|t, m| late.push((t, Owned::of(m)))).unwrap();
+        reader
+            .finish(&mut |t, m| kept.push((t, Owned::of(m))))
+            .unwrap();
+        assert_eq!(
+            topics_of(&kept),
+            [
+                Topic::Register,
+                Topic::Discovery,
+                Topic::Discovery,
+                Topic::Report
+            ],
+            "the reader woke on each send and connected before the publisher left"
+        );
+        assert_eq!(
+            topics_of(&late),
+            [],
+            "iceoryx2 drops an unconnected reader's samples of a publisher that left; if this \
+             changes, the lossless reader may no longer be needed"
+        );
+        drop(idle);
+        coordinator.close().unwrap();
+        assert!(leftover_files(&cfg.prefix()).is_empty());
+    }
 }

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::{Args, Subcommand};
-use observe::attach::{Observer, leave, run_services_exist};
+use observe::attach::{Observer, Topics, leave, run_services_exist};
 use observe::decode::topic_by_name;
 use observe::stats::{Rate, TopicCounts, topic_index};
 use serde_json::json;
@@ -149,8 +149,10 @@ fn watch(t: &Target, mode: Mode) -> Result<()> {
     let only = t.topic().context(launcher::Exit::BadInput)?;
     let wait = t.wait().context(launcher::Exit::BadInput)?;
     let stop = interrupted()?;
-    let observer = Observer::attach(&t.run_id, wait, &|| stop.load(Ordering::SeqCst))
-        .with_context(|| format!("joining run {}", t.run_id))?;
+    let observer = Observer::attach(&t.run_id, Topics::All, wait, &|| {
+        stop.load(Ordering::SeqCst)
+    })
+    .with_context(|| format!("joining run {}", t.run_id))?;
     let result = watch_loop(&observer, t, only, mode, &stop);
     drop(observer);
     // if the run ended while we were attached, its last files are ours to remove
