@@ -270,3 +270,66 @@ fn a_recorded_experiment_holds_every_phase_and_leaves_nothing() {
     assert!(left.is_empty(), "{left:?}");
     assert!(leftovers(&id).is_empty());
 }
+
+/// A run whose launcher (recorder thread and all) is killed mid-run leaves a recording without
+/// an end; `qfleet replay` still reads the messages before the kill, exit 0, and says the file
+/// was cut short (text and JSON). `qfleet clean` then removes what the killed run left.
+#[test]
+fn a_recording_whose_launcher_was_killed_is_read_up_to_the_kill() {
+    use qfleet_suite::{describe, leftovers, run_bounded, run_id, scratch, spawn, wait_until};
+    use std::os::unix::process::CommandExt;
+    use std::time::Duration;
+    let id = run_id("killrec");
+    let dir = scratch(&id);
+    let file = dir.join("run.mcap");
+    let qfleet = bin_dir().join("qfleet");
+    // paced so it lasts; its own process group, so one kill ends every process of the run
+    let mut run = spawn(
+        Command::new(&qfleet)
+            .args([
+                "run",
+                "--robots",
+                "2",
+                "--map",
+                "builtin:paper-10",
+                "--pace",
+                "200",
+                "--json",
+                "--run-id",
+                &id,
+                "--record",
+            ])
+            .arg(&file)
+            .process_group(0),
+    );
+    // the file holds messages once it grew well past its header, schemas and map
+    let grew = wait_until(qfleet_suite::PROCESS_TIMEOUT, || {
+        std::fs::metadata(&file).is_ok_and(|m| m.len() > 64 << 10)
+    });
+    // SAFETY: kill(2) on the process group this test started.
+    unsafe { libc::kill(-(run.id() as i32), libc::SIGKILL) };
+    let _ = run.wait();
+    assert!(grew, "the recording never grew");
+    let out = run_bounded(Command::new(&qfleet).args(["replay", "--json"]).arg(&file));
+    assert!(out.status.success(), "{}", describe(&out));
+    let s: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(s["messages"].as_u64() > Some(0), "{s}");
+    let cut = &s["cut_short"];
+    assert!(cut["read_bytes"].as_u64() > Some(0), "{s}");
+    assert_eq!(
+        cut["file_bytes"].as_u64(),
+        Some(std::fs::metadata(&file).unwrap().len())
+    );
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("was not finished"),
+        "{}",
+        describe(&out)
+    );
+    let text = run_bounded(Command::new(&qfleet).arg("replay").arg(&file));
+    assert!(text.status.success(), "{}", describe(&text));
+    let clean = run_bounded(Command::new(&qfleet).args(["clean", "--run-id", &id]));
+    assert!(clean.status.success(), "{}", describe(&clean));
+    let left = leftovers(&id);
+    assert!(left.is_empty(), "files of the run left: {left:?}");
+    drop(dir);
+}

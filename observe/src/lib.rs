@@ -3,8 +3,9 @@
 //! An outside reader of a run: it attaches once the run's services exist
 //! ([`attach::Observer`]), decodes every topic to JSON with a JSON schema per type
 //! ([`decode`]), counts messages and rates ([`stats`]), records everything into an MCAP file
-//! that Foxglove opens ([`record`]), reads recordings back ([`replay`]), and keeps an IO-free
-//! model of the run ([`view::ViewModel`]) that the terminal live view ([`tui`]) draws.
+//! that Foxglove opens ([`record`]), reads recordings back ([`replay`]; one whose recorder was
+//! killed through [`salvage`]), and keeps an IO-free model of the run ([`view::ViewModel`])
+//! that the terminal live view ([`tui`]) draws.
 //! [`watch`] ties them together for `qfleet run/experiment --live/--record`.
 //!
 //! Not here: starting or stopping a run's processes (the launcher in `tools/`; the live view
@@ -17,6 +18,7 @@ pub mod attach;
 pub mod decode;
 pub mod record;
 pub mod replay;
+pub mod salvage;
 pub mod stats;
 pub mod tui;
 pub mod view;
@@ -42,9 +44,13 @@ pub enum ObserveError {
     /// The run ended (or never started) before the observer could join.
     #[error("run {0} is not running")]
     NotRunning(String),
-    /// Reading or writing an MCAP file.
+    /// An MCAP file that is not what a qfleet recording holds (too big, a message not JSON).
     #[error("mcap: {0}")]
     Mcap(String),
+    /// The `mcap` crate could not read or write a file; its source says why (a full disk, a
+    /// truncated file).
+    #[error("mcap")]
+    McapFile(#[source] mcap::McapError),
     /// JSON encoding.
     #[error("json: {0}")]
     Json(#[from] serde_json::Error),

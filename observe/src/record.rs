@@ -58,7 +58,7 @@ pub struct Recorder<W: Write + Seek> {
 }
 
 fn mcap_err(e: mcap::McapError) -> ObserveError {
-    ObserveError::Mcap(e.to_string())
+    ObserveError::McapFile(e)
 }
 
 /// Wall-clock ns since the Unix epoch (0 if the clock is before it).

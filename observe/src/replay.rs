@@ -29,6 +29,18 @@ pub struct Recording {
     pub meta: BTreeMap<String, String>,
     /// The map attachment (MovingAI text), if present.
     pub map_text: Option<String>,
+    /// Set when the recorder did not finish the file (killed, or its disk filled): what was
+    /// read of it. The messages are those before the damage.
+    pub cut_short: Option<CutShort>,
+}
+
+/// How much of a recording that was not finished could be read (see [`crate::salvage`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct CutShort {
+    /// Bytes read from the start of the file: every complete record.
+    pub read_bytes: u64,
+    /// The file's size.
+    pub file_bytes: u64,
 }
 
 /// One topic in a [`Summary`].
@@ -61,10 +73,12 @@ pub struct Summary {
     pub topics: Vec<TopicSummary>,
     /// The recording's run metadata.
     pub metadata: BTreeMap<String, String>,
+    /// Null for a finished recording; how much was read of one whose recorder did not finish.
+    pub cut_short: Option<CutShort>,
 }
 
 fn mcap_err(e: mcap::McapError) -> ObserveError {
-    ObserveError::Mcap(e.to_string())
+    ObserveError::McapFile(e)
 }
 
 impl Recording {
@@ -82,6 +96,18 @@ impl Recording {
             )));
         }
         let bytes = std::fs::read(path).map_err(io)?;
+        // a recorder that was killed or whose disk filled left no end: read what it wrote
+        // (a file that cannot be salvaged either gets the error of reading it as it is)
+        if !crate::salvage::is_finished(&bytes)
+            && let Some(s) = crate::salvage::salvage(&bytes)
+            && let Ok(mut r) = Self::from_bytes(s.bytes)
+        {
+            r.cut_short = Some(CutShort {
+                read_bytes: s.kept_bytes,
+                file_bytes: len,
+            });
+            return Ok(r);
+        }
         Self::from_bytes(bytes)
     }
 
@@ -102,6 +128,7 @@ impl Recording {
             bytes,
             meta,
             map_text,
+            cut_short: None,
         })
     }
 
@@ -180,6 +207,7 @@ impl Recording {
             duration_s: rel(t1),
             topics,
             metadata: self.meta.clone(),
+            cut_short: self.cut_short,
         })
     }
 
@@ -570,6 +598,198 @@ mod tests {
         })
         .unwrap();
         assert_eq!(n, rounds * msgs.len());
+    }
+
+    /// A file on a disk with `room` bytes left: writes past it fail as a full disk does.
+    struct SmallDisk {
+        file: Cursor<Vec<u8>>,
+        room: u64,
+    }
+
+    impl std::io::Write for SmallDisk {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            if self.file.position() + buf.len() as u64 > self.room {
+                return Err(std::io::Error::from(std::io::ErrorKind::StorageFull));
+            }
+            self.file.write(buf)
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl std::io::Seek for SmallDisk {
+        fn seek(&mut self, pos: std::io::SeekFrom) -> std::io::Result<u64> {
+            self.file.seek(pos)
+        }
+    }
+
+    #[test]
+    fn a_full_disk_ends_the_recording_with_an_error_that_says_so() {
+        let disk = SmallDisk {
+            file: Cursor::new(Vec::new()),
+            room: 64 << 10,
+        };
+        let rec = Recorder::new(std::io::BufWriter::new(disk), &RunInfo::default()).unwrap();
+        let mut rec = crate::record::BackgroundRecorder::start(rec).unwrap();
+        let msgs = sample_msgs();
+        for k in 0..2000 {
+            for m in &msgs {
+                rec.record(k, m.as_msg());
+            }
+        }
+        let e = rec.finish().expect_err("the disk is full");
+        let chain: Vec<String> =
+            std::iter::successors(Some(&e as &dyn std::error::Error), |e| e.source())
+                .map(ToString::to_string)
+                .collect();
+        assert!(
+            chain.iter().any(|m| m.contains("no storage space")),
+            "the cause is kept: {chain:?}"
+        );
+    }
+
+    /// A finished recording of `rounds` rounds of [`sample_msgs`], and those messages.
+    fn finished_recording(rounds: usize) -> (Vec<u8>, Vec<Owned>) {
+        let mut rec = Recorder::new(Cursor::new(Vec::new()), &RunInfo::default()).unwrap();
+        let mut sent = Vec::new();
+        for k in 0..rounds {
+            for m in sample_msgs() {
+                rec.record(k as u64, m.as_msg()).unwrap();
+                sent.push(m);
+            }
+        }
+        (rec.finish().unwrap().into_inner(), sent)
+    }
+
+    /// Every message a recording yields, rebuilt.
+    fn messages(r: &Recording) -> Vec<Owned> {
+        let mut got = Vec::new();
+        r.for_each(|_, topic, v| {
+            got.push(from_json(topic, v));
+            Ok(())
+        })
+        .unwrap();
+        got
+    }
+
+    #[test]
+    fn a_recording_cut_anywhere_gives_back_the_messages_before_the_cut() {
+        use crate::salvage::{is_finished, salvage};
+        let (file, sent) = finished_recording(40);
+        assert!(is_finished(&file));
+        let mut before = 0;
+        // every cut point through the data section, a few bytes apart
+        for cut in (8..file.len()).step_by(7) {
+            let s = salvage(&file[..cut]).expect("starts like MCAP");
+            assert!(s.kept_bytes <= cut as u64);
+            let r = Recording::from_bytes(s.bytes).expect("the salvaged file reads");
+            let got = messages(&r);
+            assert_eq!(
+                got[..],
+                sent[..got.len()],
+                "a prefix, in order (cut at {cut})"
+            );
+            assert!(
+                got.len() >= before,
+                "a longer file never gives fewer messages"
+            );
+            before = got.len();
+        }
+        assert!(
+            before + sample_msgs().len() >= sent.len(),
+            "nearly all before the summary"
+        );
+    }
+
+    /// A `Write + Seek` into a buffer that outlives the writer (the test keeps a handle).
+    #[derive(Clone, Default)]
+    struct Shared(std::sync::Arc<std::sync::Mutex<Cursor<Vec<u8>>>>);
+
+    impl std::io::Write for Shared {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().unwrap().write(buf)
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl std::io::Seek for Shared {
+        fn seek(&mut self, pos: std::io::SeekFrom) -> std::io::Result<u64> {
+            self.0.lock().unwrap().seek(pos)
+        }
+    }
+
+    #[test]
+    fn a_killed_recorders_file_is_read_up_to_its_last_whole_message() {
+        let file = Shared::default();
+        let mut rec = Recorder::new(file.clone(), &RunInfo::default()).unwrap();
+        let mut sent = Vec::new();
+        for k in 0..300 {
+            for m in sample_msgs() {
+                rec.record(k, m.as_msg()).unwrap();
+                sent.push(m);
+            }
+        }
+        // killed: nothing after this point is written, no chunk is closed
+        std::mem::forget(rec);
+        let bytes = file.0.lock().unwrap().get_ref().clone();
+        assert!(
+            Recording::from_bytes(bytes.clone()).is_err(),
+            "unreadable as it is"
+        );
+        let path = std::env::temp_dir().join(format!(
+            "qfleet-observe-killed-{}-{}.mcap",
+            std::process::id(),
+            bus::monotonic_ns()
+        ));
+        std::fs::write(&path, &bytes).unwrap();
+        let r = Recording::open(&path);
+        let _ = std::fs::remove_file(&path);
+        let r = r.expect("salvaged");
+        let cut = r.cut_short.expect("said to be cut short");
+        assert_eq!(cut.file_bytes, bytes.len() as u64);
+        let got = messages(&r);
+        assert_eq!(got[..], sent[..got.len()], "a prefix, in order");
+        // the open chunk's messages are lifted out of it: at most the last one is lost
+        assert!(
+            got.len() + 1 >= sent.len(),
+            "{} of {}",
+            got.len(),
+            sent.len()
+        );
+        assert_eq!(r.summary().unwrap().cut_short, Some(cut));
+    }
+
+    #[test]
+    fn a_finished_recording_is_not_cut_short_and_other_files_are_not_salvaged() {
+        let (file, sent) = finished_recording(3);
+        let r = Recording::from_bytes(file).unwrap();
+        assert_eq!(r.cut_short, None);
+        assert_eq!(messages(&r), sent);
+        assert_eq!(crate::salvage::salvage(b"type octile\nheight 3\n"), None);
+        assert_eq!(crate::salvage::salvage(b""), None);
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn salvaging_a_damaged_recording_never_panics(
+            cut in 0usize..20_000,
+            flips in proptest::collection::vec((0usize..20_000, proptest::num::u8::ANY), 0..8),
+        ) {
+            let (mut file, _) = finished_recording(20);
+            for (at, b) in flips {
+                let n = file.len();
+                file[at % n] ^= b;
+            }
+            file.truncate(cut.min(file.len()));
+            if let Some(s) = crate::salvage::salvage(&file)
+                && let Ok(r) = Recording::from_bytes(s.bytes)
+            {
+                let _ = r.for_each(|_, _, _| Ok(()));
+            }
+        }
     }
 
     #[test]

@@ -66,7 +66,12 @@ pub fn finish(hook: Hook) -> Result<bool> {
     let Some(w) = hook.watch else {
         return Ok(false);
     };
-    let r = w.finish().context("watching the run")?;
+    let r = match &hook.record {
+        Some(p) => w
+            .finish()
+            .with_context(|| format!("watching the run (recording to {})", p.display()))?,
+        None => w.finish().context("watching the run")?,
+    };
     if let Some(p) = &hook.record {
         eprintln!(
             "qfleet: recorded {} messages to {}",

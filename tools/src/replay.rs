@@ -42,6 +42,15 @@ impl ReplayCmd {
         let rec = Recording::open(&self.file)
             .with_context(|| format!("reading {}", self.file.display()))
             .context(launcher::Exit::BadInput)?;
+        if let Some(c) = rec.cut_short {
+            crate::term::warn(&format!(
+                "warning: {} was not finished (its recorder was killed or its disk filled): read \
+                 the messages in its first {} of {} bytes, the rest is lost",
+                self.file.display(),
+                c.read_bytes,
+                c.file_bytes
+            ));
+        }
         if self.live {
             return self.live(&rec);
         }
