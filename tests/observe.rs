@@ -278,7 +278,6 @@ fn a_recorded_experiment_holds_every_phase_and_leaves_nothing() {
 fn a_recording_whose_launcher_was_killed_is_read_up_to_the_kill() {
     use qfleet_suite::{describe, leftovers, run_bounded, run_id, scratch, spawn, wait_until};
     use std::os::unix::process::CommandExt;
-    use std::time::Duration;
     let id = run_id("killrec");
     let dir = scratch(&id);
     let file = dir.join("run.mcap");
