@@ -50,7 +50,7 @@ pub enum ObserveError {
     /// The `mcap` crate could not read or write a file; its source says why (a full disk, a
     /// truncated file).
     #[error("mcap")]
-    McapFile(#[source] mcap::McapError),
+    McapFile(#[from] mcap::McapError),
     /// JSON encoding.
     #[error("json: {0}")]
     Json(#[from] serde_json::Error),

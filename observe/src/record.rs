@@ -57,10 +57,6 @@ pub struct Recorder<W: Write + Seek> {
     written: u64,
 }
 
-fn mcap_err(e: mcap::McapError) -> ObserveError {
-    ObserveError::McapFile(e)
-}
-
 /// Wall-clock ns since the Unix epoch (0 if the clock is before it).
 pub fn wall_ns() -> u64 {
     std::time::SystemTime::now()
@@ -87,21 +83,17 @@ impl<W: Write + Seek> Recorder<W> {
             .compression(None)
             .profile("")
             .library(concat!("qfleet-observe ", env!("CARGO_PKG_VERSION")))
-            .create(w)
-            .map_err(mcap_err)?;
+            .create(w)?;
         let mut channels = [0u16; 9];
         for t in Topic::ALL {
             let schema = serde_json::to_vec(&json_schema(t))?;
-            let sid = writer
-                .add_schema(t.type_name(), "jsonschema", &schema)
-                .map_err(mcap_err)?;
+            let sid = writer.add_schema(t.type_name(), "jsonschema", &schema)?;
             let meta = BTreeMap::from([
                 ("delivery".to_string(), format!("{:?}", t.delivery())),
                 ("direction".to_string(), format!("{:?}", t.direction())),
             ]);
-            channels[topic_index(t)] = writer
-                .add_channel(sid, &t.service_name(&info.run_id), "json", &meta)
-                .map_err(mcap_err)?;
+            channels[topic_index(t)] =
+                writer.add_channel(sid, &t.service_name(&info.run_id), "json", &meta)?;
         }
         let wall0 = wall_ns();
         let mono0 = bus::monotonic_ns();
@@ -116,30 +108,24 @@ impl<W: Write + Seek> Recorder<W> {
         );
         meta.insert("clock_wall_ns".into(), wall0.to_string());
         meta.insert("clock_mono_ns".into(), mono0.to_string());
-        writer
-            .write_metadata(&Metadata {
-                name: RUN_METADATA.into(),
-                metadata: meta.clone(),
-            })
-            .map_err(mcap_err)?;
-        writer
-            .attach(&Attachment {
-                log_time: wall0,
-                create_time: wall0,
-                name: MAP_ATTACHMENT.into(),
-                media_type: "text/plain".into(),
-                data: info.map_text.as_bytes().into(),
-            })
-            .map_err(mcap_err)?;
-        writer
-            .attach(&Attachment {
-                log_time: wall0,
-                create_time: wall0,
-                name: CONFIG_ATTACHMENT.into(),
-                media_type: "application/json".into(),
-                data: serde_json::to_vec_pretty(&meta)?.into(),
-            })
-            .map_err(mcap_err)?;
+        writer.write_metadata(&Metadata {
+            name: RUN_METADATA.into(),
+            metadata: meta.clone(),
+        })?;
+        writer.attach(&Attachment {
+            log_time: wall0,
+            create_time: wall0,
+            name: MAP_ATTACHMENT.into(),
+            media_type: "text/plain".into(),
+            data: info.map_text.as_bytes().into(),
+        })?;
+        writer.attach(&Attachment {
+            log_time: wall0,
+            create_time: wall0,
+            name: CONFIG_ATTACHMENT.into(),
+            media_type: "application/json".into(),
+            data: serde_json::to_vec_pretty(&meta)?.into(),
+        })?;
         Ok(Self {
             writer,
             channels,
@@ -159,17 +145,15 @@ impl<W: Write + Seek> Recorder<W> {
         let t = self
             .wall0
             .saturating_add(recv_ns.saturating_sub(self.mono0));
-        self.writer
-            .write_to_known_channel(
-                &MessageHeader {
-                    channel_id: self.channels[i],
-                    sequence: self.seq[i],
-                    log_time: t,
-                    publish_time: t,
-                },
-                &self.buf,
-            )
-            .map_err(mcap_err)?;
+        self.writer.write_to_known_channel(
+            &MessageHeader {
+                channel_id: self.channels[i],
+                sequence: self.seq[i],
+                log_time: t,
+                publish_time: t,
+            },
+            &self.buf,
+        )?;
         self.seq[i] = self.seq[i].wrapping_add(1);
         self.written += 1;
         Ok(())
@@ -182,7 +166,7 @@ impl<W: Write + Seek> Recorder<W> {
 
     /// Writes the summary section, flushes, and hands back the sink.
     pub fn finish(mut self) -> Result<W, ObserveError> {
-        self.writer.finish().map_err(mcap_err)?;
+        self.writer.finish()?;
         let mut w = self.writer.into_inner();
         w.flush().map_err(|e| ObserveError::Io {
             path: "the recording".into(),

@@ -77,10 +77,6 @@ pub struct Summary {
     pub cut_short: Option<CutShort>,
 }
 
-fn mcap_err(e: mcap::McapError) -> ObserveError {
-    ObserveError::McapFile(e)
-}
-
 impl Recording {
     /// Reads `path` (at most [`MAX_RECORDING_BYTES`]) and its metadata and map.
     pub fn open(path: &Path) -> Result<Self, ObserveError> {
@@ -115,8 +111,8 @@ impl Recording {
     pub fn from_bytes(bytes: Vec<u8>) -> Result<Self, ObserveError> {
         let mut meta = BTreeMap::new();
         let mut map_text = None;
-        for rec in mcap::read::LinearReader::new(&bytes).map_err(mcap_err)? {
-            match rec.map_err(mcap_err)? {
+        for rec in mcap::read::LinearReader::new(&bytes)? {
+            match rec? {
                 Record::Metadata(m) if m.name == RUN_METADATA => meta = m.metadata,
                 Record::Attachment { header, data, .. } if header.name == MAP_ATTACHMENT => {
                     map_text = Some(String::from_utf8_lossy(&data).into_owned());
@@ -149,8 +145,8 @@ impl Recording {
         &self,
         mut f: impl FnMut(u64, Topic, &Value) -> Result<(), ObserveError>,
     ) -> Result<(), ObserveError> {
-        for m in mcap::MessageStream::new(&self.bytes).map_err(mcap_err)? {
-            let m = m.map_err(mcap_err)?;
+        for m in mcap::MessageStream::new(&self.bytes)? {
+            let m = m?;
             let Some(topic) = topic_by_name(&m.channel.topic) else {
                 continue;
             };
