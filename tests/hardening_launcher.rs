@@ -236,6 +236,13 @@ fn a_full_disk_under_out_is_an_error_naming_what_was_kept_never_a_panic() {
         }
     }
     let _mount = Mount(mnt.clone());
+    // full to the last block: not even a log line fits (a run that only fills it up itself
+    // leaves room for its logs until late)
+    {
+        use std::io::Write as _;
+        let mut filler = std::fs::File::create(mnt.join("filler")).unwrap();
+        while filler.write_all(&[0u8; 512]).is_ok() {}
+    }
     let out_dir = mnt.join("out");
     let out = run_bounded(
         qfleet_run(
@@ -261,6 +268,9 @@ fn a_full_disk_under_out_is_an_error_naming_what_was_kept_never_a_panic() {
         describe(&out)
     );
     assert!(!err.contains("panicked"), "{}", describe(&out));
+    // nor did any process of the run panic: a log line on a full disk is dropped, not fatal
+    // (`eprintln!` panicked there, exit 101 with an empty log)
+    assert!(!err.contains("exit code 101"), "{}", describe(&out));
     assert_clean(&id);
 }
 
@@ -354,6 +364,24 @@ fn a_closed_or_full_stdout_or_stderr_is_a_clean_exit_never_a_panic() {
         "EPIPE must be a quiet exit: {}",
         describe(&out)
     );
+    // the same for a command that prints its result (`qfleet learn --json | true`)
+    let mut c = Command::new(bin("qfleet"))
+        .args([
+            "learn",
+            "--map",
+            "builtin:paper-10",
+            "--episodes",
+            "5",
+            "--json",
+        ])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    drop(c.stdout.take());
+    let out = wait_bounded(c, PROCESS_TIMEOUT);
+    assert_eq!(code(&out), Some(0), "{}", describe(&out));
 
     let full = || std::fs::OpenOptions::new().write(true).open("/dev/full");
     let Ok(dev_full) = full() else {

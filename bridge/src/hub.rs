@@ -221,9 +221,10 @@ fn run(
         remote_robots: remote,
         ..HubReport::default()
     };
-    eprintln!(
+    report::log_line!(
         "qfleet: waiting for {remote} robot(s) from other hosts on {}: run `qfleet join {} --robots N` there",
-        opts.listen, opts.listen
+        opts.listen,
+        opts.listen
     );
     let mut pacing = link::Pacing::new(Instant::now(), opts.tuning.spin);
     link::tighten_timer_slack();
@@ -324,7 +325,7 @@ fn answer_join(
     let reply = |r: &JoinReply| {
         let body = serde_json::to_vec(r).unwrap_or_default();
         if let Err(e) = q.reply(JOIN_KEY, body).wait() {
-            eprintln!("qfleet: warning: answering a join: {e}");
+            report::log_line!("qfleet: warning: answering a join: {e}");
         }
     };
     let req: JoinRequest = match q.payload().map(|p| serde_json::from_slice(&p.to_bytes())) {
@@ -334,7 +335,7 @@ fn answer_join(
                 Some(Err(e)) => format!("unreadable join request ({e}): another qfleet version?"),
                 _ => "empty join request".to_string(),
             };
-            eprintln!("qfleet: refused a join: {reason}");
+            report::log_line!("qfleet: refused a join: {reason}");
             report.refused.push(reason.clone());
             reply(&JoinReply::Refused { reason });
             return;
@@ -343,7 +344,7 @@ fn answer_join(
     let (index, ids) = match admission.admit(&req) {
         Ok(x) => x,
         Err(reason) => {
-            eprintln!("qfleet: refused the join of host {}: {reason}", req.host);
+            report::log_line!("qfleet: refused the join of host {}: {reason}", req.host);
             report.refused.push(reason.clone());
             reply(&JoinReply::Refused { reason });
             return;
@@ -380,7 +381,7 @@ fn answer_join(
         t_ns: monotonic_ns(),
     };
     reply(&JoinReply::Accepted(accepted));
-    eprintln!(
+    report::log_line!(
         "qfleet: host {} joined with robots {}..{} ({} of {} remote robots now)",
         req.host,
         ids.start,
@@ -444,7 +445,7 @@ impl Host {
             }
         };
         if let Some(LinkEvent::CameBack) = self.watch.heard(now) {
-            eprintln!(
+            report::log_line!(
                 "qfleet: host {} is back; resending what it missed",
                 self.name
             );
@@ -530,7 +531,9 @@ impl Host {
                     }),
                     Err(BusError::Timeout { .. }) => return Put::Later,
                     Err(err) => {
-                        eprintln!("qfleet: warning: cannot stand in for remote robot {id}: {err}");
+                        report::log_line!(
+                            "qfleet: warning: cannot stand in for remote robot {id}: {err}"
+                        );
                         return Put::Later;
                     }
                 }
@@ -628,7 +631,7 @@ impl Host {
             });
         }
         if let Some(e) = overflow {
-            eprintln!("qfleet: warning: host {name}: {e}");
+            report::log_line!("qfleet: warning: host {name}: {e}");
         }
         any
     }
@@ -644,15 +647,16 @@ impl Host {
             return;
         }
         match self.watch.tick(now) {
-            Some(LinkEvent::WentDown) => eprintln!(
+            Some(LinkEvent::WentDown) => report::log_line!(
                 "qfleet: host {} is silent; its robots' lossless messages are kept for it",
                 self.name
             ),
             Some(LinkEvent::Lost) => {
                 let ids: Vec<u32> = self.ids.clone().collect();
-                eprintln!(
+                report::log_line!(
                     "qfleet: host {} silent for {:?}: given up, its robots {ids:?} are reported lost",
-                    self.name, self.deadline
+                    self.name,
+                    self.deadline
                 );
                 self.proxies.clear();
                 self.gone.extend(ids);

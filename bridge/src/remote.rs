@@ -253,7 +253,7 @@ impl Joiner {
                 }
             }
             match self.watch.tick(now) {
-                Some(LinkEvent::WentDown) => eprintln!(
+                Some(LinkEvent::WentDown) => report::log_line!(
                     "qfleet join: the coordinator's host is silent; robots keep learning, their \
                      lossless messages are kept"
                 ),
@@ -331,7 +331,9 @@ impl Joiner {
             return false;
         };
         if let Some(LinkEvent::CameBack) = self.watch.heard(now) {
-            eprintln!("qfleet join: the coordinator's host is back; resending what it missed");
+            report::log_line!(
+                "qfleet join: the coordinator's host is back; resending what it missed"
+            );
             let up = self.watch.state() == LinkState::Up;
             self.tx.resend(up, &mut self.out, now, true);
         }

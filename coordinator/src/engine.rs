@@ -149,7 +149,7 @@ pub(crate) fn tolerate(r: Result<usize, BusError>) -> Result<(), CoordError> {
     match r {
         Ok(_) => Ok(()),
         Err(e @ (BusError::DeliveryTimeout { .. } | BusError::NoSubscriber { .. })) => {
-            eprintln!("qfleet-coordinator: warning: {e}");
+            report::log_line!("qfleet-coordinator: warning: {e}");
             Ok(())
         }
         Err(e) => Err(e.into()),
@@ -413,7 +413,7 @@ impl Engine {
                 slot.never_registered = true;
                 slot.lost = true;
                 self.life.never_registered(id, now);
-                eprintln!(
+                report::log_line!(
                     "qfleet-coordinator: robot {id} ended before it registered; going on without it"
                 );
             }
@@ -445,12 +445,14 @@ impl Engine {
         match &verdict {
             Verdict::Refuse(why) => {
                 self.rejected += 1;
-                eprintln!("qfleet-coordinator: refused robot {id}: {why}");
+                report::log_line!("qfleet-coordinator: refused robot {id}: {why}");
                 tolerate(bus.refuse(id, why))?;
             }
             Verdict::Drop(why) => {
                 self.rejected += 1;
-                eprintln!("qfleet-coordinator: dropped a registration of robot {id}: {why}");
+                report::log_line!(
+                    "qfleet-coordinator: dropped a registration of robot {id}: {why}"
+                );
             }
             Verdict::AckAgain => tolerate(bus.send_control(bus::control(Command::Ack, id)))?,
             Verdict::Joined | Verdict::Restarted => self.join(bus, reg, &verdict)?,
@@ -486,7 +488,7 @@ impl Engine {
         self.life
             .joined(id, restarted || old.never_registered, Instant::now());
         self.announce();
-        eprintln!(
+        report::log_line!(
             "qfleet-coordinator: robot {id} (pid {}) {} the run",
             reg.pid,
             if restarted {
@@ -752,14 +754,14 @@ impl Engine {
         };
         if let Err(why) = validate::report(r, &self.shape, assigned, max_episodes) {
             self.rejected += 1;
-            eprintln!(
+            report::log_line!(
                 "qfleet-coordinator: rejected a report for robot {}: {why}",
                 r.robot_id
             );
             return;
         }
         let Some(slot) = self.trusted(r.robot_id, from) else {
-            eprintln!(
+            report::log_line!(
                 "qfleet-coordinator: rejected a report for robot {} from a node that did not \
                  register it",
                 r.robot_id
@@ -784,7 +786,7 @@ impl Engine {
         let cfg = cfg.clone();
         self.cleaner = Some(std::thread::spawn(move || {
             if let Err(e) = check_nodes(&cfg, true) {
-                eprintln!("qfleet-coordinator: warning: cleaning up dead nodes: {e}");
+                report::log_line!("qfleet-coordinator: warning: cleaning up dead nodes: {e}");
             }
         }));
     }
@@ -818,7 +820,7 @@ impl Engine {
                 slot.disc_from_lost += self.disc.received_from(id as u32);
                 self.roster.lost(id as u32);
                 self.life.lost(id as u32, now);
-                eprintln!(
+                report::log_line!(
                     "qfleet-coordinator: robot {id} is gone (its process died) without a final report"
                 );
             }
@@ -830,7 +832,9 @@ impl Engine {
                 let s = &robots[i];
                 s.accepted && !s.lost && !s.finished && s.report.is_none()
             }) {
-                eprintln!("qfleet-coordinator: robot {id} is hung: nothing from it in time");
+                report::log_line!(
+                    "qfleet-coordinator: robot {id} is hung: nothing from it in time"
+                );
             }
         }
         self.announce();

@@ -81,7 +81,7 @@ pub fn run(
         Ok(c) => Some(c),
         Err(ReadError::Io { .. }) => None,
         Err(e) => {
-            eprintln!("qfleet-coordinator: warning: {e}; starting the experiment over");
+            report::log_line!("qfleet-coordinator: warning: {e}; starting the experiment over");
             None
         }
     };
@@ -93,7 +93,7 @@ pub fn run(
         monotonic_ns(),
     );
     if cp.restarts() > 0 {
-        eprintln!(
+        report::log_line!(
             "qfleet-coordinator: restart {} of experiment {}: resuming at phase {} of {}",
             cp.restarts(),
             args.run_id,
@@ -133,7 +133,7 @@ pub fn run(
     };
     let out = drive(&ctx, &mut cp, &mut engine, &bus, stop);
     if let Err(e) = bus.close() {
-        eprintln!("qfleet-coordinator: warning: cleanup: {e}");
+        report::log_line!("qfleet-coordinator: warning: cleanup: {e}");
     }
     out
 }

@@ -34,7 +34,7 @@ fn main() -> ExitCode {
     let stop = Arc::new(AtomicBool::new(false));
     let flag = Arc::clone(&stop);
     if let Err(e) = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)) {
-        eprintln!("qfleet-coordinator: warning: cannot install the signal handler: {e}");
+        report::log_line!("qfleet-coordinator: warning: cannot install the signal handler: {e}");
     }
     if let Some(file) = cli.args.plan.clone() {
         return experiment(&cli.args, &file, &stop);
@@ -45,7 +45,7 @@ fn main() -> ExitCode {
                 .robots
                 .iter()
                 .any(|x| matches!(x.status, RobotOutcome::Lost | RobotOutcome::Missing));
-            eprintln!(
+            report::log_line!(
                 "qfleet-coordinator: run {} done: {} robots, all optimal: {}, {} Q-updates merged",
                 r.run_id,
                 r.robots.len(),
@@ -74,7 +74,7 @@ fn experiment(args: &CoordArgs, file: &std::path::Path, stop: &AtomicBool) -> Ex
                 .iter()
                 .flat_map(|p| &p.robots)
                 .any(|x| matches!(x.status, RobotOutcome::Lost | RobotOutcome::Missing));
-            eprintln!(
+            report::log_line!(
                 "qfleet-coordinator: experiment {} done: {} phases{}, {} coordinator restarts",
                 r.run_id,
                 r.phases.len(),
@@ -92,8 +92,12 @@ fn chain(e: &dyn std::error::Error) -> String {
     let mut s = e.to_string();
     let mut cur = e.source();
     while let Some(c) = cur {
-        s.push_str(": ");
-        s.push_str(&c.to_string());
+        // a library error often names its cause in its own message too: once is enough
+        let msg = c.to_string();
+        if !s.contains(&msg) {
+            s.push_str(": ");
+            s.push_str(&msg);
+        }
         cur = c.source();
     }
     s
@@ -113,6 +117,6 @@ fn ended(interrupted: bool, incomplete: bool) -> ExitCode {
 
 /// Says why the coordinator failed, and exits with the code of that failure.
 fn failed(e: &CoordError) -> ExitCode {
-    eprintln!("qfleet-coordinator: error: {}", chain(e));
+    report::log_line!("qfleet-coordinator: error: {}", chain(e));
     ExitCode::from(e.exit_code())
 }

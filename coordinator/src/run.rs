@@ -101,7 +101,7 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
     });
     // the last process of the run removes its files; errors here must not hide the result
     if let Err(e) = bus.close() {
-        eprintln!("qfleet-coordinator: warning: cleanup: {e}");
+        report::log_line!("qfleet-coordinator: warning: cleanup: {e}");
     }
     result
 }
@@ -121,14 +121,14 @@ fn take_over(dir: &OutDir, args: &CoordArgs, engine: &mut Engine) {
             return;
         }
         Err(e) => {
-            eprintln!("qfleet-coordinator: warning: not resuming: {e}");
+            report::log_line!("qfleet-coordinator: warning: not resuming: {e}");
             return;
         }
     };
     let launcher = std::os::unix::process::parent_id();
     match cp.resumable(&args.run_id, args.robots, launcher) {
         Ok(()) => {
-            eprintln!(
+            report::log_line!(
                 "qfleet-coordinator: taking over run {} from the checkpoint of the coordinator \
                  that died (coordinator restart {}; {} messages, {} Q-updates merged before)",
                 args.run_id,
@@ -138,7 +138,7 @@ fn take_over(dir: &OutDir, args: &CoordArgs, engine: &mut Engine) {
             );
             engine.resume(cp);
         }
-        Err(why) => eprintln!(
+        Err(why) => report::log_line!(
             "qfleet-coordinator: not resuming from {}: {why}",
             path.display()
         ),
@@ -180,7 +180,7 @@ impl Checkpoints {
         if let Err(e) = write_json_atomic_with(&path, &cp, Durability::Process)
             && !std::mem::replace(&mut self.warned, true)
         {
-            eprintln!("qfleet-coordinator: warning: checkpoint not written: {e}");
+            report::log_line!("qfleet-coordinator: warning: checkpoint not written: {e}");
         }
     }
 }
@@ -272,7 +272,9 @@ fn collect_reports(
             return Ok(());
         }
         if Instant::now() >= deadline {
-            eprintln!("qfleet-coordinator: no final report from some robots within {timeout:?}");
+            report::log_line!(
+                "qfleet-coordinator: no final report from some robots within {timeout:?}"
+            );
             return Ok(());
         }
         if let Some(listing) = lister.poll() {

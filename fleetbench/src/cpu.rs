@@ -142,7 +142,7 @@ mod tests {
         let me = unsafe { libc::gettid() };
         let allowed = cpus_of(me);
         if !(allowed.contains(&0) && allowed.contains(&1)) {
-            eprintln!(
+            report::log_line!(
                 "SKIPPED pin_apart test: this process may not use CPUs 0 and 1 ({allowed:?})"
             );
             return;

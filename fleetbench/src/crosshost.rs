@@ -155,11 +155,11 @@ pub fn rows(opts: &Options, launcher: &Launcher, tmp: &Path) -> Result<Vec<Row>,
             continue;
         }
         if opts.progress {
-            eprintln!("qfleet bench: {label} …");
+            report::log_line!("qfleet bench: {label} …");
         }
         let row = row(label, n, opts, launcher, tmp)?;
         if opts.progress {
-            eprintln!(
+            report::log_line!(
                 "qfleet bench: {label}: p50 {:.2} µs, p99.9 {:.2} µs, n = {}",
                 row.p50_ns as f64 / 1e3,
                 row.p999_ns as f64 / 1e3,

@@ -193,11 +193,11 @@ fn run_in(opts: &Options, launcher: &Launcher, tmp: &Path) -> Result<Report, Ben
     if opts.rows {
         for label in ROW_LABELS.iter().filter(|l| opts.wants(l)) {
             if opts.progress {
-                eprintln!("qfleet bench: {label} …");
+                report::log_line!("qfleet bench: {label} …");
             }
             let row = run_row(label, opts, launcher, tmp)?;
             if opts.progress {
-                eprintln!(
+                report::log_line!(
                     "qfleet bench: {label}: p50 {:.2} µs, p99.9 {:.2} µs, n = {}",
                     row.p50_ns as f64 / 1e3,
                     row.p999_ns as f64 / 1e3,
@@ -230,18 +230,18 @@ fn run_in(opts: &Options, launcher: &Launcher, tmp: &Path) -> Result<Report, Ben
         let opts = &opts;
         for (n, b) in points {
             if opts.progress {
-                eprintln!("qfleet bench: scale {n} robots, batch {b} …");
+                report::log_line!("qfleet bench: scale {n} robots, batch {b} …");
             }
             let row = scale_point(n, b, opts, launcher, tmp);
             if opts.progress {
                 match &row.error {
-                    None => eprintln!(
+                    None => report::log_line!(
                         "qfleet bench: scale {n}×{b}: {:.1} M Q-updates merged/s ({} of {} sent)",
                         row.merged_per_s / 1e6,
                         row.updates_merged,
                         row.updates_sent
                     ),
-                    Some(e) => eprintln!("qfleet bench: scale {n}×{b} failed: {e}"),
+                    Some(e) => report::log_line!("qfleet bench: scale {n}×{b} failed: {e}"),
                 }
             }
             report.scale.push(row);

@@ -12,6 +12,8 @@
 //! - [`hosts`]: which host each robot ran on and the link to each joined host ([`HostEntry`],
 //!   [`HostLink`]), the `hosts` of a result across machines;
 //! - [`checkpoint`]: what a restarted coordinator resumes from ([`CoordinatorCheckpoint`]);
+//! - [`log`]: the processes' log lines ([`log_line!`]: `eprintln!` that never panics on a
+//!   full disk);
 //! - [`atomic`]: the one writer ([`write_atomic`]: temp file, `fsync`, rename), whose errors
 //!   name the file and keep the OS error (a full disk is an error, never a panic).
 //!
@@ -22,6 +24,7 @@ pub mod atomic;
 pub mod checkpoint;
 pub mod hist;
 pub mod hosts;
+pub mod log;
 pub mod outdir;
 pub mod robot;
 pub mod run;

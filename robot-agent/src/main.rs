@@ -30,12 +30,12 @@ fn main() -> ExitCode {
     let flag = Arc::clone(&stop);
     // SIGINT/SIGTERM: stop learning, report, exit cleanly (the launcher kills after a grace period)
     if let Err(e) = ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)) {
-        eprintln!("robot-agent: warning: cannot install the signal handler: {e}");
+        report::log_line!("robot-agent: warning: cannot install the signal handler: {e}");
     }
     let id = cli.args.robot_id;
     match robot_agent::run(&cli.args, stop) {
         Ok(r) => {
-            eprintln!(
+            report::log_line!(
                 "robot-agent {id}: {} after {} episodes, final path {} (optimal {}), {} hints applied",
                 r.status,
                 r.episodes,
@@ -47,7 +47,7 @@ fn main() -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(e) => {
-            eprintln!("robot-agent {id}: error: {e}");
+            report::log_line!("robot-agent {id}: error: {e}");
             ExitCode::from(e.exit_code())
         }
     }

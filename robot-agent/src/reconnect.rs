@@ -135,13 +135,15 @@ impl Link {
                 self.alone_since = Some(Instant::now());
                 self.rejoining = None;
                 self.counters.coordinator_losses += 1;
-                eprintln!(
+                report::log_line!(
                     "robot-agent {id}: the coordinator is gone; learning alone, discoveries kept \
                      until a coordinator acknowledges them"
                 );
                 // free its ports, so nothing waits on a buffer that nobody drains any more
                 if let Err(e) = check_nodes(bus.config(), true) {
-                    eprintln!("robot-agent {id}: warning: cleaning up the dead coordinator: {e}");
+                    report::log_line!(
+                        "robot-agent {id}: warning: cleaning up the dead coordinator: {e}"
+                    );
                 }
             }
             None => {}
@@ -149,7 +151,9 @@ impl Link {
                 self.coordinator_pid = Some(pid);
             }
             Some(pid) if Some(pid) != self.coordinator_pid && self.rejoining != Some(pid) => {
-                eprintln!("robot-agent {id}: a new coordinator (pid {pid}) is up; re-registering");
+                report::log_line!(
+                    "robot-agent {id}: a new coordinator (pid {pid}) is up; re-registering"
+                );
                 if self.alone_since.is_none() {
                     // replaced before we even saw the old one gone: still a loss
                     self.alone_since = Some(Instant::now());
@@ -178,7 +182,7 @@ impl Link {
                 self.coordinator_pid = Some(pid);
                 self.rejoining = None;
                 self.counters.rejoins += 1;
-                eprintln!(
+                report::log_line!(
                     "robot-agent {}: re-joined the restarted coordinator (pid {pid})",
                     self.reg.robot_id
                 );
@@ -259,7 +263,7 @@ pub fn handshake(
                         return Err(BusError::Timeout { what, timeout });
                     }
                     if coordinator.is_some_and(|p| !Path::new(&format!("/proc/{p}")).exists()) {
-                        eprintln!(
+                        report::log_line!(
                             "robot-agent {id}: the coordinator died before Start; registering again"
                         );
                         check_nodes(bus.config(), true)?;

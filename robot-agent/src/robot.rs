@@ -141,6 +141,7 @@ pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, Agent
         pacer: Pacer::new(args.pace),
         stop,
         timeout,
+        unwritten: None,
     };
     let result = robot.run_plan();
     let closed = robot.bus.close();
@@ -177,6 +178,9 @@ struct Robot<'a> {
     pacer: Pacer,
     stop: Arc<AtomicBool>,
     timeout: Duration,
+    /// The first result file that could not be written (a full disk): the robot goes on so
+    /// that the coordinator still gets every report, and exits with this error at the end.
+    unwritten: Option<AgentError>,
 }
 
 /// One phase being learned (or just learned: its learner keeps taking merged hints until the
@@ -229,7 +233,7 @@ impl Robot<'_> {
                 Ok(p) => p,
                 Err(e @ AgentError::Goal { .. }) => {
                     // a broken or foreign sender: logged and counted, never fatal
-                    eprintln!("robot-agent {}: dropped: {e}", self.args.robot_id);
+                    report::log_line!("robot-agent {}: dropped: {e}", self.args.robot_id);
                     self.c.rejected += 1;
                     continue;
                 }
@@ -250,9 +254,40 @@ impl Robot<'_> {
         // everything the coordinator sent before Stop is buffered by now
         self.poll(Some(&mut p))?;
         let result = self.result(&mut p);
-        self.write_files(&result, &p.records)?;
+        let written = self.write_files(&result, &p.records);
+        self.unwritten(written);
         self.close_phase(&mut p)?;
-        Ok(result)
+        match self.unwritten.take() {
+            Some(e) => Err(e),
+            None => Ok(result),
+        }
+    }
+
+    /// Keeps the first failure to write a result file for the end of the run (see
+    /// [`Robot::unwritten`]) and says it now.
+    fn unwritten(&mut self, written: Result<(), AgentError>) {
+        if let Err(e) = written {
+            report::log_line!(
+                "robot-agent {}: error: {e}; the robot goes on so its report still reaches the coordinator",
+                self.args.robot_id
+            );
+            self.unwritten.get_or_insert(e);
+        }
+    }
+
+    /// `robot-<id>-phase-<n>.json`: what the robot learned in phase `p`.
+    fn write_phase_file(&self, p: &mut Phase) -> Result<(), AgentError> {
+        let Some(dir) = &self.args.out else {
+            return Ok(());
+        };
+        let dir = OutDir::new(dir);
+        dir.create()?;
+        let f = OutFile::RobotPhase {
+            robot: self.args.robot_id,
+            phase: p.a.phase,
+        };
+        dir.write_json(f, &self.phase_detail(p))?;
+        Ok(())
     }
 
     /// Waits for the next phase (`Some`) or `Stop` (`None`), applying merged hints to the last
@@ -491,7 +526,7 @@ impl Robot<'_> {
             self.resend_discoveries();
             self.heartbeat(p, RobotStatus::Running, &mut beat);
             if Instant::now() >= deadline {
-                eprintln!(
+                report::log_line!(
                     "robot-agent {}: {} discoveries still unacknowledged after {:?}",
                     self.args.robot_id,
                     self.disc.unacked(),
@@ -502,15 +537,8 @@ impl Robot<'_> {
             self.bus.control.wait(Duration::from_millis(5))?;
         }
         self.tables.insert(p.a.goal_id, p.learner.q().clone());
-        if let Some(dir) = &self.args.out {
-            let dir = OutDir::new(dir);
-            dir.create()?;
-            let f = OutFile::RobotPhase {
-                robot: self.args.robot_id,
-                phase: p.a.phase,
-            };
-            dir.write_json(f, &self.phase_detail(p))?;
-        }
+        let written = self.write_phase_file(p);
+        self.unwritten(written);
         let at = p.learner.env().start();
         self.send_state(p, RobotStatus::Finished, at);
         let _ = self.bus.state.notify();

@@ -122,9 +122,9 @@ impl BenchCmd {
                 .with_context(|| format!("writing results to {}", dir.display()))?;
         }
         if self.json {
-            println!("{}", serde_json::to_string_pretty(&report.to_json())?);
+            crate::term::out!("{}", serde_json::to_string_pretty(&report.to_json())?)?;
         } else {
-            print!("{}", report.to_text());
+            crate::term::write_out(format_args!("{}", report.to_text()))?;
         }
         Ok(())
     }

@@ -335,12 +335,12 @@ impl EvalCmd {
         let all = named();
         if self.list {
             for c in &all {
-                println!(
+                crate::term::out!(
                     "{:28} {}  [{}]",
                     c.name,
                     c.what,
                     (c.cfg)(self.episodes).policy_label()
-                );
+                )?;
             }
             return Ok(());
         }
@@ -374,16 +374,16 @@ impl EvalCmd {
             if self.movingai.is_dir() {
                 let (m, errors) = suite::movingai(&self.movingai);
                 for e in errors {
-                    eprintln!("eval: skipped {e}");
+                    report::log_line!("eval: skipped {e}");
                 }
-                eprintln!(
+                report::log_line!(
                     "eval: {} MovingAI tasks from {}",
                     m.len(),
                     self.movingai.display()
                 );
                 tasks.extend(m);
             } else {
-                eprintln!(
+                report::log_line!(
                     "eval: no MovingAI maps at {} (generated maps only)",
                     self.movingai.display()
                 );
@@ -467,8 +467,8 @@ impl EvalCmd {
             .with_context(|| format!("writing {}", jp.display()))?;
         let tp = self.out.join("table.md");
         std::fs::write(&tp, &table).with_context(|| format!("writing {}", tp.display()))?;
-        print!("{table}");
-        println!("\nwrote {} and {}", tp.display(), jp.display());
+        crate::term::write_out(format_args!("{table}"))?;
+        crate::term::out!("\nwrote {} and {}", tp.display(), jp.display())?;
         Ok(())
     }
 }

@@ -179,9 +179,12 @@ pub fn finish_hub(hub: Option<Hub>, out: &Path) -> Result<Option<HubReport>> {
     };
     let report = hub.finish().context("the bridge to other hosts")?;
     if report.joined_robots < report.remote_robots {
-        eprintln!(
+        report::log_line!(
             "qfleet: only {} of {} remote robots joined on {} (start `qfleet join {} --robots N` on the other hosts before the coordinator's 30 s registration timeout)",
-            report.joined_robots, report.remote_robots, report.listen, report.listen
+            report.joined_robots,
+            report.remote_robots,
+            report.listen,
+            report.listen
         );
     }
     let json = serde_json::to_string_pretty(&report)?;
@@ -250,16 +253,19 @@ impl JoinCmd {
         if let Some(v) = self.schema_version_override {
             req.schema_version = v;
         }
-        eprintln!(
+        report::log_line!(
             "qfleet join: asking {} for {} robot(s)…",
-            self.endpoint, self.robots
+            self.endpoint,
+            self.robots
         );
         let (session, plan, clock) =
             bridge::request(&self.endpoint, &req, timeout, Tuning::default())?;
         let ids = plan.robot_ids.clone();
-        eprintln!(
+        report::log_line!(
             "qfleet join: joined run {} as host {} with robots {:?}",
-            plan.run_id, plan.host_index, ids
+            plan.run_id,
+            plan.host_index,
+            ids
         );
         let prefix = bus::bus_schema::names::iceoryx_prefix(&plan.run_id);
         if let Ok(r) = bus::clean_stale(&prefix)
@@ -344,9 +350,9 @@ impl JoinCmd {
         let json = serde_json::to_string_pretty(&report)?;
         let _ = std::fs::write(out.join("join.json"), &json);
         if self.json {
-            println!("{}", serde_json::to_string(&report)?);
+            crate::term::out!("{}", serde_json::to_string(&report)?)?;
         }
-        eprintln!(
+        report::log_line!(
             "qfleet join: link to {}: {} reconnect(s), {} ms down, round trip p50 {:.1} µs, clock offset {} ns (±{} ns)",
             self.endpoint,
             report.link.reconnects,

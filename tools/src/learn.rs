@@ -135,43 +135,49 @@ impl LearnCmd {
             )?;
         }
         if self.json {
-            println!("{}", serde_json::to_string(&result)?);
+            crate::term::out!("{}", serde_json::to_string(&result)?)?;
         } else {
             let fmt_opt = |v: Option<u32>| v.map_or("none (loops)".to_string(), |x| x.to_string());
-            println!(
+            crate::term::out!(
                 "map {}  learner {} [{}]  episodes {}  seed {}",
-                result.map, result.learner, result.policy, result.episodes, result.seed
-            );
-            println!(
+                result.map,
+                result.learner,
+                result.policy,
+                result.episodes,
+                result.seed
+            )?;
+            crate::term::out!(
                 "  optimal path      {} moves (BFS)",
                 result.optimal_path_len
-            );
-            println!("  final path        {}", fmt_opt(result.final_path_len));
-            println!(
+            )?;
+            crate::term::out!("  final path        {}", fmt_opt(result.final_path_len))?;
+            crate::term::out!(
                 "  avg / max steps   {:.2} / {}",
-                result.avg_steps, result.max_steps
-            );
-            println!(
+                result.avg_steps,
+                result.max_steps
+            )?;
+            crate::term::out!(
                 "  collisions        {:.2} per episode ({} in all)",
-                result.collisions_per_episode, result.collisions
-            );
-            println!(
+                result.collisions_per_episode,
+                result.collisions
+            )?;
+            crate::term::out!(
                 "  first optimal     episode {}",
                 result
                     .first_optimal_episode
                     .map_or("never".into(), |e| e.to_string())
-            );
-            println!(
+            )?;
+            crate::term::out!(
                 "  env steps         {} in {:.3} s ({:.1} M steps/s)",
                 result.env_steps,
                 result.elapsed_s,
                 result.env_steps_per_s / 1e6
-            );
+            )?;
             if let Some(dir) = &self.out {
-                println!(
+                crate::term::out!(
                     "  wrote             {}/{{episodes.csv,summary.json,steps.svg,path.svg}}",
                     dir.display()
-                );
+                )?;
             }
         }
         Ok(())

@@ -73,7 +73,7 @@ pub fn finish(hook: Hook) -> Result<bool> {
         None => w.finish().context("watching the run")?,
     };
     if let Some(p) = &hook.record {
-        eprintln!(
+        report::log_line!(
             "qfleet: recorded {} messages to {}",
             r.recorded,
             p.display()

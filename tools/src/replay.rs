@@ -57,17 +57,17 @@ impl ReplayCmd {
         // a recording whose records or messages do not decode is bad input too
         let s = rec.summary().context(launcher::Exit::BadInput)?;
         if self.json {
-            println!("{}", serde_json::to_string(&s)?);
+            crate::term::out!("{}", serde_json::to_string(&s)?)?;
             return Ok(());
         }
-        println!(
+        crate::term::out!(
             "recording {}: run {} on {}, {} messages over {:.3} s",
             self.file.display(),
             s.run_id,
             s.map,
             s.messages,
             s.duration_s
-        );
+        )?;
         let mut t = TextTable::new(&["topic", ">messages", ">first s", ">last s", ">rate /s"]);
         let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.3}"));
         for x in &s.topics {
@@ -79,7 +79,7 @@ impl ReplayCmd {
                 format!("{:.1}", x.rate_per_s),
             ]);
         }
-        print!("{}", t.render("  "));
+        crate::term::write_out(format_args!("{}", t.render("  ")))?;
         Ok(())
     }
 

@@ -507,13 +507,13 @@ impl ReplicateCmd {
         .context("writing results.json")?;
         std::fs::write(self.out.join("table.md"), &table).context("writing table.md")?;
         if self.json {
-            println!("{json}");
+            crate::term::out!("{json}")?;
         } else {
-            print!("{table}");
-            println!(
+            crate::term::write_out(format_args!("{table}"))?;
+            crate::term::out!(
                 "\nwrote {}/{{table.md,results.json,steps-*.svg,path-*.svg}}",
                 self.out.display()
-            );
+            )?;
         }
         Ok(())
     }

@@ -133,7 +133,9 @@ pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
         )?,
     };
     let line = serde_json::to_string(&report).map_err(|e| BenchError::Spec(e.to_string()))?;
-    println!("{REPORT_PREFIX}{line}");
+    // the parent reads this line; one that left has nobody to tell
+    use std::io::Write as _;
+    let _ = writeln!(std::io::stdout().lock(), "{REPORT_PREFIX}{line}");
     Ok(())
 }
 
