@@ -271,6 +271,16 @@ fn a_full_disk_under_out_is_an_error_naming_what_was_kept_never_a_panic() {
     // nor did any process of the run panic: a log line on a full disk is dropped, not fatal
     // (`eprintln!` panicked there, exit 101 with an empty log)
     assert!(!err.contains("exit code 101"), "{}", describe(&out));
+    // and the run's result is not lost with the disk: the robots still reported, and the
+    // coordinator handed the result it could not write to the launcher, which prints it
+    let r: Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("no result on stdout ({e}): {}", describe(&out)));
+    let robots = r["robots"].as_array().expect("robots");
+    assert_eq!(robots.len(), 4, "{r}");
+    assert!(
+        robots.iter().all(|x| x["status"] == "finished"),
+        "every robot's report arrived: {r}"
+    );
     assert_clean(&id);
 }
 

@@ -12,6 +12,22 @@ use crate::assemble::FleetHists;
 use crate::engine::Engine;
 use crate::options::CoordError;
 
+/// Writes `result.json` into `dir`. When that fails (a full disk), the result also goes to the
+/// launcher on stdout as one `result <json>` line (`launcher::events`), so that the run's
+/// result is not lost with the file; the error is returned all the same.
+fn write_result(dir: &OutDir, result: &impl Serialize) -> Result<(), CoordError> {
+    let Err(e) = dir.write_json(OutFile::Result, result) else {
+        return Ok(());
+    };
+    if let Ok(json) = serde_json::to_string(result) {
+        use std::io::Write as _;
+        let mut out = std::io::stdout().lock();
+        let _ = writeln!(out, "result {json}");
+        let _ = out.flush();
+    }
+    Err(e.into())
+}
+
 /// Writes a run's `result.json` and its `.hgrm` latency files into `dir`.
 pub(crate) fn write_run(
     dir: &OutDir,
@@ -19,7 +35,7 @@ pub(crate) fn write_run(
     engine: &Engine,
     hists: &FleetHists,
 ) -> Result<(), CoordError> {
-    dir.write_json(OutFile::Result, result)?;
+    write_result(dir, result)?;
     for (path, h) in hists.paths(engine) {
         hist::write_hgrm(h, &dir.path(OutFile::Latency(path)))?;
     }
@@ -31,6 +47,6 @@ pub fn write_experiment(
     dir: &OutDir,
     result: &report::run::ExperimentResult,
 ) -> Result<(), CoordError> {
-    dir.write_json(OutFile::Result, result)?;
+    write_result(dir, result)?;
     Ok(())
 }

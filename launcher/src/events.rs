@@ -3,7 +3,9 @@
 //! Coordinator → launcher (its stdout, one line each, space separated; other lines are ignored):
 //! - `progress <episodes done> <episodes total> <p50 ns> <p99 ns>`
 //! - `event <kind> <robot id> <ns since start>`, kind `hung` (silent past `--hang-ms`: the
-//!   launcher kills it to restart it under the policy), or any other (lost, joined, …).
+//!   launcher kills it to restart it under the policy), or any other (lost, joined, …);
+//! - `result <json>`: the run's result, sent only when `result.json` could not be written (a
+//!   full disk), so the launcher can still print it.
 //!
 //! Launcher → coordinator (the file `robot-<id>.exited` in the run directory, see
 //! `coordinator::exited_file`): `exited <robot id> <code or -signal>` when the launcher reaped a
@@ -11,7 +13,7 @@
 //! once instead of waiting for it (see [`exited_line`]).
 
 /// One line the coordinator prints on stdout.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub enum CoordLine {
     /// `progress <episodes done> <total> <p50 ns> <p99 ns>`.
     Progress(u64, u64, u64, u64),
@@ -19,10 +21,15 @@ pub enum CoordLine {
     Hung(u32),
     /// Any other `event <kind> <robot id> <ns>` (lost, restarted, resumed …).
     Event(u32),
+    /// `result <json>`: the result the coordinator could not write into `result.json`.
+    Result(String),
 }
 
 /// Parses one stdout line of the coordinator (`None`: not a line for the launcher).
 pub fn parse_line(line: &str) -> Option<CoordLine> {
+    if let Some(json) = line.strip_prefix("result ") {
+        return Some(CoordLine::Result(json.to_string()));
+    }
     if let Some(rest) = line.strip_prefix("progress ") {
         let v: Vec<u64> = rest.split(' ').filter_map(|x| x.parse().ok()).collect();
         return (v.len() == 4).then(|| CoordLine::Progress(v[0], v[1], v[2], v[3]));
@@ -67,6 +74,10 @@ mod tests {
         );
         assert_eq!(parse_line("event hung 3 99"), Some(CoordLine::Hung(3)));
         assert_eq!(parse_line("event lost 7 99"), Some(CoordLine::Event(7)));
+        assert_eq!(
+            parse_line(r#"result {"run_id":"r"}"#),
+            Some(CoordLine::Result(r#"{"run_id":"r"}"#.into()))
+        );
         for junk in ["", "progress 1 2", "event hung x 1", "hello", "event"] {
             assert_eq!(parse_line(junk), None, "{junk:?}");
         }

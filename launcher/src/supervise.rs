@@ -114,6 +114,9 @@ pub struct Supervised {
     pub restarts: u32,
     /// The class of the outcome (interrupted, a child's bad input, a failure, ok).
     pub exit: Exit,
+    /// The result the coordinator sent on stdout because it could not write `result.json`
+    /// (a full disk; see [`crate::events`]), as JSON.
+    pub result: Option<String>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -328,6 +331,7 @@ pub fn supervise(
     let mut failures: Vec<String> = Vec::new();
     let mut interrupted = false;
     let mut total_restarts = 0;
+    let mut result = None;
     // ask the run to stop: the coordinator process stops the robots; without one (or when it
     // is gone) the robots are asked directly. True when the robots were signalled.
     let stop = |procs: &[Proc]| -> bool {
@@ -376,6 +380,7 @@ pub fn supervise(
                     }
                 }
                 CoordLine::Event(_) => {}
+                CoordLine::Result(json) => result = Some(json),
             }
         }
         let mut all_done = true;
@@ -497,6 +502,15 @@ pub fn supervise(
         }
         std::thread::sleep(Duration::from_millis(20));
     }
+    // every process ended: take in the lines their stdout readers still hold (they end at
+    // the pipes' end of file; bounded, in case a grandchild keeps a pipe open)
+    drop(tx);
+    let until = Instant::now() + Duration::from_secs(1);
+    while let Ok(line) = rx.recv_timeout(until.saturating_duration_since(Instant::now())) {
+        if let CoordLine::Result(json) = line {
+            result = Some(json);
+        }
+    }
     let mut exit = if failures.is_empty() {
         Exit::Ok
     } else {
@@ -533,6 +547,7 @@ pub fn supervise(
         failures,
         restarts: total_restarts,
         exit,
+        result,
     })
 }
 

@@ -178,6 +178,20 @@ impl RunCmd {
         let mut result = std::fs::read_to_string(out.join("result.json"))
             .ok()
             .and_then(|t| serde_json::from_str::<RunResult>(&t).ok());
+        // a coordinator that could not write its result (a full disk) sent it on its stdout
+        if result.is_none()
+            && let Ok(done) = &outcome
+            && let Some(json) = &done.result
+        {
+            result = serde_json::from_str::<RunResult>(json).ok();
+            if result.is_some() {
+                term::warn(&format!(
+                    "warning: the coordinator could not write {}; its result is printed from \
+                     what it sent the launcher",
+                    out.join("result.json").display()
+                ));
+            }
+        }
         // the coordinator knows only the merge rule and this host: the result names the apply
         // rule too, and where the robots ran
         if let Some(r) = &mut result {
