@@ -1,7 +1,8 @@
 //! Reading what a recorder that did not finish left behind: a `qfleet run --record` killed
 //! (SIGKILL, the OOM killer, a power cut) or stopped by a full disk leaves an MCAP file with
 //! no summary, no end magic and, usually, a chunk cut off in the middle, whose length field
-//! still holds the writer's placeholder. No MCAP reader opens such a file.
+//! still holds the writer's placeholder. The `mcap` crate's readers refuse such a file (seen:
+//! "record with opcode 06 length exceeds limit").
 //!
 //! [`salvage`] rebuilds a valid MCAP file from it without IO: every complete record up to the
 //! damage is kept byte for byte (so offsets stay right), the complete records inside a cut-off
@@ -25,8 +26,6 @@ pub struct Salvaged {
     pub bytes: Vec<u8>,
     /// How many bytes of the damaged file the complete records came from (from its start).
     pub kept_bytes: u64,
-    /// Records lifted out of a cut-off chunk (schemas, channels, messages).
-    pub from_cut_chunk: usize,
 }
 
 /// Whether `bytes` looks like a finished MCAP file (magic at both ends); one that does not is
@@ -82,7 +81,6 @@ pub fn salvage(bytes: &[u8]) -> Option<Salvaged> {
     let mut out = Vec::with_capacity(bytes.len() + 64);
     out.extend_from_slice(MAGIC);
     let mut at = MAGIC.len();
-    let mut from_cut_chunk = 0;
     while at + RECORD_HEAD <= bytes.len() {
         let op = bytes[at];
         if op == OP_DATA_END || op == OP_FOOTER {
@@ -100,7 +98,6 @@ pub fn salvage(bytes: &[u8]) -> Option<Salvaged> {
                     for r in &records {
                         out.extend_from_slice(r);
                     }
-                    from_cut_chunk = records.len();
                     if used > 0 {
                         at += RECORD_HEAD + used;
                     }
@@ -121,6 +118,5 @@ pub fn salvage(bytes: &[u8]) -> Option<Salvaged> {
     Some(Salvaged {
         bytes: out,
         kept_bytes,
-        from_cut_chunk,
     })
 }

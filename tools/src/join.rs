@@ -179,13 +179,10 @@ pub fn finish_hub(hub: Option<Hub>, out: &Path) -> Result<Option<HubReport>> {
     };
     let report = hub.finish().context("the bridge to other hosts")?;
     if report.joined_robots < report.remote_robots {
-        report::log_line!(
-            "qfleet: only {} of {} remote robots joined on {} (start `qfleet join {} --robots N` on the other hosts before the coordinator's 30 s registration timeout)",
-            report.joined_robots,
-            report.remote_robots,
-            report.listen,
-            report.listen
-        );
+        crate::term::warn(&format!(
+            "only {} of {} remote robots joined on {} (start `qfleet join {} --robots N` on the other hosts before the coordinator's 30 s registration timeout)",
+            report.joined_robots, report.remote_robots, report.listen, report.listen
+        ));
     }
     let json = serde_json::to_string_pretty(&report)?;
     std::fs::write(out.join("bridge.json"), json)

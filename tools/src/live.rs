@@ -73,11 +73,11 @@ pub fn finish(hook: Hook) -> Result<bool> {
         None => w.finish().context("watching the run")?,
     };
     if let Some(p) = &hook.record {
-        report::log_line!(
-            "qfleet: recorded {} messages to {}",
+        crate::term::warn(&format!(
+            "recorded {} messages to {}",
             r.recorded,
             p.display()
-        );
+        ));
     }
     Ok(r.quit)
 }

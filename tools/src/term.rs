@@ -5,8 +5,8 @@
 //!   write a no-op and the command goes on to its end (a clean must not stop half-way because
 //!   its reader left) and exits as it would have; any other error (ENOSPC on `> /dev/full`) is
 //!   returned, and the command fails with exit code 1.
-//! - stderr ([`warn`]): messages for the user; if stderr cannot be written there is nowhere to
-//!   say so, so errors are ignored.
+//! - stderr ([`warn`], or `report::log_line!` for a line with another prefix): messages for the
+//!   user; if stderr cannot be written there is nowhere to say so, so errors are ignored.
 
 use std::io::Write;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -41,7 +41,7 @@ pub(crate) use out;
 
 /// `qfleet: <msg>` on stderr; errors writing it are ignored.
 pub fn warn(msg: &str) {
-    let _ = writeln!(std::io::stderr().lock(), "qfleet: {msg}");
+    report::log_line!("qfleet: {msg}");
 }
 
 #[cfg(test)]

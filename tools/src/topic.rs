@@ -157,7 +157,7 @@ fn watch(t: &Target, mode: Mode) -> Result<()> {
     drop(observer);
     // if the run ended while we were attached, its last files are ours to remove
     if let Err(e) = leave(&t.run_id) {
-        report::log_line!("qfleet: warning: leaving run {}: {e}", t.run_id);
+        crate::term::warn(&format!("warning: leaving run {}: {e}", t.run_id));
     }
     result
 }
