@@ -346,8 +346,12 @@ mod tests {
 
     #[test]
     fn valid_instance_and_lower_bound() {
-        let i = Instance::new(grid("...\n.#.\n"), vec![c(0, 0), c(2, 0)], vec![c(2, 1), c(0, 1)])
-            .unwrap();
+        let i = Instance::new(
+            grid("...\n.#.\n"),
+            vec![c(0, 0), c(2, 0)],
+            vec![c(2, 1), c(0, 1)],
+        )
+        .unwrap();
         assert_eq!(i.agents(), 2);
         assert_eq!(i.lower_bound(), 3 + 3);
         assert_eq!(i.dist_from(0, c(2, 1)), 0);
@@ -362,7 +366,10 @@ mod tests {
         assert_eq!(e(vec![], vec![]), InstanceError::NoAgents);
         assert!(matches!(
             e(vec![c(0, 0)], vec![]),
-            InstanceError::LengthMismatch { starts: 1, goals: 0 }
+            InstanceError::LengthMismatch {
+                starts: 1,
+                goals: 0
+            }
         ));
         let m = e(vec![c(0, 0), c(3, 1)], vec![c(1, 1), c(0, 1)]).to_string();
         assert_eq!(m, "agent 1: start (3,1) is outside the 3x3 grid");

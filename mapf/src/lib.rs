@@ -17,3 +17,10 @@ pub use check::{Costs, Violation, check};
 pub use instance::{Instance, InstanceError, MAX_AGENTS};
 pub use moves::{Intent, IntentError, Move};
 pub use paths::{PathsError, parse_paths, write_paths};
+pub mod world;
+
+mod pibt;
+mod plan;
+mod search;
+
+pub use world::{AgentStats, Status, Tick, World, WorldConfig, WorldError};

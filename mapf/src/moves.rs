@@ -60,7 +60,10 @@ impl Move {
     /// The passable cell this move leads to from `c`, or `None` off the grid or into a wall.
     pub fn apply(self, grid: &Grid, c: Cell) -> Option<Cell> {
         let (dx, dy) = self.delta();
-        let (x, y) = (i64::from(c.x) + i64::from(dx), i64::from(c.y) + i64::from(dy));
+        let (x, y) = (
+            i64::from(c.x) + i64::from(dx),
+            i64::from(c.y) + i64::from(dy),
+        );
         if !grid.contains(x, y) {
             return None;
         }
@@ -88,7 +91,9 @@ impl TryFrom<u8> for Move {
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum IntentError {
     /// A byte that is not a move (only 0..=4 are).
-    #[error("intent entry {index} is byte {byte}, not a move (0 wait, 1 up, 2 right, 3 down, 4 left)")]
+    #[error(
+        "intent entry {index} is byte {byte}, not a move (0 wait, 1 up, 2 right, 3 down, 4 left)"
+    )]
     BadMove {
         /// The offending byte.
         byte: u8,

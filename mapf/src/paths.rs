@@ -43,7 +43,9 @@ pub enum PathsError {
         found: String,
     },
     /// A position that is not `(x,y)` with whole numbers on the grid's coordinate range.
-    #[error("line {line}: agent {agent}: expected '(x,y)' with 0 <= x, y < {MAX_SIDE}, found '{found}'")]
+    #[error(
+        "line {line}: agent {agent}: expected '(x,y)' with 0 <= x, y < {MAX_SIDE}, found '{found}'"
+    )]
     BadCell {
         /// The line.
         line: usize,

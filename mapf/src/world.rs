@@ -1,0 +1,650 @@
+//! The online resolver the coordinator drives once per tick: every robot sends its intent (its
+//! moves ranked best first), [`World::step`] grants every robot one move so that the fleet
+//! stays collision-free.
+//!
+//! # Rules (the MAPF benchmark's usual one-shot rules)
+//!
+//! - Each tick an agent waits or moves to a passable 4-neighbour.
+//! - No vertex conflict: two agents never share a cell.
+//! - No swap conflict: two agents never exchange cells in one tick.
+//! - Following is allowed: an agent may enter a cell whose occupant leaves in the same tick, and
+//!   so are rotations of cycles of four or more agents (a 4-connected grid has no 3-cycles).
+//! - An agent on its goal stays there unless pushed aside; it then comes back.
+//! - A robot with no intent (`None`: hung, silent) waits and is an immovable obstacle: nobody
+//!   pushes it. [`World::remove`] takes a lost robot off the grid; its cell is free from then on.
+//!
+//! # How a tick is resolved
+//!
+//! PIBT (priority inheritance with backtracking, Okumura et al.): agents are taken in priority
+//! order, each takes its best candidate cell that is not yet reserved and would not swap, and an
+//! agent standing on that cell inherits the priority and must move first (recursively; when it
+//! cannot, the taker tries its next candidate). Priorities are the standard dynamic ones: ticks
+//! since the agent was last on its goal, then distance to goal (farther first), then id.
+//!
+//! **How the intent is used.** An agent's candidate order is its intent's ranking: illegal moves
+//! (walls, off-grid) are skipped, and the moves the intent does not name come after the named
+//! ones, nearest to the goal (by BFS) first, wire order breaking ties. One change is made, and
+//! only with [`WorldConfig::plan_ahead`]: the coordinator knows every goal, so it keeps a
+//! look-ahead plan (prioritized planning: space-time A* for each agent in turn from the current
+//! configuration, agents the previous plan could not route first, then nearest to goal first)
+//! and puts the plan's move for an agent *first* in exactly two cases:
+//!
+//! 1. the intent ranks the plan's move no lower than Wait: a move the robot itself prefers to
+//!    standing still, or Wait. The coordinator thus picks among the moves the robot says make
+//!    progress, or holds it for a tick when the plan gives that cell to another robot;
+//! 2. the plan puts another agent on this agent's cell next tick: the agent is being pushed,
+//!    and it steps aside where the plan says (as PIBT would push it somewhere anyway).
+//!
+//! Otherwise the intent's order is kept and the plan's move is placed just after Wait. The plan
+//! is built to need nothing else: it never steps an agent away from its goal (raising its
+//! distance) while the agent could stay, so with robots that rank moves by distance (converged
+//! values) it runs exactly as planned, and PIBT grants it unchanged (a conflict-free plan is
+//! every agent's first candidate). Whenever the granted moves leave the plan (a robot with
+//! other preferences, a hung or removed robot), the plan is recomputed at the next tick.
+//!
+//! **Never deadlock.** If the sum of distances to goal makes no new minimum for
+//! [`WorldConfig::stall_ticks`] ticks, the world runs a complete search (LaCAM over
+//! configurations with PIBT as its generator, bounded by [`WorldConfig::fallback_nodes`]
+//! generator calls, no clock) from the current configuration and then follows its plan,
+//! intents aside, until every agent is on its goal (a hung robot or a removal cancels it). If
+//! the search exhausts every reachable configuration the instance is [`Status::Unsolvable`]
+//! (with the hung robots as they are), which stays so until a robot is removed or its hung
+//! state changes; if the budget runs out first the world reports [`Status::Stalled`] and tries
+//! again after another `stall_ticks`.
+//!
+//! After [`World::new`] a tick allocates nothing, except the complete search when it runs.
+
+use crate::instance::Instance;
+use crate::moves::{Intent, Move};
+use crate::pibt::{NIL, Pibt};
+use crate::plan::Planner;
+use crate::search::{Outcome, Problem, lacam};
+use planner::{Cell, Grid};
+
+/// Tuning of the resolver; [`WorldConfig::default`] is what the coordinator should use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WorldConfig {
+    /// Ticks without a new minimum of the summed distance to goal before the complete search.
+    pub stall_ticks: u32,
+    /// Generator calls (PIBT steps) the complete search may spend each time it runs.
+    pub fallback_nodes: u64,
+    /// Whether to keep a prioritized look-ahead plan (see the module docs).
+    pub plan_ahead: bool,
+    /// A* expansions each agent's look-ahead search may spend.
+    pub plan_nodes: u32,
+    /// Extra ticks beyond the longest remaining distance a look-ahead plan may use.
+    pub plan_slack: u32,
+    /// Whether to record every tick's positions for [`World::paths`].
+    pub record: bool,
+    /// Seed of the complete search's tie-breaking.
+    pub seed: u64,
+}
+
+impl Default for WorldConfig {
+    fn default() -> Self {
+        WorldConfig {
+            stall_ticks: 32,
+            fallback_nodes: 200_000,
+            plan_ahead: true,
+            plan_nodes: 20_000,
+            plan_slack: 64,
+            record: true,
+            seed: 0x9e37_79b9_7f4a_7c15,
+        }
+    }
+}
+
+/// Per-agent counters.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct AgentStats {
+    /// Ticks the agent stayed where it was.
+    pub waits: u32,
+    /// Ticks its first-ranked move was not granted (including a first move into a wall).
+    pub denied: u32,
+    /// Ticks it changed cell.
+    pub moves: u32,
+}
+
+/// Where the run stands after a step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Status {
+    /// Agents are under way.
+    Running,
+    /// Every present agent is on its goal.
+    Arrived,
+    /// The world follows the complete search's plan.
+    Following,
+    /// The complete search ran out of budget; PIBT goes on and the search runs again later.
+    Stalled,
+    /// The complete search explored every reachable configuration: no agent can complete.
+    Unsolvable,
+}
+
+/// What one step granted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Tick {
+    /// The tick reached (1 after the first step).
+    pub tick: u32,
+    /// Agents that changed cell.
+    pub moved: u32,
+    /// Present agents that stayed.
+    pub waited: u32,
+    /// Agents whose first-ranked move was not granted.
+    pub denied: u32,
+    /// Where the run stands now.
+    pub status: Status,
+}
+
+/// Why a step was refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum WorldError {
+    /// One intent slot per agent is required.
+    #[error("{got} intents for {agents} agents: one slot per agent (None for a silent robot)")]
+    IntentCount {
+        /// Slots given.
+        got: usize,
+        /// Agents in the world.
+        agents: usize,
+    },
+}
+
+/// The shared grid's state and the resolver's tables.
+#[derive(Debug, Clone)]
+pub struct World {
+    grid: Grid,
+    config: WorldConfig,
+    nbr: Vec<[u32; 4]>,
+    goal: Vec<u32>,
+    dist: Vec<Vec<u32>>,
+    pos: Vec<u32>,
+    hung: Vec<bool>,
+    elapsed: Vec<u32>,
+    stats: Vec<AgentStats>,
+    out: Vec<Option<Cell>>,
+    tick: u32,
+    pibt: Pibt,
+    order: Vec<u32>,
+    first: Vec<u32>,
+    planner: Planner,
+    plan_tick: u32,
+    plan_valid: bool,
+    boost: Vec<bool>,
+    replans: u32,
+    following: Vec<u32>,
+    follow_at: usize,
+    best: u64,
+    since_best: u32,
+    unsolvable: bool,
+    stalled: bool,
+    searches: u32,
+    history: Vec<u32>,
+}
+
+impl World {
+    /// A world with every agent on its start at tick 0.
+    pub fn new(instance: &Instance, config: WorldConfig) -> World {
+        let grid = instance.grid().clone();
+        let cells = grid.len();
+        let idx = |c: Cell| grid.index(c) as u32;
+        let nbr: Vec<[u32; 4]> = (0..cells)
+            .map(|i| {
+                let c = grid.cell(i);
+                let mut out = [NIL; 4];
+                if grid.is_free(c) {
+                    for (k, m) in Move::STEPS.into_iter().enumerate() {
+                        if let Some(n) = m.apply(&grid, c) {
+                            out[k] = grid.index(n) as u32;
+                        }
+                    }
+                }
+                out
+            })
+            .collect();
+        let n = instance.agents();
+        let pos: Vec<u32> = instance.starts().iter().map(|&c| idx(c)).collect();
+        let goal: Vec<u32> = instance.goals().iter().map(|&c| idx(c)).collect();
+        let dist = instance.dist_tables().to_vec();
+        let longest = (0..n).map(|i| dist[i][pos[i] as usize]).max().unwrap_or(0);
+        // the look-ahead's space-time tables: at most 2^24 slots
+        let horizon = if config.plan_ahead {
+            (longest as usize + config.plan_slack as usize).min((1 << 24) / cells.max(1))
+        } else {
+            0
+        };
+        let mut w = World {
+            out: instance.starts().iter().map(|&c| Some(c)).collect(),
+            grid,
+            config,
+            nbr,
+            goal,
+            dist,
+            hung: vec![false; n],
+            elapsed: vec![0; n],
+            stats: vec![AgentStats::default(); n],
+            tick: 0,
+            pibt: Pibt::new(n, cells),
+            order: Vec::with_capacity(n),
+            first: vec![NIL; n],
+            planner: Planner::new(
+                if config.plan_ahead { n } else { 0 },
+                cells,
+                horizon,
+                config.plan_nodes,
+            ),
+            plan_tick: 0,
+            plan_valid: false,
+            boost: vec![false; n],
+            replans: 0,
+            following: Vec::new(),
+            follow_at: 0,
+            best: u64::MAX,
+            since_best: 0,
+            unsolvable: false,
+            stalled: false,
+            searches: 0,
+            history: Vec::new(),
+            pos,
+        };
+        if config.record {
+            w.history.extend_from_slice(&w.pos);
+        }
+        w
+    }
+
+    /// Number of agents (present or removed).
+    pub fn agents(&self) -> usize {
+        self.pos.len()
+    }
+
+    /// Ticks stepped so far.
+    pub fn tick(&self) -> u32 {
+        self.tick
+    }
+
+    /// Every agent's cell, `None` once removed.
+    pub fn positions(&self) -> &[Option<Cell>] {
+        &self.out
+    }
+
+    /// Every agent's counters.
+    pub fn stats(&self) -> &[AgentStats] {
+        &self.stats
+    }
+
+    /// How often the look-ahead plan was (re)computed.
+    pub fn replans(&self) -> u32 {
+        self.replans
+    }
+
+    /// How often the complete search ran.
+    pub fn searches(&self) -> u32 {
+        self.searches
+    }
+
+    /// Whether every present agent is on its goal.
+    pub fn all_arrived(&self) -> bool {
+        self.pos
+            .iter()
+            .zip(&self.goal)
+            .all(|(&p, &g)| p == NIL || p == g)
+    }
+
+    /// Takes a lost robot off the grid; its cell is free from the next step. False if the agent
+    /// is unknown or already removed.
+    pub fn remove(&mut self, agent: usize) -> bool {
+        match self.pos.get(agent) {
+            Some(&p) if p != NIL => {
+                self.pos[agent] = NIL;
+                self.out[agent] = None;
+                self.hung[agent] = false;
+                self.changed();
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// Every agent's path, `paths[agent][tick]`, from the recorded ticks (empty without
+    /// [`WorldConfig::record`]); a removed agent stays where it left the grid.
+    pub fn paths(&self) -> Vec<Vec<Cell>> {
+        let n = self.pos.len();
+        let ticks = self.history.len() / n.max(1);
+        let mut out = vec![Vec::with_capacity(ticks); n];
+        for t in 0..ticks {
+            for (i, p) in out.iter_mut().enumerate() {
+                let v = self.history[t * n + i];
+                let c = if v == NIL {
+                    p.last().copied().unwrap_or(Cell::new(0, 0))
+                } else {
+                    self.grid.cell(v as usize)
+                };
+                p.push(c);
+            }
+        }
+        out
+    }
+
+    /// The fleet changed (a removal, a robot hung or back): plans and verdicts start over.
+    fn changed(&mut self) {
+        self.plan_valid = false;
+        self.following.clear();
+        self.unsolvable = false;
+        self.best = u64::MAX;
+        self.since_best = 0;
+    }
+
+    /// The target cell of move `m` from cell `v`, NIL if blocked.
+    fn target(&self, v: u32, m: Move) -> u32 {
+        match m {
+            Move::Wait => v,
+            _ => self.nbr[v as usize][m as usize - 1],
+        }
+    }
+
+    /// Grants every agent one move from its intent (`None` = a silent robot, which waits and
+    /// is not pushed); see the module docs for the rules and how intents are used.
+    pub fn step(&mut self, intents: &[Option<Intent>]) -> Result<Tick, WorldError> {
+        let n = self.pos.len();
+        if intents.len() != n {
+            return Err(WorldError::IntentCount {
+                got: intents.len(),
+                agents: n,
+            });
+        }
+        let mut changed = false;
+        for (i, intent) in intents.iter().enumerate() {
+            let h = self.pos[i] != NIL && intent.is_none();
+            if h != self.hung[i] {
+                self.hung[i] = h;
+                changed = true;
+            }
+        }
+        if changed {
+            self.changed();
+        }
+        // the complete search when the resolver has stalled
+        self.stalled = false;
+        if self.following.is_empty()
+            && !self.unsolvable
+            && self.since_best >= self.config.stall_ticks
+            && !self.all_arrived_movable()
+        {
+            self.search();
+        }
+        let following = !self.following.is_empty();
+        if !following && self.config.plan_ahead && !self.plan_valid {
+            self.replan();
+        }
+        // candidates
+        for (i, intent) in intents.iter().enumerate() {
+            self.candidates(i, intent.as_ref(), following);
+        }
+        // priority order: hung robots are fixed first, the rest by PIBT's dynamic priority
+        self.order.clear();
+        self.order
+            .extend((0..n as u32).filter(|&i| self.pos[i as usize] != NIL));
+        let (elapsed, dist, pos) = (&self.elapsed, &self.dist, &self.pos);
+        self.order.sort_unstable_by_key(|&i| {
+            let i = i as usize;
+            (
+                std::cmp::Reverse(elapsed[i]),
+                std::cmp::Reverse(dist[i][pos[i] as usize]),
+                i,
+            )
+        });
+        self.pibt.begin(&self.pos);
+        for i in 0..n {
+            if self.hung[i] {
+                let here = self.pos[i];
+                self.pibt.fix(&self.pos, i, here);
+            }
+        }
+        for k in 0..self.order.len() {
+            let i = self.order[k] as usize;
+            if self.pibt.next[i] == NIL {
+                self.pibt.run(&self.pos, i);
+            }
+        }
+        // apply
+        let mut tick = Tick {
+            tick: self.tick + 1,
+            moved: 0,
+            waited: 0,
+            denied: 0,
+            status: Status::Running,
+        };
+        let plan_t = (self.tick - self.plan_tick + 1) as usize;
+        let mut off_plan = false;
+        for i in 0..n {
+            let from = self.pos[i];
+            if from == NIL {
+                continue;
+            }
+            let to = self.pibt.next[i];
+            if to == from {
+                tick.waited += 1;
+                self.stats[i].waits += 1;
+            } else {
+                tick.moved += 1;
+                self.stats[i].moves += 1;
+            }
+            if self.first[i] != NIL && self.first[i] != to {
+                tick.denied += 1;
+                self.stats[i].denied += 1;
+            }
+            if self.plan_valid && !following {
+                let planned = self.planner.at(i, plan_t);
+                if planned == NIL || planned != to {
+                    off_plan = true;
+                }
+            }
+        }
+        self.pibt.end(&self.pos);
+        for i in 0..n {
+            if self.pos[i] != NIL {
+                let to = self.pibt.next[i];
+                self.pos[i] = to;
+                self.out[i] = Some(self.grid.cell(to as usize));
+                self.elapsed[i] = if to == self.goal[i] {
+                    self.boost[i] = false;
+                    0
+                } else {
+                    self.elapsed[i].saturating_add(1)
+                };
+            }
+        }
+        self.tick = self.tick.saturating_add(1);
+        if off_plan {
+            self.plan_valid = false;
+        }
+        if following {
+            self.follow_at += 1;
+            let base = self.follow_at * n;
+            let on_track = base + n <= self.following.len()
+                && (0..n).all(|i| self.pos[i] == NIL || self.following[base + i] == self.pos[i]);
+            if !on_track || base + n >= self.following.len() {
+                self.following.clear();
+                self.plan_valid = false;
+            }
+        }
+        if self.config.record {
+            self.history.extend_from_slice(&self.pos);
+        }
+        // progress: a new minimum of the summed distance of the movable agents
+        let sum: u64 = (0..n)
+            .filter(|&i| self.pos[i] != NIL && !self.hung[i])
+            .map(|i| u64::from(self.dist[i][self.pos[i] as usize]))
+            .sum();
+        if sum < self.best {
+            self.best = sum;
+            self.since_best = 0;
+        } else {
+            self.since_best = self.since_best.saturating_add(1);
+        }
+        tick.status = if self.all_arrived() {
+            Status::Arrived
+        } else if self.unsolvable {
+            Status::Unsolvable
+        } else if self.stalled {
+            Status::Stalled
+        } else if following {
+            Status::Following
+        } else {
+            Status::Running
+        };
+        Ok(tick)
+    }
+
+    /// Whether every present agent that can move is on its goal.
+    fn all_arrived_movable(&self) -> bool {
+        (0..self.pos.len())
+            .all(|i| self.pos[i] == NIL || self.hung[i] || self.pos[i] == self.goal[i])
+    }
+
+    /// Fills agent `i`'s candidate cells (see the module docs) and its first-ranked target.
+    fn candidates(&mut self, i: usize, intent: Option<&Intent>, following: bool) {
+        let here = self.pos[i];
+        self.first[i] = NIL;
+        if here == NIL {
+            self.pibt.ncand[i] = 0;
+            return;
+        }
+        let mut list = [NIL; 5];
+        let mut len = 0usize;
+        let push = |list: &mut [u32; 5], len: &mut usize, v: u32| {
+            if v != NIL && !list[..*len].contains(&v) {
+                list[*len] = v;
+                *len += 1;
+            }
+        };
+        let Some(intent) = intent else {
+            self.pibt.cand[i] = [here, NIL, NIL, NIL, NIL];
+            self.pibt.ncand[i] = 1;
+            return;
+        };
+        if let Some(m) = intent.first() {
+            self.first[i] = self.target(here, m);
+            // a first move into a wall can never be granted
+            if self.first[i] == NIL {
+                self.first[i] = u32::MAX - 1;
+            }
+        }
+        if following {
+            let next = self.following[(self.follow_at + 1) * self.pos.len() + i];
+            self.pibt.cand[i] = [next, NIL, NIL, NIL, NIL];
+            self.pibt.ncand[i] = 1;
+            return;
+        }
+        let planned = if self.plan_valid {
+            let t = (self.tick - self.plan_tick + 1) as usize;
+            let v = self.planner.at(i, t);
+            let m = Move::ALL.into_iter().find(|&m| self.target(here, m) == v);
+            m.map(|m| (m, v))
+        } else {
+            None
+        };
+        let wait_rank = intent.rank_or_last(Move::Wait);
+        let mut after_wait = NIL;
+        if let Some((m, v)) = planned {
+            let t = (self.tick - self.plan_tick + 1) as usize;
+            let other = self.planner.occupant(t, here);
+            let displaced = other != NIL && other as usize != i;
+            if intent.rank_or_last(m) <= wait_rank || displaced {
+                push(&mut list, &mut len, v);
+            } else {
+                after_wait = v;
+            }
+        }
+        for &m in intent.moves() {
+            push(&mut list, &mut len, self.target(here, m));
+            if m == Move::Wait {
+                push(&mut list, &mut len, after_wait);
+            }
+        }
+        // the unnamed moves: nearest to the goal first, wire order breaking ties
+        let mut rest = [(u32::MAX, NIL); 5];
+        let mut r = 0;
+        for m in Move::ALL {
+            if intent.rank(m).is_none() {
+                let v = self.target(here, m);
+                if v != NIL {
+                    rest[r] = (self.dist[i][v as usize], v);
+                    r += 1;
+                }
+            }
+        }
+        rest[..r].sort_by_key(|e| e.0);
+        if intent.rank(Move::Wait).is_none() {
+            push(&mut list, &mut len, after_wait);
+        }
+        for e in &rest[..r] {
+            push(&mut list, &mut len, e.1);
+        }
+        self.pibt.cand[i] = list;
+        self.pibt.ncand[i] = len as u8;
+    }
+
+    /// Recomputes the look-ahead plan from the current configuration.
+    fn replan(&mut self) {
+        self.order.clear();
+        self.order
+            .extend((0..self.pos.len() as u32).filter(|&i| self.pos[i as usize] != NIL));
+        // agents that could not be planned last time first, then by distance to goal (those on
+        // their goals first, then the nearest): measured best on the tuning instance
+        let (dist, pos, boost) = (&self.dist, &self.pos, &self.boost);
+        self.order.sort_unstable_by_key(|&i| {
+            let i = i as usize;
+            (!boost[i], dist[i][pos[i] as usize], i)
+        });
+        self.planner.plan(
+            &self.order,
+            &self.pos,
+            &self.goal,
+            &self.hung,
+            &self.nbr,
+            &self.dist,
+            self.config.plan_nodes,
+        );
+        self.plan_tick = self.tick;
+        self.plan_valid = true;
+        self.replans += 1;
+        for i in 0..self.pos.len() {
+            if self.pos[i] != NIL && !self.hung[i] && self.planner.arrive[i] == NIL {
+                self.boost[i] = true;
+            }
+        }
+    }
+
+    /// Runs the complete search from the current configuration.
+    fn search(&mut self) {
+        self.searches += 1;
+        let problem = Problem {
+            goal: &self.goal,
+            fixed: &self.hung,
+            nbr: &self.nbr,
+            dist: &self.dist,
+        };
+        let seed = self.config.seed ^ u64::from(self.searches);
+        match lacam(
+            &mut self.pibt,
+            &problem,
+            &self.pos,
+            self.config.fallback_nodes,
+            seed,
+        ) {
+            Outcome::Solved(configs) => {
+                self.following = configs;
+                self.follow_at = 0;
+                if self.following.len() <= self.pos.len() {
+                    self.following.clear();
+                }
+            }
+            Outcome::Exhausted => self.unsolvable = true,
+            Outcome::OutOfBudget => {
+                self.stalled = true;
+                self.since_best = 0;
+            }
+        }
+        self.since_best = 0;
+    }
+}

@@ -1,0 +1,68 @@
+//! Helpers shared by the integration tests: running a world with converged-robot intents.
+#![allow(dead_code)]
+
+use mapf::{Costs, Instance, Intent, Status, World, WorldConfig, check, check::conflicts};
+use planner::Cell;
+use std::path::PathBuf;
+
+/// The shared MovingAI directory, or `None` (with a visible SKIPPED line) when it is missing.
+pub fn movingai(test: &str) -> Option<PathBuf> {
+    let dir = PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../shared/data/movingai"
+    ));
+    if dir.join("random-32-32-10.map").is_file() {
+        Some(dir)
+    } else {
+        eprintln!("SKIPPED: {test}: {} is missing", dir.display());
+        None
+    }
+}
+
+/// Intents of robots with converged values: every present agent ranks by BFS distance.
+pub fn greedy(inst: &Instance, pos: &[Option<Cell>], out: &mut [Option<Intent>]) {
+    for (i, (o, p)) in out.iter_mut().zip(pos).enumerate() {
+        *o = p.map(|c| Intent::toward(inst.grid(), inst.dist(i).unwrap_or(&[]), c));
+    }
+}
+
+/// How a run ended.
+#[derive(Debug)]
+pub struct Run {
+    pub world: World,
+    pub last: Status,
+    pub ticks: u32,
+}
+
+/// Steps a world with greedy intents until all arrive, it is unsolvable, or `max_ticks`.
+pub fn run(inst: &Instance, config: WorldConfig, max_ticks: u32) -> Run {
+    let mut w = World::new(inst, config);
+    let mut intents = vec![None; inst.agents()];
+    let mut last = Status::Running;
+    while w.tick() < max_ticks && !w.all_arrived() {
+        greedy(inst, w.positions(), &mut intents);
+        last = w.step(&intents).expect("one intent per agent").status;
+        if last == Status::Unsolvable {
+            break;
+        }
+    }
+    let ticks = w.tick();
+    Run {
+        world: w,
+        last,
+        ticks,
+    }
+}
+
+/// Checks a finished run's paths with the independent checker; panics with every violation.
+pub fn checked(inst: &Instance, w: &World) -> Costs {
+    match check(inst.grid(), inst.starts(), inst.goals(), &w.paths()) {
+        Ok(c) => c,
+        Err(v) => panic!(
+            "{} violations ({} conflicts): {:#?}",
+            v.len(),
+            conflicts(&v),
+            &v[..v.len().min(10)]
+        ),
+    }
+}
