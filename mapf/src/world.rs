@@ -23,24 +23,27 @@
 //!
 //! **How the intent is used.** An agent's candidate order is its intent's ranking: illegal moves
 //! (walls, off-grid) are skipped, and the moves the intent does not name come after the named
-//! ones, nearest to the goal (by BFS) first, wire order breaking ties. One change is made, and
-//! only with [`WorldConfig::plan_ahead`]: the coordinator knows every goal, so it keeps a
-//! look-ahead plan (prioritized planning: space-time A* for each agent in turn from the current
-//! configuration, agents the previous plan could not route first, then nearest to goal first)
-//! and puts the plan's move for an agent *first* in exactly two cases:
+//! ones, nearest to the goal (by BFS) first, wire order breaking ties. With
+//! [`WorldConfig::plan_ahead`] the coordinator, which knows every goal, also keeps a look-ahead
+//! plan (prioritized planning: space-time A* for each agent in turn from the current
+//! configuration; agents the previous plan could not route first, then nearest to goal first)
+//! and changes that order in exactly two ways, never anything else:
 //!
-//! 1. the intent ranks the plan's move no lower than Wait: a move the robot itself prefers to
-//!    standing still, or Wait. The coordinator thus picks among the moves the robot says make
-//!    progress, or holds it for a tick when the plan gives that cell to another robot;
-//! 2. the plan puts another agent on this agent's cell next tick: the agent is being pushed,
-//!    and it steps aside where the plan says (as PIBT would push it somewhere anyway).
+//! 1. **Reservations.** A candidate ranked above the plan's move whose cell the plan gives to
+//!    another agent next tick (or that would swap with one) is tried only after the plan's
+//!    move, as if it were already taken. This is a denial by look-ahead: the robot is held,
+//!    or stepped aside when the plan needs its own cell.
+//! 2. **Ties.** Among the candidates just above the plan's move that are exactly as near the
+//!    goal (BFS) as it, the plan's move goes first: a robot ranking equally good moves in a
+//!    fixed order does not care which one it gets.
 //!
-//! Otherwise the intent's order is kept and the plan's move is placed just after Wait. The plan
-//! is built to need nothing else: it never steps an agent away from its goal (raising its
-//! distance) while the agent could stay, so with robots that rank moves by distance (converged
-//! values) it runs exactly as planned, and PIBT grants it unchanged (a conflict-free plan is
-//! every agent's first candidate). Whenever the granted moves leave the plan (a robot with
-//! other preferences, a hung or removed robot), the plan is recomputed at the next tick.
+//! So a robot's first choice is granted whenever it is free now and in the plan, and a move it
+//! ranks lower is never preferred to a better-ranked free one unless both are equally near its
+//! goal. The plan never steps an agent away from its goal while it could stay (A* allows a
+//! distance-raising move only where the agent's cell is taken), so with robots that rank moves
+//! by distance (converged values) the plan mostly runs as made, and PIBT grants it unchanged (a
+//! conflict-free plan is every agent's first candidate). Whenever the granted moves leave the
+//! plan, it is recomputed at the next tick.
 //!
 //! **Never deadlock.** If the sum of distances to goal makes no new minimum for
 //! [`WorldConfig::stall_ticks`] ticks, the world runs a complete search (LaCAM over
@@ -535,31 +538,8 @@ impl World {
             self.pibt.ncand[i] = 1;
             return;
         }
-        let planned = if self.plan_valid {
-            let t = (self.tick - self.plan_tick + 1) as usize;
-            let v = self.planner.at(i, t);
-            let m = Move::ALL.into_iter().find(|&m| self.target(here, m) == v);
-            m.map(|m| (m, v))
-        } else {
-            None
-        };
-        let wait_rank = intent.rank_or_last(Move::Wait);
-        let mut after_wait = NIL;
-        if let Some((m, v)) = planned {
-            let t = (self.tick - self.plan_tick + 1) as usize;
-            let other = self.planner.occupant(t, here);
-            let displaced = other != NIL && other as usize != i;
-            if intent.rank_or_last(m) <= wait_rank || displaced {
-                push(&mut list, &mut len, v);
-            } else {
-                after_wait = v;
-            }
-        }
         for &m in intent.moves() {
             push(&mut list, &mut len, self.target(here, m));
-            if m == Move::Wait {
-                push(&mut list, &mut len, after_wait);
-            }
         }
         // the unnamed moves: nearest to the goal first, wire order breaking ties
         let mut rest = [(u32::MAX, NIL); 5];
@@ -574,14 +554,67 @@ impl World {
             }
         }
         rest[..r].sort_by_key(|e| e.0);
-        if intent.rank(Move::Wait).is_none() {
-            push(&mut list, &mut len, after_wait);
-        }
         for e in &rest[..r] {
             push(&mut list, &mut len, e.1);
         }
+        if self.plan_valid {
+            self.follow_plan(i, &mut list[..len]);
+        }
         self.pibt.cand[i] = list;
         self.pibt.ncand[i] = len as u8;
+    }
+
+    /// Reorders agent `i`'s candidates (intent order) by the look-ahead plan: cells the plan
+    /// gives to other agents next tick (or that would swap with one) go after the plan's
+    /// cell, and the plan's cell goes first among the candidates just above it that are as
+    /// near the goal as it is (the robot's ties).
+    fn follow_plan(&self, i: usize, list: &mut [u32]) {
+        let here = self.pos[i];
+        let t = (self.tick - self.plan_tick + 1) as usize;
+        let planned = self.planner.at(i, t);
+        let Some(k) = list.iter().position(|&v| v == planned) else {
+            return;
+        };
+        let taken = |v: u32| {
+            let o = self.planner.occupant(t, v);
+            if o != NIL && o as usize != i {
+                return true;
+            }
+            // a swap: whoever the plan has on v now comes to our cell
+            let now = self.planner.occupant(t - 1, v);
+            v != here && now != NIL && now as usize != i && self.planner.at(now as usize, t) == here
+        };
+        // stable partition of list[..k]: the free ones, then the plan's cell, then the taken ones
+        let mut buf = [NIL; 5];
+        let mut demoted = [NIL; 5];
+        let (mut nb, mut nd) = (0, 0);
+        for &v in &list[..k] {
+            if taken(v) {
+                demoted[nd] = v;
+                nd += 1;
+            } else {
+                buf[nb] = v;
+                nb += 1;
+            }
+        }
+        // the plan's cell before the equally near candidates just above it
+        let d = self.dist[i][planned as usize];
+        let mut at = nb;
+        while at > 0 && self.dist[i][buf[at - 1] as usize] == d {
+            at -= 1;
+        }
+        let mut out = [NIL; 5];
+        let mut n = 0;
+        for &v in buf[..at]
+            .iter()
+            .chain(std::iter::once(&planned))
+            .chain(&buf[at..nb])
+            .chain(&demoted[..nd])
+        {
+            out[n] = v;
+            n += 1;
+        }
+        list[..n].copy_from_slice(&out[..n]);
     }
 
     /// Recomputes the look-ahead plan from the current configuration.
