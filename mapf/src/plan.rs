@@ -121,7 +121,8 @@ impl Planner {
 
     /// Plans every agent in `order` from `pos` (NIL = absent); `fixed[i]` agents never move.
     /// `nbr` lists each cell's passable neighbours (NIL where none); `dist[i]` is agent i's
-    /// distance table. Returns the node expansions spent.
+    /// distance table; each agent's search may expand `node_budget` nodes, all of them
+    /// `total_budget` (agents left when it is spent get no plan). Returns the expansions spent.
     #[allow(clippy::too_many_arguments)]
     pub fn plan(
         &mut self,
@@ -132,6 +133,7 @@ impl Planner {
         nbr: &[[u32; 4]],
         dist: &[Vec<u32>],
         node_budget: u32,
+        total_budget: u64,
     ) -> u64 {
         self.clear();
         let h = self.horizon + 1;
@@ -148,7 +150,7 @@ impl Planner {
         let mut spent = 0u64;
         for &a in order {
             let a = a as usize;
-            if pos[a] == NIL || fixed[a] {
+            if pos[a] == NIL || fixed[a] || spent >= total_budget {
                 continue;
             }
             let (found, n) = self.astar(pos[a], goal[a], nbr, &dist[a], node_budget);

@@ -75,6 +75,8 @@ pub struct WorldConfig {
     pub plan_ahead: bool,
     /// A* expansions each agent's look-ahead search may spend.
     pub plan_nodes: u32,
+    /// A* expansions one whole look-ahead plan may spend (bounds a tick's work).
+    pub plan_total: u64,
     /// Extra ticks beyond the longest remaining distance a look-ahead plan may use.
     pub plan_slack: u32,
     /// Whether to record every tick's positions for [`World::paths`].
@@ -90,6 +92,7 @@ impl Default for WorldConfig {
             fallback_nodes: 200_000,
             plan_ahead: true,
             plan_nodes: 20_000,
+            plan_total: 500_000,
             plan_slack: 64,
             record: true,
             seed: 0x9e37_79b9_7f4a_7c15,
@@ -208,9 +211,9 @@ impl World {
         let goal: Vec<u32> = instance.goals().iter().map(|&c| idx(c)).collect();
         let dist = instance.dist_tables().to_vec();
         let longest = (0..n).map(|i| dist[i][pos[i] as usize]).max().unwrap_or(0);
-        // the look-ahead's space-time tables: at most 2^24 slots
+        // the look-ahead's space-time tables: at most 2^22 slots (9 bytes each)
         let horizon = if config.plan_ahead {
-            (longest as usize + config.plan_slack as usize).min((1 << 24) / cells.max(1))
+            (longest as usize + config.plan_slack as usize).min((1 << 22) / cells.max(1))
         } else {
             0
         };
@@ -637,6 +640,7 @@ impl World {
             &self.nbr,
             &self.dist,
             self.config.plan_nodes,
+            self.config.plan_total,
         );
         self.plan_tick = self.tick;
         self.plan_valid = true;
