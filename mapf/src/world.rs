@@ -37,6 +37,9 @@
 //!    goal (BFS) as it, the plan's move goes first: a robot ranking equally good moves in a
 //!    fixed order does not care which one it gets.
 //!
+//! With [`WorldConfig::free_first`] (off by default) one more tie rule applies before those:
+//! among candidates equally near the goal, cells nobody stands on now come first.
+//!
 //! So a robot's first choice is granted whenever it is free now and in the plan, and a move it
 //! ranks lower is never preferred to a better-ranked free one unless both are equally near its
 //! goal. The plan never steps an agent away from its goal while it could stay (A* allows a
@@ -79,6 +82,10 @@ pub struct WorldConfig {
     pub plan_total: u64,
     /// Extra ticks beyond the longest remaining distance a look-ahead plan may use.
     pub plan_slack: u32,
+    /// Whether, among candidates equally near the goal, cells nobody stands on come first (as
+    /// PIBT's reference implementation breaks ties). Off by default: with the look-ahead it
+    /// measured slightly worse on the tuning instance; it helps plain PIBT a lot.
+    pub free_first: bool,
     /// Whether to record every tick's positions for [`World::paths`].
     pub record: bool,
     /// Seed of the complete search's tie-breaking.
@@ -94,6 +101,7 @@ impl Default for WorldConfig {
             plan_nodes: 20_000,
             plan_total: 500_000,
             plan_slack: 64,
+            free_first: false,
             record: true,
             seed: 0x9e37_79b9_7f4a_7c15,
         }
@@ -381,7 +389,8 @@ impl World {
         if !following && self.config.plan_ahead && !self.plan_valid {
             self.replan();
         }
-        // candidates
+        // candidates (they look at who stands where)
+        self.pibt.begin(&self.pos);
         for (i, intent) in intents.iter().enumerate() {
             self.candidates(i, intent.as_ref(), following);
         }
@@ -398,7 +407,6 @@ impl World {
                 i,
             )
         });
-        self.pibt.begin(&self.pos);
         for i in 0..n {
             if self.hung[i] {
                 let here = self.pos[i];
@@ -560,11 +568,34 @@ impl World {
         for e in &rest[..r] {
             push(&mut list, &mut len, e.1);
         }
+        if self.config.free_first {
+            self.free_first(i, &mut list[..len]);
+        }
         if self.plan_valid {
             self.follow_plan(i, &mut list[..len]);
         }
         self.pibt.cand[i] = list;
         self.pibt.ncand[i] = len as u8;
+    }
+
+    /// Within each run of consecutive candidates equally near the goal (the robot's ties), puts
+    /// the cells nobody stands on first, keeping the order otherwise (as PIBT's reference
+    /// implementation breaks ties).
+    fn free_first(&self, i: usize, list: &mut [u32]) {
+        let mut start = 0;
+        while start < list.len() {
+            let d = self.dist[i][list[start] as usize];
+            let mut end = start + 1;
+            while end < list.len() && self.dist[i][list[end] as usize] == d {
+                end += 1;
+            }
+            let occ = &self.pibt.occ_now;
+            list[start..end].sort_by_key(|&v| {
+                let o = occ[v as usize];
+                o != NIL && o as usize != i
+            });
+            start = end;
+        }
     }
 
     /// Reorders agent `i`'s candidates (intent order) by the look-ahead plan: cells the plan
