@@ -55,8 +55,10 @@
 //! intents aside, until every agent is on its goal (a hung robot or a removal cancels it). If
 //! the search exhausts every reachable configuration the instance is [`Status::Unsolvable`]
 //! (with the hung robots as they are), which stays so until a robot is removed or its hung
-//! state changes; if the budget runs out first the world reports [`Status::Stalled`] and tries
-//! again after another `stall_ticks`.
+//! state changes; the same verdict comes at once, without a search, when the silent robots cut
+//! an agent off from its goal. If the budget runs out first the world reports
+//! [`Status::Stalled`] and tries again later, waiting twice as many ticks each time until the
+//! fleet makes progress again.
 //!
 //! After [`World::new`] a tick allocates nothing, except the complete search when it runs.
 
@@ -72,7 +74,8 @@ use planner::{Cell, Grid};
 pub struct WorldConfig {
     /// Ticks without a new minimum of the summed distance to goal before the complete search.
     pub stall_ticks: u32,
-    /// Generator calls (PIBT steps) the complete search may spend each time it runs.
+    /// Generator calls (PIBT steps) the complete search may spend each time it runs; its memory
+    /// is about `fallback_nodes × agents × 4` bytes at most.
     pub fallback_nodes: u64,
     /// Whether to keep a prioritized look-ahead plan (see the module docs).
     pub plan_ahead: bool,
@@ -86,7 +89,8 @@ pub struct WorldConfig {
     /// PIBT's reference implementation breaks ties). Off by default: with the look-ahead it
     /// measured slightly worse on the tuning instance; it helps plain PIBT a lot.
     pub free_first: bool,
-    /// Whether to record every tick's positions for [`World::paths`].
+    /// Whether to record every tick's positions for [`World::paths`] (the only per-tick
+    /// growth: `agents` × 4 bytes a tick, amortized).
     pub record: bool,
     /// Seed of the complete search's tie-breaking.
     pub seed: u64,
@@ -96,7 +100,7 @@ impl Default for WorldConfig {
     fn default() -> Self {
         WorldConfig {
             stall_ticks: 32,
-            fallback_nodes: 200_000,
+            fallback_nodes: 100_000,
             plan_ahead: true,
             plan_nodes: 20_000,
             plan_total: 500_000,
@@ -190,6 +194,7 @@ pub struct World {
     since_best: u32,
     unsolvable: bool,
     stalled: bool,
+    stall_window: u32,
     searches: u32,
     history: Vec<u32>,
 }
@@ -255,6 +260,7 @@ impl World {
             since_best: 0,
             unsolvable: false,
             stalled: false,
+            stall_window: config.stall_ticks,
             searches: 0,
             history: Vec::new(),
             pos,
@@ -345,6 +351,7 @@ impl World {
         self.unsolvable = false;
         self.best = u64::MAX;
         self.since_best = 0;
+        self.stall_window = self.config.stall_ticks;
     }
 
     /// The target cell of move `m` from cell `v`, NIL if blocked.
@@ -380,7 +387,7 @@ impl World {
         self.stalled = false;
         if self.following.is_empty()
             && !self.unsolvable
-            && self.since_best >= self.config.stall_ticks
+            && self.since_best >= self.stall_window
             && !self.all_arrived_movable()
         {
             self.search();
@@ -492,6 +499,7 @@ impl World {
         if sum < self.best {
             self.best = sum;
             self.since_best = 0;
+            self.stall_window = self.config.stall_ticks;
         } else {
             self.since_best = self.since_best.saturating_add(1);
         }
@@ -683,8 +691,60 @@ impl World {
         }
     }
 
+    /// Whether some movable agent is cut off from its goal by the silent robots (which never
+    /// move): then nothing can complete, and no search is needed to say so.
+    fn cut_off_by_hung(&self) -> bool {
+        if !self.hung.iter().any(|h| *h) {
+            return false; // validated instances have every goal reachable
+        }
+        let cells = self.nbr.len();
+        let mut seen = vec![false; cells];
+        let mut queue = std::collections::VecDeque::new();
+        for (i, &h) in self.hung.iter().enumerate() {
+            if h {
+                seen[self.pos[i] as usize] = true;
+            }
+        }
+        let walls = seen.clone();
+        for i in 0..self.pos.len() {
+            if self.pos[i] == NIL || self.hung[i] {
+                continue;
+            }
+            seen.copy_from_slice(&walls);
+            let g = self.goal[i] as usize;
+            if seen[g] {
+                return true;
+            }
+            seen[g] = true;
+            queue.clear();
+            queue.push_back(g as u32);
+            let mut reached = false;
+            while let Some(v) = queue.pop_front() {
+                if v == self.pos[i] {
+                    reached = true;
+                    break;
+                }
+                for &u in &self.nbr[v as usize] {
+                    if u != NIL && !seen[u as usize] {
+                        seen[u as usize] = true;
+                        queue.push_back(u);
+                    }
+                }
+            }
+            if !reached {
+                return true;
+            }
+        }
+        false
+    }
+
     /// Runs the complete search from the current configuration.
     fn search(&mut self) {
+        self.since_best = 0;
+        if self.cut_off_by_hung() {
+            self.unsolvable = true;
+            return;
+        }
         self.searches += 1;
         let problem = Problem {
             goal: &self.goal,
@@ -709,10 +769,10 @@ impl World {
             }
             Outcome::Exhausted => self.unsolvable = true,
             Outcome::OutOfBudget => {
+                // try again later, each time waiting twice as long
                 self.stalled = true;
-                self.since_best = 0;
+                self.stall_window = self.stall_window.saturating_mul(2).max(1);
             }
         }
-        self.since_best = 0;
     }
 }

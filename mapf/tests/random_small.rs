@@ -142,3 +142,53 @@ fn the_joint_search_knows_a_corridor_swap_is_impossible() {
     let g = Grid::new(3, 2, vec![true, true, true, false, true, false]).unwrap();
     assert!(solvable(&g, &[a, b], &[b, a]));
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 128, ..ProptestConfig::default() })]
+
+    /// With a robot going silent for a while and another removed mid-run, every tick is still
+    /// collision-free, the silent robot never moves, and the removed one's cell is free.
+    #[test]
+    fn silent_and_removed_robots_never_cause_a_conflict(
+        (grid, starts, goals) in instance(),
+        hang_from in 0u32..10,
+        hang_for in 0u32..30,
+        remove_at in 0u32..40,
+        plan_ahead in any::<bool>(),
+    ) {
+        let Ok(inst) = Instance::new(grid.clone(), starts, goals) else { return Ok(()) };
+        let config = WorldConfig { stall_ticks: 8, plan_ahead, ..WorldConfig::default() };
+        let mut w = mapf::World::new(&inst, config);
+        let mut intents = vec![None; inst.agents()];
+        let last = inst.agents() - 1;
+        for t in 0..150u32 {
+            if t == remove_at {
+                prop_assert!(w.remove(last));
+            }
+            common::greedy(&inst, w.positions(), &mut intents);
+            let silent = (hang_from..hang_from + hang_for).contains(&t);
+            if silent {
+                intents[0] = None;
+            }
+            let before = w.positions().to_vec();
+            w.step(&intents).unwrap();
+            let after = w.positions();
+            if silent {
+                prop_assert_eq!(after[0], before[0], "a silent robot moved at tick {}", t);
+            }
+            for a in 0..after.len() {
+                let Some(p) = after[a] else { continue };
+                prop_assert!(grid.is_free(p));
+                if let Some(q) = before[a] {
+                    prop_assert!(p.manhattan(q) <= 1, "agent {} jumped", a);
+                }
+                for b in a + 1..after.len() {
+                    let Some(r) = after[b] else { continue };
+                    prop_assert_ne!(p, r, "vertex conflict at tick {}", t + 1);
+                    let swap = before[a] == Some(r) && before[b] == Some(p) && p != r;
+                    prop_assert!(!swap, "swap conflict at tick {}", t);
+                }
+            }
+        }
+    }
+}

@@ -167,6 +167,11 @@ fn a_hung_robot_on_anothers_goal_makes_it_unsolvable_until_it_wakes() {
         last = w.step(&intents).unwrap().status;
     }
     assert_eq!(last, Status::Unsolvable, "agent 0 sits on agent 1's goal");
+    assert_eq!(
+        w.searches(),
+        0,
+        "seen without a search: the goal is walled off"
+    );
     // it wakes up: the verdict is dropped and everyone arrives
     let mut t = last;
     while w.tick() < 200 && !w.all_arrived() {
@@ -234,4 +239,30 @@ fn every_tick_of_a_dense_run_is_collision_free() {
     let r = run(&i, quick(), 500);
     assert!(r.world.all_arrived(), "{:?} after {}", r.last, r.ticks);
     checked(&i, &r.world);
+}
+
+#[test]
+fn a_search_out_of_budget_reports_stalled_and_backs_off() {
+    let i = inst(".....\n", &[c(0, 0), c(4, 0)], &[c(4, 0), c(0, 0)]);
+    let config = WorldConfig {
+        stall_ticks: 4,
+        fallback_nodes: 1,
+        ..WorldConfig::default()
+    };
+    let mut w = World::new(&i, config);
+    let mut intents = vec![None; 2];
+    let mut stalled = 0;
+    for _ in 0..200 {
+        greedy(&i, w.positions(), &mut intents);
+        let s = w.step(&intents).unwrap().status;
+        assert_ne!(
+            s,
+            Status::Unsolvable,
+            "a search out of budget proves nothing"
+        );
+        stalled += usize::from(s == Status::Stalled);
+    }
+    assert!(stalled > 0);
+    // windows of 4, 8, 16, 32, 64, 128 ticks: at most 6 searches in 200 ticks
+    assert!((2..=6).contains(&w.searches()), "{} searches", w.searches());
 }
