@@ -40,9 +40,10 @@
 //! With [`WorldConfig::free_first`] (off by default) one more tie rule applies before those:
 //! among candidates equally near the goal, cells nobody stands on now come first.
 //!
-//! So a robot's first choice is granted whenever it is free now and in the plan, and a move it
-//! ranks lower is never preferred to a better-ranked free one unless both are equally near its
-//! goal. The plan never steps an agent away from its goal while it could stay (A* allows a
+//! So a robot's first choice is passed over only for a conflict (with a robot of higher
+//! priority now, or with the plan next tick) or for a move exactly as near its goal that the
+//! plan prefers; a move it ranks lower is never granted while a better-ranked one is free
+//! unless both are equally near its goal. The plan never steps an agent away from its goal while it could stay (A* allows a
 //! distance-raising move only where the agent's cell is taken), so with robots that rank moves
 //! by distance (converged values) the plan mostly runs as made, and PIBT grants it unchanged (a
 //! conflict-free plan is every agent's first candidate). Whenever the granted moves leave the
@@ -428,7 +429,7 @@ impl World {
         }
         // apply
         let mut tick = Tick {
-            tick: self.tick + 1,
+            tick: self.tick.saturating_add(1),
             moved: 0,
             waited: 0,
             denied: 0,
