@@ -4,17 +4,25 @@
 use mapf::{Instance, Intent, World, WorldConfig};
 use planner::{Cell, Grid};
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::cell::Cell as Flag;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 struct Counting;
 
-static COUNTING: AtomicBool = AtomicBool::new(false);
+thread_local! {
+    /// Counting is on for this thread only: the test harness's own threads may allocate.
+    static COUNTING: Flag<bool> = const { Flag::new(false) };
+}
 static ALLOCS: AtomicUsize = AtomicUsize::new(0);
+
+fn counting() -> bool {
+    COUNTING.try_with(Flag::get).unwrap_or(false)
+}
 
 // SAFETY: forwards to the system allocator, only counting calls.
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if COUNTING.load(Ordering::Relaxed) {
+        if counting() {
             ALLOCS.fetch_add(1, Ordering::Relaxed);
         }
         // SAFETY: the caller's contract is passed on unchanged.
@@ -25,7 +33,7 @@ unsafe impl GlobalAlloc for Counting {
         unsafe { System.dealloc(ptr, layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if COUNTING.load(Ordering::Relaxed) {
+        if counting() {
             ALLOCS.fetch_add(1, Ordering::Relaxed);
         }
         // SAFETY: the caller's contract is passed on unchanged.
@@ -38,6 +46,12 @@ static GLOBAL: Counting = Counting;
 
 #[test]
 fn steps_allocate_nothing() {
+    // the counter sees an allocation on this thread
+    COUNTING.with(|c| c.set(true));
+    let v = std::hint::black_box(vec![1u8; 16]);
+    COUNTING.with(|c| c.set(false));
+    assert!(ALLOCS.swap(0, Ordering::Relaxed) >= 1 && v.len() == 16);
+
     // a 20x20 room with a wall across the middle (one door) and 40 agents crossing it
     let (w, h) = (20usize, 20usize);
     let mut free = vec![true; w * h];
@@ -66,10 +80,10 @@ fn steps_allocate_nothing() {
             intents[i] = p.map(|c| Intent::toward(inst.grid(), inst.dist(i).unwrap(), c));
         }
         ALLOCS.store(0, Ordering::Relaxed);
-        COUNTING.store(true, Ordering::Relaxed);
+        COUNTING.with(|c| c.set(true));
         let searches = world.searches();
         let r = world.step(&intents);
-        COUNTING.store(false, Ordering::Relaxed);
+        COUNTING.with(|c| c.set(false));
         r.unwrap();
         if world.searches() == searches {
             allocs += ALLOCS.load(Ordering::Relaxed);
