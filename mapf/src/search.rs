@@ -166,6 +166,10 @@ pub(crate) fn lacam(
                 choices.swap(k, j);
             }
             for v in choices.into_iter().filter(|v| *v != NIL) {
+                // a constraint clashing with one above it can never be met: not worth a node
+                if clashes(&lnodes, c, cfg, i as u32, v) {
+                    continue;
+                }
                 lnodes.push(LNode {
                     parent: c,
                     who: i as u32,
@@ -215,6 +219,22 @@ pub(crate) fn lacam(
         open.push(id);
     }
     Outcome::Exhausted
+}
+
+/// Whether "agent `i` goes to `v`" clashes (vertex or swap) with a constraint of node `c` or
+/// its ancestors.
+fn clashes(lnodes: &[LNode], mut c: u32, cfg: &[u32], i: u32, v: u32) -> bool {
+    while c != NIL {
+        let l = lnodes[c as usize];
+        if l.who != NIL {
+            let swap = v == cfg[l.who as usize] && l.to == cfg[i as usize] && v != l.to;
+            if l.to == v || swap {
+                return true;
+            }
+        }
+        c = l.parent;
+    }
+    false
 }
 
 /// One PIBT step from `cfg` under the constraints of node `c`; the result in `out`.

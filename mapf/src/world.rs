@@ -133,7 +133,8 @@ pub enum Status {
     Arrived,
     /// The world follows the complete search's plan.
     Following,
-    /// The complete search ran out of budget; PIBT goes on and the search runs again later.
+    /// The complete search ran out of budget (and the fleet has made no progress since); PIBT
+    /// goes on and the search runs again later.
     Stalled,
     /// The complete search explored every reachable configuration: no agent can complete.
     Unsolvable,
@@ -353,6 +354,7 @@ impl World {
         self.best = u64::MAX;
         self.since_best = 0;
         self.stall_window = self.config.stall_ticks;
+        self.stalled = false;
     }
 
     /// The target cell of move `m` from cell `v`, NIL if blocked.
@@ -385,7 +387,6 @@ impl World {
             self.changed();
         }
         // the complete search when the resolver has stalled
-        self.stalled = false;
         if self.following.is_empty()
             && !self.unsolvable
             && self.since_best >= self.stall_window
@@ -501,6 +502,7 @@ impl World {
             self.best = sum;
             self.since_best = 0;
             self.stall_window = self.config.stall_ticks;
+            self.stalled = false;
         } else {
             self.since_best = self.since_best.saturating_add(1);
         }
@@ -762,6 +764,7 @@ impl World {
             seed,
         ) {
             Outcome::Solved(configs) => {
+                self.stalled = false;
                 self.following = configs;
                 self.follow_at = 0;
                 if self.following.len() <= self.pos.len() {
