@@ -205,6 +205,28 @@ impl Intent {
         self.rank(m).unwrap_or(self.len())
     }
 
+    /// An intent from per-move scores indexed by wire byte (higher is better, e.g. a robot's
+    /// Q-values, with its own choice of a score for Wait): the scored moves best first, ties
+    /// in wire order; `None` or NaN scores are left out (moves the robot does not offer).
+    pub fn from_scores(scores: [Option<f32>; 5]) -> Intent {
+        let mut keyed: [(f32, Move); 5] = [(0.0, Move::Wait); 5];
+        let mut n = 0;
+        for (m, s) in Move::ALL.into_iter().zip(scores) {
+            if let Some(s) = s.filter(|s| !s.is_nan()) {
+                keyed[n] = (s, m);
+                n += 1;
+            }
+        }
+        // stable: equal scores keep wire order
+        keyed[..n].sort_by(|a, b| b.0.total_cmp(&a.0));
+        let mut out = Intent::NONE;
+        for (i, k) in keyed[..n].iter().enumerate() {
+            out.moves[i] = k.1;
+        }
+        out.len = n as u8;
+        out
+    }
+
     /// What a robot with converged values sends: its passable moves ranked by BFS distance to
     /// its goal (`dist`, row-major, as [`planner::path::bfs_distances`] gives), ties in wire
     /// order, [`Move::Wait`] just before the moves that increase the distance.
@@ -300,6 +322,13 @@ mod tests {
         assert_eq!(Move::between(c, Cell::new(0, 1)), Some(Move::Down));
         assert_eq!(Move::between(c, c), Some(Move::Wait));
         assert_eq!(Move::between(c, Cell::new(1, 1)), None);
+    }
+
+    #[test]
+    fn from_scores_ranks_best_first_with_ties_in_wire_order() {
+        let i = Intent::from_scores([Some(0.5), Some(1.0), None, Some(1.0), Some(f32::NAN)]);
+        assert_eq!(i.moves(), &[Move::Up, Move::Down, Move::Wait]);
+        assert!(Intent::from_scores([None; 5]).is_empty());
     }
 
     #[test]

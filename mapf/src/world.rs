@@ -70,6 +70,9 @@ use crate::plan::Planner;
 use crate::search::{Outcome, Problem, lacam};
 use planner::{Cell, Grid};
 
+/// A first-ranked move into a wall or off the grid: never granted, so always "denied".
+const INTO_WALL: u32 = NIL - 1;
+
 /// Tuning of the resolver; [`WorldConfig::default`] is what the coordinator should use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct WorldConfig {
@@ -549,9 +552,8 @@ impl World {
         };
         if let Some(m) = intent.first() {
             self.first[i] = self.target(here, m);
-            // a first move into a wall can never be granted
             if self.first[i] == NIL {
-                self.first[i] = u32::MAX - 1;
+                self.first[i] = INTO_WALL;
             }
         }
         if following {
