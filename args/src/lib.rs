@@ -8,10 +8,12 @@
 pub mod manifest;
 pub mod pace;
 pub mod share_mode;
+pub mod world;
 
 pub use manifest::{Manifest, ManifestError, Plan, load_manifest, parse_manifest};
 pub use pace::{pace_cli, parse_pace};
 pub use share_mode::{ShareMode, ValueBound};
+pub use world::{World, WorldArgs};
 
 use clap::Args;
 use planner::map::{self, MapError};
@@ -37,6 +39,10 @@ pub enum ArgsError {
     /// A learner parameter is out of range.
     #[error("invalid learner option: {0}")]
     Learner(#[from] ConfigError),
+    /// The starts and goals of a shared grid do not make an instance (two robots on one start,
+    /// a goal walled in, too few scenario lines, …).
+    #[error("the shared grid's instance: {0}")]
+    Instance(#[from] mapf::InstanceError),
 }
 
 fn cell(s: &str) -> Result<Cell, String> {

@@ -1,6 +1,6 @@
 //! Messages the coordinator publishes and every robot-agent subscribes to.
 //!
-//! All four topics are broadcast: each robot receives every message and keeps those whose
+//! All five topics are broadcast: each robot receives every message and keeps those whose
 //! `robot_id` is its own (or [`ROBOT_ID_ALL`]). Layout rules as in
 //! [`robot_to_coordinator`](crate::robot_to_coordinator).
 
@@ -30,6 +30,9 @@ pub enum Command {
     Ack = 5,
     /// The registration of `robot_id` was refused; `reason` says why; the robot must exit.
     Refuse = 6,
+    /// Move on the shared grid: answer every `Grant` with an `Intent` until a `Grant` whose
+    /// state is not `Moving` (learning is over; a `Stop` follows).
+    Execute = 7,
 }
 
 impl Command {
@@ -51,6 +54,7 @@ impl TryFrom<u8> for Command {
             4 => Ok(Self::Phase),
             5 => Ok(Self::Ack),
             6 => Ok(Self::Refuse),
+            7 => Ok(Self::Execute),
             other => Err(other),
         }
     }
@@ -169,3 +173,73 @@ const _: () = assert!(size_of::<Control>() == 112 && align_of::<Control>() == 8)
 const _: () = assert!(size_of::<MergedHintBatch>() == 6176 && align_of::<MergedHintBatch>() == 8);
 const _: () = assert!(size_of::<DiscoveryAck>() == 24 && align_of::<DiscoveryAck>() == 8);
 const _: () = assert!(size_of::<DiscoveryRelay>() == 48 && align_of::<DiscoveryRelay>() == 8);
+
+/// Robots a [`Grant`] has room for (the fleet limit, `bus::MAX_ROBOTS`).
+pub const GRANT_CAP: usize = 256;
+
+/// How a shared-grid execution stands after a [`Grant`], carried as a `u8` in [`Grant::state`].
+#[repr(u8)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum GridState {
+    /// Going on: every robot on the grid answers with an `Intent` for the next tick.
+    Moving = 0,
+    /// Every robot on the grid stands on its goal: the execution is over.
+    Arrived = 1,
+    /// The coordinator ended the execution before every robot arrived (tick limit, no
+    /// solution, a stop request); the positions are final.
+    Ended = 2,
+}
+
+impl GridState {
+    /// The byte written on the wire for this state.
+    pub const fn as_u8(self) -> u8 {
+        self as u8
+    }
+}
+
+impl TryFrom<u8> for GridState {
+    type Error = u8;
+
+    /// Decodes a wire byte; an unknown value is returned as the error so it can be reported.
+    fn try_from(value: u8) -> Result<Self, u8> {
+        match value {
+            0 => Ok(Self::Moving),
+            1 => Ok(Self::Arrived),
+            2 => Ok(Self::Ended),
+            other => Err(other),
+        }
+    }
+}
+
+/// Where every robot of a shared grid stands after tick `tick` (latest-wins, broadcast).
+///
+/// The coordinator is the authority of the grid: it publishes the configuration of tick 0 (the
+/// starts) when the execution begins, then, once every robot on the grid sent its `Intent` for
+/// the tick (or was waited for long enough), the configuration of the next tick. A robot moves
+/// only to the cell granted here. Entry `i` of each array is robot `i`'s; `present[i]` is 0 for a
+/// robot that left the grid (declared lost) or has no entry (`i ≥ robots`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("qfleet::v1::Grant")]
+pub struct Grant {
+    /// Tick of this configuration: 0 is the starts.
+    pub tick: u32,
+    /// Number of robot entries (the fleet size, ≤ [`GRANT_CAP`]).
+    pub robots: u32,
+    /// A [`GridState`] as `u8`.
+    pub state: u8,
+    /// Explicit padding, always zero.
+    pub _pad0: [u8; 7],
+    /// Coordinator-wide grant sequence number (one per tick, so equal to `tick` in one run).
+    pub seq: u64,
+    /// Monotonic time the message was written.
+    pub send_time_ns: u64,
+    /// Per robot: cell column.
+    pub cell_x: [u16; GRANT_CAP],
+    /// Per robot: cell row.
+    pub cell_y: [u16; GRANT_CAP],
+    /// Per robot: 1 on the grid, 0 gone (or no such robot).
+    pub present: [u8; GRANT_CAP],
+}
+
+const _: () = assert!(size_of::<Grant>() == 1312 && align_of::<Grant>() == 8);

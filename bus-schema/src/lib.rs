@@ -9,14 +9,15 @@ pub mod robot_to_coordinator;
 mod layout;
 
 pub use coordinator_to_robot::{
-    Command, Control, DiscoveryAck, DiscoveryRelay, MergedHintBatch, REASON_LEN, ROBOT_ID_ALL,
+    Command, Control, DiscoveryAck, DiscoveryRelay, GRANT_CAP, Grant, GridState, MergedHintBatch,
+    REASON_LEN, ROBOT_ID_ALL,
 };
 pub use names::{
     COORDINATOR_NODE_NAME, Delivery, Direction, RUN_ID_MAX_LEN, Topic, map_fingerprint,
     parse_robot_node_name, robot_node_name,
 };
 pub use robot_to_coordinator::{
-    FinalReport, HINT_BATCH_CAP, LatencySummary, PseudoTargetDiscovery, QHint, QHintBatch,
+    FinalReport, HINT_BATCH_CAP, Intent, LatencySummary, PseudoTargetDiscovery, QHint, QHintBatch,
     Register, RobotState, RobotStatus,
 };
 
@@ -58,4 +59,6 @@ zeroed!(
     MergedHintBatch,
     DiscoveryAck,
     DiscoveryRelay,
+    Intent,
+    Grant,
 );

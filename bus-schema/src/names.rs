@@ -5,9 +5,9 @@
 //! if they used the same service names. Run-id validation (allowed characters, length) is done by
 //! the `bus` crate; the functions here only format.
 
-use crate::coordinator_to_robot::{Control, DiscoveryAck, DiscoveryRelay, MergedHintBatch};
+use crate::coordinator_to_robot::{Control, DiscoveryAck, DiscoveryRelay, Grant, MergedHintBatch};
 use crate::robot_to_coordinator::{
-    FinalReport, PseudoTargetDiscovery, QHintBatch, Register, RobotState,
+    FinalReport, Intent, PseudoTargetDiscovery, QHintBatch, Register, RobotState,
 };
 
 /// First element of every qfleet service name.
@@ -42,7 +42,7 @@ pub enum Delivery {
     LatestWins,
 }
 
-/// The nine publish-subscribe topics of a run.
+/// The eleven publish-subscribe topics of a run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Topic {
     /// `robot/register`: [`Register`].
@@ -63,20 +63,26 @@ pub enum Topic {
     Ack,
     /// `coord/discovery`: [`DiscoveryRelay`].
     Relay,
+    /// `robot/intent`: [`Intent`] (shared grid).
+    Intent,
+    /// `coord/grant`: [`Grant`] (shared grid).
+    Grant,
 }
 
 impl Topic {
     /// Every topic, robot→coordinator first.
-    pub const ALL: [Topic; 9] = [
+    pub const ALL: [Topic; 11] = [
         Topic::Register,
         Topic::RobotState,
         Topic::Discovery,
         Topic::Hints,
         Topic::Report,
+        Topic::Intent,
         Topic::Control,
         Topic::Merged,
         Topic::Ack,
         Topic::Relay,
+        Topic::Grant,
     ];
 
     /// The part of the service name after `qfleet/<run-id>/`.
@@ -91,6 +97,8 @@ impl Topic {
             Topic::Merged => "coord/merged",
             Topic::Ack => "coord/ack",
             Topic::Relay => "coord/discovery",
+            Topic::Intent => "robot/intent",
+            Topic::Grant => "coord/grant",
         }
     }
 
@@ -106,6 +114,8 @@ impl Topic {
             Topic::Merged => "qfleet::v1::MergedHintBatch",
             Topic::Ack => "qfleet::v1::DiscoveryAck",
             Topic::Relay => "qfleet::v1::DiscoveryRelay",
+            Topic::Intent => "qfleet::v1::Intent",
+            Topic::Grant => "qfleet::v1::Grant",
         }
     }
 
@@ -121,6 +131,8 @@ impl Topic {
             Topic::Merged => size_of::<MergedHintBatch>(),
             Topic::Ack => size_of::<DiscoveryAck>(),
             Topic::Relay => size_of::<DiscoveryRelay>(),
+            Topic::Intent => size_of::<Intent>(),
+            Topic::Grant => size_of::<Grant>(),
         }
     }
 
@@ -136,6 +148,8 @@ impl Topic {
             Topic::Merged => align_of::<MergedHintBatch>(),
             Topic::Ack => align_of::<DiscoveryAck>(),
             Topic::Relay => align_of::<DiscoveryRelay>(),
+            Topic::Intent => align_of::<Intent>(),
+            Topic::Grant => align_of::<Grant>(),
         }
     }
 
@@ -146,8 +160,9 @@ impl Topic {
             | Topic::RobotState
             | Topic::Discovery
             | Topic::Hints
-            | Topic::Report => Direction::RobotToCoordinator,
-            Topic::Control | Topic::Merged | Topic::Ack | Topic::Relay => {
+            | Topic::Report
+            | Topic::Intent => Direction::RobotToCoordinator,
+            Topic::Control | Topic::Merged | Topic::Ack | Topic::Relay | Topic::Grant => {
                 Direction::CoordinatorToRobot
             }
         }
@@ -159,7 +174,12 @@ impl Topic {
             Topic::Register | Topic::Discovery | Topic::Report | Topic::Control | Topic::Relay => {
                 Delivery::Lossless
             }
-            Topic::RobotState | Topic::Hints | Topic::Merged | Topic::Ack => Delivery::LatestWins,
+            Topic::RobotState
+            | Topic::Hints
+            | Topic::Merged
+            | Topic::Ack
+            | Topic::Intent
+            | Topic::Grant => Delivery::LatestWins,
         }
     }
 
@@ -232,6 +252,16 @@ pub fn coord_ack(run_id: &str) -> String {
 /// `qfleet/<run-id>/coord/discovery` ([`DiscoveryRelay`], lossless, broadcast).
 pub fn coord_discovery(run_id: &str) -> String {
     Topic::Relay.service_name(run_id)
+}
+
+/// `qfleet/<run-id>/robot/intent` ([`Intent`], latest-wins).
+pub fn robot_intent(run_id: &str) -> String {
+    Topic::Intent.service_name(run_id)
+}
+
+/// `qfleet/<run-id>/coord/grant` ([`Grant`], latest-wins, broadcast).
+pub fn coord_grant(run_id: &str) -> String {
+    Topic::Grant.service_name(run_id)
 }
 
 /// The iceoryx2 node name of a run's coordinator (one per run).

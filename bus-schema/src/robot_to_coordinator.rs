@@ -267,3 +267,35 @@ const _: () = assert!(size_of::<QHint>() == 12 && align_of::<QHint>() == 4);
 const _: () = assert!(size_of::<QHintBatch>() == 3112 && align_of::<QHintBatch>() == 8);
 const _: () = assert!(size_of::<LatencySummary>() == 64 && align_of::<LatencySummary>() == 8);
 const _: () = assert!(size_of::<FinalReport>() == 176 && align_of::<FinalReport>() == 8);
+
+/// A robot's ranked wish for its next move in a shared grid (latest-wins).
+///
+/// Sent once per [`Grant`](crate::Grant) while the robot executes: the answer to the grant of
+/// tick `tick`, asking for the move from that tick to the next. `ranked[..count]` are move codes,
+/// best first — 0 wait, 1 up (y − 1), 2 right (x + 1), 3 down (y + 1), 4 left (x − 1) —
+/// ordered by the robot's own learned values; the coordinator grants one of them (or a wait)
+/// so that no two robots ever hold one cell or swap cells. `cell_x`/`cell_y` is where the robot
+/// stands (it must equal the coordinator's record).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("qfleet::v1::Intent")]
+pub struct Intent {
+    /// Sending robot.
+    pub robot_id: u32,
+    /// The grant's tick this intent answers.
+    pub tick: u32,
+    /// The robot's cell column at `tick`.
+    pub cell_x: u16,
+    /// The robot's cell row at `tick`.
+    pub cell_y: u16,
+    /// Number of valid move codes in `ranked` (1 to 5).
+    pub count: u8,
+    /// Move codes, best first (0 wait, 1 up, 2 right, 3 down, 4 left), each at most once.
+    pub ranked: [u8; 5],
+    /// Explicit padding, always zero.
+    pub _pad0: [u8; 6],
+    /// Monotonic time the message was written.
+    pub send_time_ns: u64,
+}
+
+const _: () = assert!(size_of::<Intent>() == 32 && align_of::<Intent>() == 8);

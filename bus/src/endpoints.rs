@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use bus_schema::names::Topic;
 use bus_schema::{
-    Command, Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch,
+    Command, Control, DiscoveryAck, DiscoveryRelay, FinalReport, Grant, Intent, MergedHintBatch,
     PseudoTargetDiscovery, QHintBatch, ROBOT_ID_ALL, Register, RobotState, SCHEMA_VERSION,
 };
 use iceoryx2::identifiers::UniquePublisherId;
@@ -44,6 +44,8 @@ pub struct CoordinatorBus {
     pub hints: Inbox<QHintBatch>,
     /// Final reports (lossless).
     pub report: Inbox<FinalReport>,
+    /// Shared grid: the robots' ranked moves, one per tick (latest-wins).
+    pub intent: Inbox<Intent>,
     /// Commands to robots (lossless); prefer [`CoordinatorBus::send_control`].
     pub control: Outbox<Control>,
     /// Merged hints to all robots (latest-wins).
@@ -52,6 +54,8 @@ pub struct CoordinatorBus {
     pub ack: Outbox<DiscoveryAck>,
     /// Discoveries relayed to every robot (lossless).
     pub relay: Outbox<DiscoveryRelay>,
+    /// Shared grid: every robot's granted cell, one per tick (latest-wins, broadcast).
+    pub grant: Outbox<Grant>,
     control_seq: Cell<u64>,
     /// When the last `Ack` to each robot id was sent (monotonic ns), to skip re-acks of stale
     /// registration re-sends.
@@ -88,10 +92,12 @@ impl CoordinatorBus {
             discovery: Inbox::create(&node, config, r)?,
             hints: Inbox::create(&node, config, r)?,
             report: Inbox::create(&node, config, r)?,
+            intent: Inbox::create(&node, config, r)?,
             control: Outbox::create(&node, config, r)?,
             merged: Outbox::create(&node, config, r)?,
             ack: Outbox::create(&node, config, r)?,
             relay: Outbox::create(&node, config, r)?,
+            grant: Outbox::create(&node, config, r)?,
             control_seq: Cell::new(0),
             acked_ns: RefCell::new(BTreeMap::new()),
             config: config.clone(),
@@ -117,10 +123,12 @@ impl CoordinatorBus {
         self.discovery.connect()?;
         self.hints.connect()?;
         self.report.connect()?;
+        self.intent.connect()?;
         self.control.connect()?;
         self.merged.connect()?;
         self.ack.connect()?;
-        self.relay.connect()
+        self.relay.connect()?;
+        self.grant.connect()
     }
 
     /// Sends a control message (seq, time and schema version filled in) and wakes the robots;
@@ -327,6 +335,8 @@ pub struct RobotBus {
     pub hints: Outbox<QHintBatch>,
     /// Final report (lossless).
     pub report: Outbox<FinalReport>,
+    /// Shared grid: this robot's ranked moves, one per tick (latest-wins).
+    pub intent: Outbox<Intent>,
     /// Commands (lossless, broadcast); prefer [`RobotBus::recv_control`], which filters.
     pub control: Inbox<Control>,
     /// Merged hints (latest-wins, broadcast).
@@ -335,6 +345,8 @@ pub struct RobotBus {
     pub ack: Inbox<DiscoveryAck>,
     /// Discoveries of other robots relayed by the coordinator (lossless, broadcast).
     pub relay: Inbox<DiscoveryRelay>,
+    /// Shared grid: every robot's granted cell, one per tick (latest-wins, broadcast).
+    pub grant: Inbox<Grant>,
     robot_id: u32,
     /// Controls read during `register` before its answer, with their publisher.
     pending: RefCell<VecDeque<(Control, UniquePublisherId)>>,
@@ -403,16 +415,19 @@ impl RobotBus {
         let merged = Inbox::create(node, config, r)?;
         let ack = Inbox::create(node, config, r)?;
         let relay = Inbox::create(node, config, r)?;
+        let grant = Inbox::create(node, config, r)?;
         Ok(RobotPorts {
             register: Outbox::create(node, config, r)?,
             state: Outbox::create(node, config, r)?,
             discovery: Outbox::create(node, config, r)?,
             hints: Outbox::create(node, config, r)?,
             report: Outbox::create(node, config, r)?,
+            intent: Outbox::create(node, config, r)?,
             control,
             merged,
             ack,
             relay,
+            grant,
             robot_id,
             config: config.clone(),
         })
@@ -599,10 +614,12 @@ struct RobotPorts {
     discovery: Outbox<PseudoTargetDiscovery>,
     hints: Outbox<QHintBatch>,
     report: Outbox<FinalReport>,
+    intent: Outbox<Intent>,
     control: Inbox<Control>,
     merged: Inbox<MergedHintBatch>,
     ack: Inbox<DiscoveryAck>,
     relay: Inbox<DiscoveryRelay>,
+    grant: Inbox<Grant>,
     robot_id: u32,
     config: BusConfig,
 }
@@ -615,10 +632,12 @@ impl RobotPorts {
             discovery: self.discovery,
             hints: self.hints,
             report: self.report,
+            intent: self.intent,
             control: self.control,
             merged: self.merged,
             ack: self.ack,
             relay: self.relay,
+            grant: self.grant,
             robot_id: self.robot_id,
             pending: RefCell::new(VecDeque::new()),
             accepted_by: Cell::new(None),

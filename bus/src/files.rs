@@ -29,8 +29,8 @@ use std::path::Path;
 
 use bus_schema::names::Topic;
 use bus_schema::{
-    Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
-    QHintBatch, Register, RobotState,
+    Control, DiscoveryAck, DiscoveryRelay, FinalReport, Grant, Intent, MergedHintBatch,
+    PseudoTargetDiscovery, QHintBatch, Register, RobotState,
 };
 
 use crate::liveness::{SHM_DIR, iceoryx_root, leftover_files};
@@ -194,12 +194,14 @@ pub fn shm_estimate(cfg: &BusConfig) -> u64 {
     let coordinator = segment(cfg, Topic::Control, size_of::<Control>())
         + segment(cfg, Topic::Merged, size_of::<MergedHintBatch>())
         + segment(cfg, Topic::Ack, size_of::<DiscoveryAck>())
-        + segment(cfg, Topic::Relay, size_of::<DiscoveryRelay>());
+        + segment(cfg, Topic::Relay, size_of::<DiscoveryRelay>())
+        + segment(cfg, Topic::Grant, size_of::<Grant>());
     let robot = segment(cfg, Topic::Register, size_of::<Register>())
         + segment(cfg, Topic::RobotState, size_of::<RobotState>())
         + segment(cfg, Topic::Discovery, size_of::<PseudoTargetDiscovery>())
         + segment(cfg, Topic::Hints, size_of::<QHintBatch>())
-        + segment(cfg, Topic::Report, size_of::<FinalReport>());
+        + segment(cfg, Topic::Report, size_of::<FinalReport>())
+        + segment(cfg, Topic::Intent, size_of::<Intent>());
     let data = coordinator + robots * robot;
     data + data / 4 + (robots + 1) * 64 * 1024
 }

@@ -10,8 +10,9 @@ use std::time::Duration;
 
 use bus_schema::names::{Delivery, Direction, Topic};
 use bus_schema::{
-    Control, DiscoveryAck, DiscoveryRelay, FinalReport, HINT_BATCH_CAP, MergedHintBatch,
-    PseudoTargetDiscovery, QHint, QHintBatch, Register, RobotState, SCHEMA_VERSION,
+    Control, DiscoveryAck, DiscoveryRelay, FinalReport, Grant, HINT_BATCH_CAP, Intent,
+    MergedHintBatch, PseudoTargetDiscovery, QHint, QHintBatch, Register, RobotState,
+    SCHEMA_VERSION,
 };
 use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
@@ -80,6 +81,12 @@ unsafe impl Message for DiscoveryAck {
 }
 unsafe impl Message for DiscoveryRelay {
     const TOPIC: Topic = Topic::Relay;
+}
+unsafe impl Message for Intent {
+    const TOPIC: Topic = Topic::Intent;
+}
+unsafe impl Message for Grant {
+    const TOPIC: Topic = Topic::Grant;
 }
 
 /// A message with `count` valid entries at the front of its per-entry arrays and zeros after
@@ -198,6 +205,11 @@ pub fn limits(cfg: &BusConfig, topic: Topic) -> TopicLimits {
         // one relay per distinct (goal, cell) of the run, a few dozen per goal; as deep as the
         // discovery inbox so a burst of relays never waits for a robot between two polls
         Topic::Relay => (cfg.discovery_buffer, 0),
+        // shared grid: one intent per robot per tick, answered by one grant per tick; only the
+        // newest matters (an older one is for a tick already resolved), and a robot that
+        // connects late reads the current configuration from the history
+        Topic::Intent => (4, 0),
+        Topic::Grant => (2, 1),
     };
     TopicLimits {
         max_publishers,

@@ -136,7 +136,7 @@ pub(crate) fn liveness(e: &Engine) -> LivenessReport {
 }
 
 /// How a run's active part ended.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub(crate) struct RunEnd {
     /// Seconds from Start until every robot finished.
     pub(crate) active_s: f64,
@@ -144,6 +144,8 @@ pub(crate) struct RunEnd {
     pub(crate) interrupted: bool,
     /// Wall time of the whole coordinator run, s.
     pub(crate) elapsed_s: f64,
+    /// The shared grid's execution, in a `--world shared` run.
+    pub(crate) grid: Option<report::GridResult>,
 }
 
 /// The result of a plain run.
@@ -159,6 +161,7 @@ pub(crate) fn run_result(
         active_s,
         interrupted,
         elapsed_s,
+        grid,
     } = end;
     let robots: Vec<RobotEntry> = e
         .robots
@@ -217,6 +220,7 @@ pub(crate) fn run_result(
         elapsed_s,
         // robots on other hosts are `qfleet run`'s to add
         hosts: Vec::new(),
+        grid,
     }
 }
 

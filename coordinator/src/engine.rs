@@ -112,6 +112,8 @@ pub(crate) struct Engine {
     pub(crate) began_ns: u64,
     /// CLOCK_MONOTONIC ns of the run's `Start` (a resumed run: the first coordinator's).
     pub(crate) started_ns: Option<u64>,
+    /// A shared grid: where each robot must start (a robot registering elsewhere is refused).
+    pub(crate) starts: Option<Vec<Cell>>,
     /// Fleet-table changes counted by the coordinators before this one.
     changes_before: u64,
     merged_buffer: usize,
@@ -206,6 +208,7 @@ impl Engine {
             coordinator_restarts: 0,
             began_ns: monotonic_ns(),
             started_ns: None,
+            starts: None,
             changes_before: 0,
             merged_buffer,
             out,
@@ -432,6 +435,23 @@ impl Engine {
         from: Sender,
     ) -> Result<Verdict, CoordError> {
         let id = reg.robot_id;
+        if let Some(want) = self.starts.as_ref().and_then(|s| s.get(id as usize))
+            && (reg.start_x, reg.start_y) != (want.x, want.y)
+        {
+            let why = format!(
+                "robot {id} starts at {},{} but the shared grid's instance puts it at {want}",
+                reg.start_x, reg.start_y
+            );
+            self.rejected += 1;
+            // a member of that id would read a Refuse as its own: a stranger's is dropped
+            if self.roster.is_member(id) {
+                report::log_line!("qfleet-coordinator: dropped a registration: {why}");
+                return Ok(Verdict::Drop(why));
+            }
+            report::log_line!("qfleet-coordinator: refused robot {id}: {why}");
+            tolerate(bus.refuse(id, &why))?;
+            return Ok(Verdict::Refuse(why));
+        }
         let cfg = bus.config().clone();
         let verdict = self.roster.on_register(reg, from, |pid| {
             // is the holder's process really still there? (clean it up if not, so its ports
@@ -569,7 +589,7 @@ impl Engine {
     }
 
     /// A message for `robot_id` from node `from`: a member's, from its own node?
-    fn trusted(&mut self, robot_id: u32, from: Sender) -> Option<&mut Slot> {
+    pub(crate) fn trusted(&mut self, robot_id: u32, from: Sender) -> Option<&mut Slot> {
         if self.roster.check_sender(robot_id, from).is_err() {
             self.rejected += 1;
             return None;

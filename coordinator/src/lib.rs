@@ -6,8 +6,10 @@
 //! the fleet, bound to the iceoryx2 node that registered), [`discovery`] (ordering, dedup,
 //! acks, relays), [`validate`] (every message field), [`liveness`] (lost, hung, restarted),
 //! [`merge`] (the fleet table), [`checkpoint`] (an experiment's progress across coordinator
-//! restarts). One engine (`engine`) carries them out on the bus; [`run`] and [`experiment`]
-//! are two small drivers over it; an experiment's driver reads its [`plan`].
+//! restarts), [`grid`] (a shared grid's intents and rounds; the resolver is the `mapf`
+//! crate's). One engine (`engine`) carries them out on the bus; [`run`] and [`experiment`]
+//! are two small drivers over it; an experiment's driver reads its [`plan`]; a run with
+//! `--world shared` ends with [`grid`]'s execution.
 
 pub mod admission;
 mod assemble;
@@ -15,6 +17,7 @@ pub mod checkpoint;
 pub mod discovery;
 mod engine;
 pub mod experiment;
+pub mod grid;
 pub mod liveness;
 pub mod merge;
 pub mod options;

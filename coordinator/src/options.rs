@@ -20,7 +20,7 @@ use std::time::Duration;
 
 use bus::{BusConfig, BusError};
 use clap::Args;
-use qfleet_args::MapArgs;
+use qfleet_args::{MapArgs, WorldArgs};
 
 use crate::merge::MergeRule;
 
@@ -59,6 +59,10 @@ pub struct CoordArgs {
     /// Map and goal of the run (robots on another map are refused).
     #[command(flatten)]
     pub map: MapArgs,
+    /// One grid for every robot (`--world shared`: robot i's start and goal are line i of
+    /// `--scen`) or a copy each.
+    #[command(flatten)]
+    pub world: WorldArgs,
     /// How to wait for messages.
     #[arg(long, value_enum, default_value_t = WaitStrategy::Hybrid)]
     pub wait: WaitStrategy,
@@ -158,6 +162,10 @@ pub enum CoordError {
     /// Writing the result failed (the error names the file; a full disk says so).
     #[error(transparent)]
     Write(#[from] report::WriteError),
+    /// The shared grid's resolver refused a step (a bug: the driver gives one intent slot per
+    /// robot).
+    #[error("the shared grid: {0}")]
+    Grid(String),
 }
 
 impl CoordError {

@@ -20,12 +20,13 @@ use bus::{CoordinatorBus, Expected, Lister, monotonic_ns};
 
 use crate::assemble::{FleetHists, RunEnd};
 use crate::engine::{Assignment, Engine, tolerate};
+use crate::grid::{self, GridPlan};
 use crate::liveness::{Life, start_lister};
 use crate::options::{CoordArgs, CoordError, bus_config, secs};
 use crate::wait::{Serving, Waiting, serve};
 use crate::{assemble, output};
 use report::{
-    CoordinatorCheckpoint, Durability, OutDir, OutFile, ReadError, RunResult,
+    CoordinatorCheckpoint, Durability, GridResult, OutDir, OutFile, ReadError, RunResult,
     write_json_atomic_with,
 };
 
@@ -45,6 +46,22 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
             width: task.grid.width(),
             height: task.grid.height(),
         });
+    };
+    // a shared grid: every robot's start and goal, checked before anything is created
+    let grid = match args.world.shared() {
+        true => {
+            let instance = args.map.instance(args.robots)?;
+            Some(GridPlan {
+                max_ticks: args
+                    .world
+                    .max_ticks
+                    .unwrap_or_else(|| GridPlan::default_max_ticks(&instance)),
+                scen: args.map.scen.as_ref().map(|p| p.display().to_string()),
+                tick_min: Duration::from_millis(args.world.tick_ms),
+                instance,
+            })
+        }
+        false => None,
     };
     let cfg = bus_config(&args, args.robots)?;
     let dir = OutDir::new(&args.out);
@@ -66,32 +83,54 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         args.restarts,
         timeout,
     );
+    // one goal for the whole fleet, or one per robot on a shared grid (its own fleet table)
+    let plan: Vec<Assignment> = match &grid {
+        None => vec![
+            Assignment {
+                goal: 0,
+                cell: task.goal,
+                phase: 0,
+                episodes: 0,
+            };
+            args.robots as usize
+        ],
+        Some(g) => (0..args.robots)
+            .map(|i| Assignment {
+                goal: i,
+                cell: g.instance.goals()[i as usize],
+                phase: 0,
+                episodes: 0,
+            })
+            .collect(),
+    };
     let mut engine = Engine::new(
         expected,
-        1,
+        if grid.is_some() { args.robots } else { 1 },
         args.merge,
         life,
         cfg.merged_buffer,
         args.out.clone(),
     );
+    engine.starts = grid.as_ref().map(|g| g.instance.starts().to_vec());
     take_over(&dir, &args, &mut engine);
-    let plan = vec![
-        Assignment {
-            goal: 0,
-            cell: task.goal,
-            phase: 0,
-            episodes: 0,
-        };
-        args.robots as usize
-    ];
     let mut cp = Checkpoints::new(dir.clone(), args.run_id.clone());
-    let outcome = drive(&mut engine, &bus, &args, plan, &stop, timeout, &mut cp);
-    let result = outcome.and_then(|(active, interrupted)| {
+    let outcome = drive(
+        &mut engine,
+        &bus,
+        &args,
+        plan,
+        grid.as_ref(),
+        &stop,
+        timeout,
+        &mut cp,
+    );
+    let result = outcome.and_then(|(active, interrupted, grid)| {
         let hists = FleetHists::read(&dir, args.robots);
         let end = RunEnd {
             active_s: active,
             interrupted,
             elapsed_s: secs_since(engine.began_ns),
+            grid,
         };
         let r = assemble::run_result(&engine, &args, &task, &dir, &hists, end);
         output::write_run(&dir, &r, &engine, &hists)?;
@@ -185,16 +224,19 @@ impl Checkpoints {
     }
 }
 
-/// Handshake, start, serve, table handout, stop, reports; returns (active seconds, interrupted).
+/// Handshake, start, serve, table handout, the shared grid's execution, stop, reports;
+/// returns (active seconds, interrupted, the grid's result).
+#[allow(clippy::too_many_arguments)]
 fn drive(
     engine: &mut Engine,
     bus: &CoordinatorBus,
     args: &CoordArgs,
     plan: Vec<Assignment>,
+    grid: Option<&GridPlan>,
     stop: &AtomicBool,
     timeout: Duration,
     cp: &mut Checkpoints,
-) -> Result<(f64, bool), CoordError> {
+) -> Result<(f64, bool, Option<GridResult>), CoordError> {
     engine.admit_fleet(bus, stop, timeout)?;
     let lister = start_lister(bus)?;
     engine.start_phase(bus, plan, Command::Start)?;
@@ -226,16 +268,31 @@ fn drive(
         },
     )?;
     let active = secs_since(started_ns);
-    // every robot is done learning (or lost): hand out the whole fleet table, then Stop
-    if !interrupted && args.robots > 1 {
-        engine.resend_table(bus, 0)?;
-    } else {
-        engine.flush(bus, 0)?;
+    // every robot is done learning (or lost): hand out the whole fleet table (one goal), or
+    // move the robots on the shared grid (a goal each), then Stop
+    let mut executed = None;
+    match grid {
+        Some(g) if !interrupted => {
+            for goal in 0..engine.tables.len() as u32 {
+                engine.flush(bus, goal)?;
+            }
+            let hang = Duration::from_millis(args.hang_ms);
+            let spin = Duration::from_micros(args.spin_us);
+            let out = OutDir::new(&args.out);
+            let r = grid::execute(engine, bus, &lister, g, spin, hang, stop, &out)?;
+            executed = Some(r);
+        }
+        Some(_) => {}
+        None if !interrupted && args.robots > 1 => {
+            engine.resend_table(bus, 0)?;
+        }
+        None => engine.flush(bus, 0)?,
     }
+    let interrupted = interrupted || stop.load(std::sync::atomic::Ordering::Relaxed);
     // a hung robot that does not drain its control buffer must not fail the run
     tolerate(bus.stop(ROBOT_ID_ALL))?;
     collect_reports(engine, bus, &lister, timeout)?;
-    Ok((active, interrupted))
+    Ok((active, interrupted, executed))
 }
 
 /// `progress <episodes done> <total> <p50 ns> <p99 ns>` on stdout.

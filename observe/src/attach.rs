@@ -24,8 +24,8 @@ use bus::iceoryx2::prelude::*;
 use bus::{BusConfig, Inbox, Message, monotonic_ns};
 use bus_schema::names::{Delivery, Topic};
 use bus_schema::{
-    Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
-    QHintBatch, Register, RobotState,
+    Control, DiscoveryAck, DiscoveryRelay, FinalReport, Grant, Intent, MergedHintBatch,
+    PseudoTargetDiscovery, QHintBatch, Register, RobotState,
 };
 
 use crate::ObserveError;
@@ -52,13 +52,13 @@ pub fn run_services_exist(run_id: &str) -> Result<bool, ObserveError> {
 /// Which of a run's topics an [`Observer`] subscribes to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Topics {
-    /// All nine.
+    /// All eleven.
     All,
     /// The lossless ones (registrations, discoveries, reports, control, relays): few messages,
     /// each of which must be seen.
     Lossless,
-    /// The latest-wins ones (states, hints, merged hints, acks): the many messages a reader may
-    /// fall behind on.
+    /// The latest-wins ones (states, hints, merged hints, acks, intents, grants): the many
+    /// messages a reader may fall behind on.
     LatestWins,
 }
 
@@ -85,6 +85,8 @@ pub struct Observer {
     merged: Option<Inbox<MergedHintBatch>>,
     ack: Option<Inbox<DiscoveryAck>>,
     relay: Option<Inbox<DiscoveryRelay>>,
+    intent: Option<Inbox<Intent>>,
+    grant: Option<Inbox<Grant>>,
     _node: Node<ipc::Service>,
     run_id: String,
 }
@@ -172,6 +174,8 @@ impl Observer {
             merged: inbox(topics, &node, &cfg)?,
             ack: inbox(topics, &node, &cfg)?,
             relay: inbox(topics, &node, &cfg)?,
+            intent: inbox(topics, &node, &cfg)?,
+            grant: inbox(topics, &node, &cfg)?,
             _node: node,
             run_id: run_id.to_string(),
         })
@@ -195,7 +199,9 @@ impl Observer {
             + drain(&self.state, f, |m| Msg::State(m))?
             + drain(&self.hints, f, |m| Msg::Hints(m))?
             + drain(&self.merged, f, |m| Msg::Merged(m))?
-            + drain(&self.ack, f, |m| Msg::Ack(m))?)
+            + drain(&self.ack, f, |m| Msg::Ack(m))?
+            + drain(&self.grant, f, |m| Msg::Grant(m))?
+            + drain(&self.intent, f, |m| Msg::Intent(m))?)
     }
 
     /// Connects every subscriber of this observer to the publishers that appeared since its
@@ -216,7 +222,9 @@ impl Observer {
         connect(&self.control)?;
         connect(&self.merged)?;
         connect(&self.ack)?;
-        connect(&self.relay)
+        connect(&self.relay)?;
+        connect(&self.intent)?;
+        connect(&self.grant)
     }
 
     /// Attaches the wake listeners of this observer's topics to `waitset` (publishers notify
@@ -258,6 +266,8 @@ impl Observer {
             self.merged.as_ref().map(Inbox::listener),
             self.ack.as_ref().map(Inbox::listener),
             self.relay.as_ref().map(Inbox::listener),
+            self.intent.as_ref().map(Inbox::listener),
+            self.grant.as_ref().map(Inbox::listener),
         ];
         all.into_iter().flatten().collect()
     }

@@ -7,8 +7,9 @@
 
 use bus_schema::names::Topic;
 use bus_schema::{
-    Command, Control, DiscoveryAck, DiscoveryRelay, FinalReport, HINT_BATCH_CAP, LatencySummary,
-    MergedHintBatch, PseudoTargetDiscovery, QHint, QHintBatch, Register, RobotState, RobotStatus,
+    Command, Control, DiscoveryAck, DiscoveryRelay, FinalReport, GRANT_CAP, Grant, GridState,
+    HINT_BATCH_CAP, Intent, LatencySummary, MergedHintBatch, PseudoTargetDiscovery, QHint,
+    QHintBatch, Register, RobotState, RobotStatus,
 };
 use serde_json::{Map, Value, json};
 
@@ -34,6 +35,10 @@ pub enum Msg<'a> {
     Ack(&'a DiscoveryAck),
     /// `coord/discovery`.
     Relay(&'a DiscoveryRelay),
+    /// `robot/intent` (shared grid).
+    Intent(&'a Intent),
+    /// `coord/grant` (shared grid).
+    Grant(&'a Grant),
 }
 
 /// One message as an owned value: copied out of shared memory for a thread that handles it
@@ -59,6 +64,10 @@ pub enum Owned {
     Ack(DiscoveryAck),
     /// `coord/discovery`.
     Relay(DiscoveryRelay),
+    /// `robot/intent`.
+    Intent(Intent),
+    /// `coord/grant` (1.3 KiB, boxed).
+    Grant(Box<Grant>),
 }
 
 impl Owned {
@@ -74,6 +83,8 @@ impl Owned {
             Msg::Merged(x) => Self::Merged(Box::new(*x)),
             Msg::Ack(x) => Self::Ack(*x),
             Msg::Relay(x) => Self::Relay(*x),
+            Msg::Intent(x) => Self::Intent(*x),
+            Msg::Grant(x) => Self::Grant(Box::new(*x)),
         }
     }
 
@@ -89,6 +100,8 @@ impl Owned {
             Self::Merged(x) => Msg::Merged(x),
             Self::Ack(x) => Msg::Ack(x),
             Self::Relay(x) => Msg::Relay(x),
+            Self::Intent(x) => Msg::Intent(x),
+            Self::Grant(x) => Msg::Grant(x),
         }
     }
 
@@ -98,6 +111,7 @@ impl Owned {
             + match self {
                 Self::Hints(_) => std::mem::size_of::<QHintBatch>(),
                 Self::Merged(_) => std::mem::size_of::<MergedHintBatch>(),
+                Self::Grant(_) => std::mem::size_of::<Grant>(),
                 _ => 0,
             }
     }
@@ -116,6 +130,8 @@ impl Msg<'_> {
             Msg::Merged(_) => Topic::Merged,
             Msg::Ack(_) => Topic::Ack,
             Msg::Relay(_) => Topic::Relay,
+            Msg::Intent(_) => Topic::Intent,
+            Msg::Grant(_) => Topic::Grant,
         }
     }
 
@@ -186,7 +202,36 @@ impl Msg<'_> {
                 "origin_seq": m.origin_seq, "origin_ns": m.origin_ns,
                 "send_time_ns": m.send_time_ns,
             }),
+            Msg::Intent(m) => {
+                let n = usize::from(m.count).min(m.ranked.len());
+                json!({
+                    "robot_id": m.robot_id, "tick": m.tick, "cell_x": m.cell_x,
+                    "cell_y": m.cell_y, "count": m.count, "ranked": &m.ranked[..n],
+                    "send_time_ns": m.send_time_ns,
+                })
+            }
+            Msg::Grant(m) => {
+                let n = (m.robots as usize).min(GRANT_CAP);
+                let cells: Vec<Value> = (0..n)
+                    .map(|i| json!({"x": m.cell_x[i], "y": m.cell_y[i], "present": m.present[i]}))
+                    .collect();
+                json!({
+                    "tick": m.tick, "robots": m.robots, "state": m.state,
+                    "state_name": grid_state_name(m.state), "seq": m.seq,
+                    "send_time_ns": m.send_time_ns, "cells": cells,
+                })
+            }
         }
+    }
+}
+
+/// The readable name of a `GridState` byte (`"unknown"` for a value outside the contract).
+pub fn grid_state_name(state: u8) -> &'static str {
+    match GridState::try_from(state) {
+        Ok(GridState::Moving) => "moving",
+        Ok(GridState::Arrived) => "arrived",
+        Ok(GridState::Ended) => "ended",
+        Err(_) => "unknown",
     }
 }
 
@@ -247,6 +292,7 @@ pub fn command_name(command: u8) -> &'static str {
         Ok(Command::Phase) => "phase",
         Ok(Command::Ack) => "ack",
         Ok(Command::Refuse) => "refuse",
+        Ok(Command::Execute) => "execute",
         Err(_) => "unknown",
     }
 }
@@ -260,6 +306,8 @@ enum Ty {
     Entries,
     MergedEntries,
     Latency,
+    Ranked,
+    Cells,
 }
 
 /// The fields of each topic's JSON form, in order, with their JSON types.
@@ -368,6 +416,24 @@ fn fields(topic: Topic) -> &'static [(&'static str, Ty)] {
             ("origin_ns", Int),
             ("send_time_ns", Int),
         ],
+        Topic::Intent => &[
+            ("robot_id", Int),
+            ("tick", Int),
+            ("cell_x", Int),
+            ("cell_y", Int),
+            ("count", Int),
+            ("ranked", Ranked),
+            ("send_time_ns", Int),
+        ],
+        Topic::Grant => &[
+            ("tick", Int),
+            ("robots", Int),
+            ("state", Int),
+            ("state_name", Str),
+            ("seq", Int),
+            ("send_time_ns", Int),
+            ("cells", Cells),
+        ],
     }
 }
 
@@ -406,6 +472,14 @@ fn ty_schema(ty: Ty) -> Value {
             }
             json!({"type": "array", "items": object_schema(&e)})
         }
+        Ty::Ranked => json!({
+            "type": "array",
+            "items": {"type": "integer", "description": "0 wait, 1 up, 2 right, 3 down, 4 left"},
+        }),
+        Ty::Cells => json!({
+            "type": "array",
+            "items": object_schema(&[("x", int.clone()), ("y", int.clone()), ("present", int)]),
+        }),
         Ty::Latency => object_schema(
             &[
                 "count", "min_ns", "mean_ns", "p50_ns", "p90_ns", "p99_ns", "p999_ns", "max_ns",

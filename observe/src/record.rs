@@ -49,8 +49,8 @@ pub struct RunInfo {
 /// Writes one run into an MCAP file.
 pub struct Recorder<W: Write + Seek> {
     writer: Writer<W>,
-    channels: [u16; 9],
-    seq: [u32; 9],
+    channels: [u16; Topic::ALL.len()],
+    seq: [u32; Topic::ALL.len()],
     wall0: u64,
     mono0: u64,
     buf: Vec<u8>,
@@ -84,7 +84,7 @@ impl<W: Write + Seek> Recorder<W> {
             .profile("")
             .library(concat!("qfleet-observe ", env!("CARGO_PKG_VERSION")))
             .create(w)?;
-        let mut channels = [0u16; 9];
+        let mut channels = [0u16; Topic::ALL.len()];
         for t in Topic::ALL {
             let schema = serde_json::to_vec(&json_schema(t))?;
             let sid = writer.add_schema(t.type_name(), "jsonschema", &schema)?;
@@ -129,7 +129,7 @@ impl<W: Write + Seek> Recorder<W> {
         Ok(Self {
             writer,
             channels,
-            seq: [0; 9],
+            seq: [0; Topic::ALL.len()],
             wall0,
             mono0,
             buf: Vec::with_capacity(16 * 1024),

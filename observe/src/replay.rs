@@ -6,8 +6,9 @@ use std::path::Path;
 
 use bus_schema::names::Topic;
 use bus_schema::{
-    Control, DiscoveryAck, DiscoveryRelay, FinalReport, HINT_BATCH_CAP, LatencySummary,
-    MergedHintBatch, PseudoTargetDiscovery, QHint, QHintBatch, REASON_LEN, Register, RobotState,
+    Control, DiscoveryAck, DiscoveryRelay, FinalReport, GRANT_CAP, Grant, HINT_BATCH_CAP, Intent,
+    LatencySummary, MergedHintBatch, PseudoTargetDiscovery, QHint, QHintBatch, REASON_LEN,
+    Register, RobotState,
 };
 use mcap::records::Record;
 use serde::Serialize;
@@ -240,10 +241,14 @@ impl J<'_> {
         self.0.get(k).and_then(Value::as_f64).unwrap_or(f64::NAN)
     }
     fn entries(&self) -> Vec<&Value> {
+        self.list("entries", HINT_BATCH_CAP)
+    }
+    /// The first `cap` elements of array `k` (none if it is not an array).
+    fn list(&self, k: &str, cap: usize) -> Vec<&Value> {
         self.0
-            .get("entries")
+            .get(k)
             .and_then(Value::as_array)
-            .map(|a| a.iter().take(HINT_BATCH_CAP).collect())
+            .map(|a| a.iter().take(cap).collect())
             .unwrap_or_default()
     }
 }
@@ -410,6 +415,40 @@ pub fn from_json(topic: Topic, v: &Value) -> Owned {
             origin_ns: j.u("origin_ns"),
             send_time_ns: j.u("send_time_ns"),
         }),
+        Topic::Intent => {
+            let mut m = Intent {
+                robot_id: j.u32("robot_id"),
+                tick: j.u32("tick"),
+                cell_x: j.u16("cell_x"),
+                cell_y: j.u16("cell_y"),
+                send_time_ns: j.u("send_time_ns"),
+                ..Intent::ZEROED
+            };
+            let ranked = j.list("ranked", m.ranked.len());
+            m.count = ranked.len() as u8;
+            for (slot, r) in m.ranked.iter_mut().zip(ranked) {
+                *slot = u8::try_from(r.as_u64().unwrap_or(u64::MAX)).unwrap_or(u8::MAX);
+            }
+            Owned::Intent(m)
+        }
+        Topic::Grant => {
+            let mut m = Box::new(Grant {
+                tick: j.u32("tick"),
+                state: j.u8("state"),
+                seq: j.u("seq"),
+                send_time_ns: j.u("send_time_ns"),
+                ..Grant::ZEROED
+            });
+            let cells = j.list("cells", GRANT_CAP);
+            m.robots = cells.len() as u32;
+            for (i, c) in cells.into_iter().enumerate() {
+                let c = J(c);
+                m.cell_x[i] = c.u16("x");
+                m.cell_y[i] = c.u16("y");
+                m.present[i] = c.u8("present");
+            }
+            Owned::Grant(m)
+        }
     }
 }
 
@@ -495,9 +534,37 @@ mod tests {
         ]
     }
 
+    /// A shared grid's two messages (kept out of `sample_msgs`, whose count other tests use).
+    fn grid_msgs() -> Vec<Owned> {
+        let mut grant = Box::new(Grant {
+            tick: 7,
+            robots: 2,
+            state: 1,
+            seq: 7,
+            send_time_ns: 99,
+            ..Grant::ZEROED
+        });
+        grant.cell_x[..2].copy_from_slice(&[3, 4]);
+        grant.cell_y[..2].copy_from_slice(&[1, 0]);
+        grant.present[0] = 1;
+        vec![
+            Owned::Intent(Intent {
+                robot_id: 1,
+                tick: 6,
+                cell_x: 4,
+                cell_y: 0,
+                count: 3,
+                ranked: [2, 0, 4, 0, 0],
+                send_time_ns: 98,
+                ..Intent::ZEROED
+            }),
+            Owned::Grant(grant),
+        ]
+    }
+
     #[test]
     fn json_round_trips_every_message() {
-        for m in sample_msgs() {
+        for m in sample_msgs().into_iter().chain(grid_msgs()) {
             let msg = m.as_msg();
             let back = from_json(msg.topic(), &msg.to_json());
             assert_eq!(back, m, "{:?}", msg.topic());
@@ -527,8 +594,8 @@ mod tests {
         assert_eq!(rec.written(), 11);
         let bytes = rec.finish().unwrap().into_inner();
         let summary_idx = mcap::Summary::read(&bytes).unwrap().unwrap();
-        assert_eq!(summary_idx.channels.len(), 9);
-        assert_eq!(summary_idx.schemas.len(), 9);
+        assert_eq!(summary_idx.channels.len(), Topic::ALL.len());
+        assert_eq!(summary_idx.schemas.len(), Topic::ALL.len());
         for ch in summary_idx.channels.values() {
             let s = ch.schema.as_ref().unwrap();
             assert_eq!(s.encoding, "jsonschema");

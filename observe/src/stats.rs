@@ -39,7 +39,7 @@ impl TopicCount {
 
 /// One [`TopicCount`] per topic, in `Topic::ALL` order.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct TopicCounts(pub [TopicCount; 9]);
+pub struct TopicCounts(pub [TopicCount; Topic::ALL.len()]);
 
 /// Position of `t` in `Topic::ALL`.
 pub fn topic_index(t: Topic) -> usize {

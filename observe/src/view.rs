@@ -242,7 +242,20 @@ impl ViewModel {
                     }
                 }
             }
-            Msg::Ack(_) => {}
+            Msg::Ack(_) | Msg::Intent(_) => {}
+            // the shared grid's authority: where every robot stands at this tick
+            Msg::Grant(m) => {
+                let n = (m.robots as usize).min(bus_schema::GRANT_CAP);
+                for i in 0..n {
+                    let cell = self.cell_ok(m.cell_x[i], m.cell_y[i]);
+                    if m.present[i] != 0
+                        && let Some(r) = self.robot(i as u32)
+                    {
+                        r.cell = cell.or(r.cell);
+                        r.step = m.tick;
+                    }
+                }
+            }
             Msg::Relay(m) => {
                 self.relayed += 1;
                 if let Some(c) = self.cell_ok(m.cell_x, m.cell_y) {

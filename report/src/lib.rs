@@ -9,6 +9,8 @@
 //!   and writes them ([`OutDir`]);
 //! - [`run`]: what the coordinator reports about a run or an experiment ([`RunResult`],
 //!   [`ExperimentResult`], [`RobotOutcome`], [`LivenessEvent`]);
+//! - [`grid`]: what a shared-grid run reports ([`GridResult`]: sum of costs, makespan, the
+//!   lower bound, conflicts, ticks per second);
 //! - [`hosts`]: which host each robot ran on and the link to each joined host ([`HostEntry`],
 //!   [`HostLink`]), the `hosts` of a result across machines;
 //! - [`checkpoint`]: what a restarted coordinator resumes from ([`CoordinatorCheckpoint`]);
@@ -22,6 +24,7 @@
 
 pub mod atomic;
 pub mod checkpoint;
+pub mod grid;
 pub mod hist;
 pub mod hosts;
 pub mod log;
@@ -34,6 +37,7 @@ pub use atomic::{
     write_json_atomic_with,
 };
 pub use checkpoint::{CoordinatorCheckpoint, NotResumed, RobotCheckpoint};
+pub use grid::{GridEnd, GridResult, GridRobot};
 pub use hist::{HistError, LatencyStats};
 pub use hosts::{HostEntry, HostLink, HostState, LinkPercentiles};
 pub use outdir::{LatencyPath, OutDir, OutFile, ReadError, RobotHist};

@@ -140,6 +140,8 @@ pub enum OutFile {
     LatencyPlot,
     /// `steps.svg`.
     StepsPlot,
+    /// `paths.txt`: a shared grid's paths in the mapf-visualizer format.
+    Paths,
 }
 
 impl OutFile {
@@ -159,6 +161,7 @@ impl OutFile {
             OutFile::RobotLog(id) => format!("robot-{id}.log"),
             OutFile::LatencyPlot => "latency.svg".into(),
             OutFile::StepsPlot => "steps.svg".into(),
+            OutFile::Paths => "paths.txt".into(),
         }
     }
 
@@ -172,6 +175,7 @@ impl OutFile {
             "coordinator-checkpoint.json" => return Some(OutFile::CoordinatorCheckpoint),
             "latency.svg" => return Some(OutFile::LatencyPlot),
             "steps.svg" => return Some(OutFile::StepsPlot),
+            "paths.txt" => return Some(OutFile::Paths),
             _ => {}
         }
         if let Some(p) = name
@@ -351,6 +355,7 @@ mod tests {
             OutFile::RobotLog(10),
             OutFile::LatencyPlot,
             OutFile::StepsPlot,
+            OutFile::Paths,
         ];
         v.extend(LatencyPath::ALL.map(OutFile::Latency));
         v.extend(RobotHist::ALL.map(|kind| OutFile::RobotHist { robot: 1, kind }));

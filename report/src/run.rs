@@ -298,6 +298,9 @@ pub struct RunResult {
     /// hosts (filled in by `qfleet run`; empty, and not written, on one host).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub hosts: Vec<HostEntry>,
+    /// The shared grid, in a run with `--world shared` (absent otherwise).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grid: Option<crate::grid::GridResult>,
 }
 
 /// One robot's result in one phase.

@@ -15,7 +15,10 @@
 //!    or Failed if stopped), then publishes its state `Finished`.
 //! 5. Until the next `AssignGoal` + `Phase`, or `Stop`, it keeps applying merged hints of its
 //!    goal (the fleet sync: every robot ends with what the whole fleet learned).
-//! 6. At `Stop` it writes `robot-<id>.json` and exits.
+//! 6. In a shared grid, `Execute` (after every robot finished learning) makes it move from its
+//!    start to its goal among the others as the coordinator grants, tick by tick
+//!    ([`crate::execute`]); then it waits for `Stop` again.
+//! 7. At `Stop` it writes `robot-<id>.json` and exits.
 //!
 //! A plain run is a plan with one goal and one phase: `AssignGoal` with `episodes = 0` (the
 //! robot's own `--episodes`), `Start`, and `Stop` once every robot is `Finished`. A `Start`
@@ -86,6 +89,8 @@ pub enum Effect {
     Repeated,
     /// Handshake traffic (`Ack`, `Refuse`): the link's business, nothing for the plan.
     Handshake,
+    /// `Execute`: move on the shared grid now (see [`crate::execute`]).
+    Execute,
     /// An unknown command byte: dropped, count it as rejected.
     Rejected,
 }
@@ -97,6 +102,8 @@ pub struct Plan {
     go: bool,
     stopped: bool,
     started: bool,
+    /// `Execute` came and was not taken yet.
+    execute: bool,
     /// The phase of the last assignment taken: the phase the robot is in, or has finished.
     current: Option<u32>,
 }
@@ -130,6 +137,10 @@ impl Plan {
                 Effect::Go
             }
             Ok(Command::Ack | Command::Refuse) => Effect::Handshake,
+            Ok(Command::Execute) => {
+                self.execute = true;
+                Effect::Execute
+            }
             Err(_) => Effect::Rejected,
         }
     }
@@ -163,6 +174,11 @@ impl Plan {
         self.go = false;
         self.current = Some(a.phase);
         Some(a)
+    }
+
+    /// Whether `Execute` came since the last call (and no `Stop`); clears it.
+    pub fn take_execute(&mut self) -> bool {
+        std::mem::take(&mut self.execute) && !self.stopped
     }
 
     /// Drops an assignment that turned out unusable (a goal outside the map or on a wall).

@@ -35,8 +35,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::{
-    Command, FinalReport, PseudoTargetDiscovery, Register, RobotStatus, SCHEMA_VERSION,
-    map_fingerprint,
+    Command, FinalReport, GRANT_CAP, GridState, PseudoTargetDiscovery, Register, RobotStatus,
+    SCHEMA_VERSION, map_fingerprint,
 };
 use bus::iceoryx2::identifiers::UniquePublisherId;
 use bus::{BusConfig, BusError, RobotBus, monotonic_ns};
@@ -49,6 +49,7 @@ use report::{Counters, EndStatus, OutDir, OutFile, PhaseDetail, RobotHist, Robot
 use crate::args::AgentArgs;
 use crate::discovery::{AckOutcome, DISCOVERY_RESEND, DiscoveryLog};
 use crate::error::AgentError;
+use crate::execute::Ranker;
 use crate::experiment::{Assignment, Effect, Plan};
 use crate::gate::{ControlGate, Verdict};
 use crate::pace::Pacer;
@@ -302,6 +303,12 @@ impl Robot<'_> {
         let mut beat = Instant::now();
         loop {
             self.poll(last.as_deref_mut())?;
+            if self.plan.take_execute()
+                && let Some(p) = last.as_deref_mut()
+            {
+                self.execute(p)?;
+                deadline = Instant::now() + self.timeout;
+            }
             if let Some(a) = self.plan.take_next() {
                 return Ok(Some(a));
             }
@@ -327,6 +334,84 @@ impl Robot<'_> {
             }
             self.bus.control.wait(Duration::from_millis(2))?;
         }
+    }
+
+    /// Moves on the shared grid as the coordinator grants, tick by tick, until the execution
+    /// ends (a grant that is not `Moving`, this robot no longer on the grid, `Stop`, a signal);
+    /// see [`crate::execute`] for the protocol and the ranking.
+    fn execute(&mut self, p: &mut Phase) -> Result<(), AgentError> {
+        let ranker = Ranker::new(&p.task, p.learner.tried_pairs(), p.learner.config().gamma);
+        let me = self.args.robot_id as usize;
+        let mut answered: Option<u32> = None;
+        let mut heard = Instant::now();
+        let mut polled = Instant::now();
+        let mut intents = 0u64;
+        loop {
+            // the newest grant: only its tick, state and this robot's entry matter
+            let mut newest: Option<(u32, u8, Cell, bool)> = None;
+            while let Some(g) = self.bus.grant.receive_sample()? {
+                let g = g.payload();
+                if me < GRANT_CAP && newest.is_none_or(|n| g.tick >= n.0) {
+                    let cell = Cell::new(g.cell_x[me], g.cell_y[me]);
+                    newest = Some((g.tick, g.state, cell, g.present[me] != 0));
+                }
+            }
+            if let Some((tick, state, cell, present)) = newest
+                && answered.is_none_or(|t| tick > t)
+            {
+                heard = Instant::now();
+                answered = Some(tick);
+                let at = p.task.grid.index(cell) as u32;
+                if state != GridState::Moving.as_u8() || !present {
+                    p.episode_step = tick;
+                    self.send_state(p, RobotStatus::Finished, at);
+                    let _ = self.bus.state.notify();
+                    break;
+                }
+                let (ranked, count) = ranker.rank(&p.task, p.learner.q(), cell);
+                let robot_id = self.args.robot_id;
+                let sent = self.bus.intent.send_with(|m| {
+                    m.robot_id = robot_id;
+                    m.tick = tick;
+                    m.cell_x = cell.x;
+                    m.cell_y = cell.y;
+                    m.count = count;
+                    m.ranked = ranked;
+                    m.send_time_ns = monotonic_ns();
+                });
+                match sent {
+                    Ok(_) => {
+                        intents += 1;
+                        let _ = self.bus.intent.notify();
+                    }
+                    Err(_) => self.c.send_errors += 1,
+                }
+                // observers see the ticks on robot/state (no wakeup: nobody waits for it)
+                p.episode_step = tick;
+                self.send_state(p, RobotStatus::Running, at);
+            }
+            if polled.elapsed() >= Duration::from_millis(20) {
+                polled = Instant::now();
+                self.poll(Some(p))?;
+                if self.plan.stopped() {
+                    break;
+                }
+            }
+            if heard.elapsed() >= self.timeout {
+                return Err(BusError::Timeout {
+                    what: "the coordinator's next grant on the shared grid".into(),
+                    timeout: self.timeout,
+                }
+                .into());
+            }
+            self.bus.grant.wait(Duration::from_millis(10))?;
+        }
+        report::log_line!(
+            "robot-agent {}: shared grid: {intents} intents sent, last tick {}",
+            self.args.robot_id,
+            answered.unwrap_or(0)
+        );
+        Ok(())
     }
 
     /// A learner for assignment `a`, resuming the robot's table of that goal.

@@ -6,6 +6,8 @@
 //! `cargo build --bins -p robot-agent -p coordinator -p qfleet` into the same target directory
 //! and profile (guarded by a `OnceLock`; cargo's own lock serialises parallel test binaries).
 
+pub mod mapf_check;
+
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Output, Stdio};
 use std::sync::OnceLock;

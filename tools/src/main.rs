@@ -37,8 +37,9 @@ enum Command {
     Learn(learn::LearnCmd),
     /// Regenerate the paper's Table 1 and figures on the built-in maps.
     Replicate(replicate::ReplicateCmd),
-    /// Run a fleet: a coordinator and N robot-agents sharing Q-values over shared memory.
-    Run(run::RunCmd),
+    /// Run a fleet: a coordinator and N robot-agents sharing Q-values over shared memory
+    /// (`--world shared`: on one grid, a MAPF instance from `--scen FILE --agents N`).
+    Run(Box<run::RunCmd>),
     /// Remove shared-memory files that crashed runs left behind (never a live run's).
     Clean(clean::CleanCmd),
     /// Run an experiment manifest: the coordinator assigns goals and phases to the robots.

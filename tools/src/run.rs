@@ -22,7 +22,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use launcher::out::{OutDir, OutError, inventory};
 use launcher::spawn::sibling;
 use launcher::{Exit, Fleet, RestartPolicy, supervise};
-use qfleet_args::{LearnerArgs, MapArgs};
+use qfleet_args::{LearnerArgs, MapArgs, WorldArgs};
 use robot_agent::ShareArgs;
 
 use crate::term::{self, out};
@@ -30,11 +30,20 @@ use crate::term::{self, out};
 /// Options of `qfleet run`.
 #[derive(Debug, Args)]
 pub struct RunCmd {
-    /// Number of robot-agent processes.
-    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=bus::MAX_ROBOTS as i64))]
+    /// Number of robot-agent processes [default: 4, or `--agents`].
+    #[arg(long = "robots", value_parser = clap::value_parser!(u32).range(1..=bus::MAX_ROBOTS as i64))]
+    robots_asked: Option<u32>,
+    /// Shared grid: the first N start/goal pairs of `--scen` (MovingAI's "first N agents"),
+    /// one robot each; `--robots` defaults to N.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=bus::MAX_ROBOTS as i64))]
+    agents: Option<u32>,
+    /// The fleet size `--robots` and `--agents` resolve to (set by [`RunCmd::run`]).
+    #[arg(skip)]
     robots: u32,
     #[command(flatten)]
     map: MapArgs,
+    #[command(flatten)]
+    world: WorldArgs,
     #[command(flatten)]
     learner: LearnerArgs,
     #[command(flatten)]
@@ -97,6 +106,7 @@ pub struct RunCmd {
 impl RunCmd {
     /// Runs the command.
     pub fn run(mut self) -> Result<()> {
+        self.robots = self.fleet_size().context(Exit::BadInput)?;
         // check everything before starting any process: bad input is exit code 2
         let (task, cfg, grace, time_limit, run_id) = self.check().context(Exit::BadInput)?;
         // the sharing rules: those given, the ones that fit the learner for the others
@@ -134,6 +144,7 @@ impl RunCmd {
         // joined after they exited, before the run's files are removed
         let config = vec![
             ("robots".into(), self.robots.to_string()),
+            ("world".into(), self.world.world.to_string()),
             ("map_args".into(), self.map.to_cli().join(" ")),
             ("learner_args".into(), self.learner.to_cli().join(" ")),
             ("share_args".into(), self.share.to_cli().join(" ")),
@@ -265,6 +276,17 @@ impl RunCmd {
         self.merge.unwrap_or(MergeRule::Max)
     }
 
+    /// `--robots`, or `--agents`, or 4; the two must agree when both are given.
+    fn fleet_size(&self) -> Result<u32> {
+        match (self.robots_asked, self.agents) {
+            (Some(r), Some(a)) if r != a => Err(anyhow!(
+                "--robots {r} and --agents {a} disagree: one robot per agent (give one of them)"
+            )),
+            (Some(n), _) | (None, Some(n)) => Ok(n),
+            (None, None) => Ok(4),
+        }
+    }
+
     /// Validates every option; the task, learner config, grace, time limit and run id.
     fn check(
         &self,
@@ -276,6 +298,21 @@ impl RunCmd {
         String,
     )> {
         let task = self.map.task()?;
+        if self.world.shared() {
+            if self.remote.remote_robots > 0 {
+                return Err(anyhow!(
+                    "--world shared runs on one host: its intents and grants do not cross the \
+                     bridge yet (drop --remote-robots)"
+                ));
+            }
+            // two robots on one start, a goal walled in, too few scenario lines: said now
+            self.map.instance(self.robots)?;
+        } else if self.agents.is_some() {
+            return Err(anyhow!(
+                "--agents picks the first N start/goal pairs of --scen for a shared grid: give \
+                 --world shared too (or --robots for robots on copies of the map)"
+            ));
+        }
         let cfg = self.learner.config()?;
         self.share.validate().map_err(|e| anyhow!(e))?;
         let grace = Duration::try_from_secs_f64(self.grace).map_err(|_| {
@@ -320,8 +357,12 @@ impl RunCmd {
             let mut cmd = Command::new(robot_bin);
             cmd.args(["--run-id", run_id, "--robot-id", &id.to_string()])
                 .args(["--robots", &fleet.to_string()])
-                .args(self.map.to_cli())
-                .args(self.learner.to_cli())
+                .args(self.map.to_cli());
+            if self.world.shared() {
+                // robot i learns line i of the scenario: its own start and goal
+                cmd.args(["--scen-index", &id.to_string()]);
+            }
+            cmd.args(self.learner.to_cli())
                 .args([
                     "--seed",
                     &launcher::seed::run_robot(self.learner.seed, id).to_string(),
@@ -359,6 +400,7 @@ impl RunCmd {
             let mut cmd = Command::new(coord_bin);
             cmd.args(["--run-id", run_id, "--robots", &fleet_size.to_string()])
                 .args(self.map.to_cli())
+                .args(self.world.to_cli())
                 .args([
                     "--wait",
                     &self.wait.to_string(),
@@ -478,10 +520,61 @@ fn print_human(r: &RunResult, out: &Path, temp_out: bool) -> Result<()> {
         r.throughput.q_updates_merged_per_s,
         r.throughput.active_s
     )?;
+    if let Some(g) = &r.grid {
+        print_grid(g)?;
+    }
     if !temp_out {
         out!(
-            "  wrote              {}/{{result.json,robot-*.json,latency-*.hgrm,*.log}}",
-            out.display()
+            "  wrote              {}/{{result.json,robot-*.json,latency-*.hgrm,*.log{}}}",
+            out.display(),
+            if r.grid.is_some() { ",paths.txt" } else { "" }
+        )?;
+    }
+    Ok(())
+}
+
+/// The shared grid's figures, as a MAPF user reads them.
+fn print_grid(g: &report::GridResult) -> Result<()> {
+    let ended = match g.ended {
+        report::GridEnd::Arrived => "every robot arrived",
+        report::GridEnd::TickLimit => "the tick limit (--max-ticks) passed",
+        report::GridEnd::Unsolvable => "no plan brings every robot home (proved by search)",
+        report::GridEnd::Stopped => "stopped",
+    };
+    out!(
+        "  shared grid        {} robots: {ended} ({} of {} arrived) after {} ticks",
+        g.agents,
+        g.arrived,
+        g.agents,
+        g.ticks
+    )?;
+    out!(
+        "  sum of costs       {} (lower bound {}, ratio {:.3}), makespan {}, conflicts {}",
+        g.sum_of_costs,
+        g.lower_bound,
+        g.soc_ratio,
+        g.makespan,
+        g.conflicts
+    )?;
+    out!(
+        "  moves              {} waits, {} denied moves, {} intents rejected; {:.0} ticks/s",
+        g.waits,
+        g.denied_moves,
+        g.intents_rejected,
+        g.ticks_per_s
+    )?;
+    for (k, s) in [
+        ("tick", &g.tick_latency_ns),
+        ("grant→intent", &g.intent_latency_ns),
+    ] {
+        out!(
+            "  {k:18} {:>6}  {:>10} {:>10} {:>10} {:>10} {:>10}",
+            s.count,
+            fmt_us(s.p50),
+            fmt_us(s.p90),
+            fmt_us(s.p99),
+            fmt_us(s.p999),
+            fmt_us(s.max)
         )?;
     }
     Ok(())

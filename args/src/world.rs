@@ -1,0 +1,143 @@
+//! Which world a run's robots live in ([`World`]) and the options of a shared grid
+//! ([`WorldArgs`]): `qfleet run`, the coordinator and manifests read them the same way.
+
+use clap::{Args, ValueEnum};
+use mapf::Instance;
+use serde::{Deserialize, Serialize};
+
+use crate::{ArgsError, MapArgs};
+
+/// Whether the robots of a run share one grid or each learn on a copy of the map.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum World {
+    /// Every robot on a private copy of the map: robots never meet (one start and goal).
+    #[default]
+    Separate,
+    /// One grid: after learning, the robots go from their starts to their goals among each
+    /// other, one tick at a time, as the coordinator grants (robot `i` takes line `i` of
+    /// `--scen`).
+    Shared,
+}
+
+impl std::fmt::Display for World {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            World::Separate => "separate",
+            World::Shared => "shared",
+        })
+    }
+}
+
+/// The options of the world a run's robots live in.
+#[derive(Debug, Clone, Default, Args)]
+pub struct WorldArgs {
+    /// `separate`: every robot learns on its own copy of the map and robots never meet.
+    /// `shared`: one grid; robot i takes its start and goal from line i of `--scen`, learns
+    /// them, then all move together tick by tick, each only where the coordinator grants
+    /// (no two on one cell, no swaps), and the run reports sum of costs, makespan and
+    /// `paths.txt`.
+    #[arg(long, value_enum, default_value_t = World::Separate)]
+    pub world: World,
+    /// Shared grid: end the execution after this many ticks even if robots are under way
+    /// [default: 8 × the longest single shortest path + 4 × robots + 256].
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    pub max_ticks: Option<u32>,
+    /// Shared grid: at least this many milliseconds per tick, so that a person can follow the
+    /// robots with `--live` (0: as fast as the robots answer).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=60_000))]
+    pub tick_ms: u64,
+}
+
+impl WorldArgs {
+    /// The options as command-line words, to forward to the coordinator.
+    pub fn to_cli(&self) -> Vec<String> {
+        let mut v = vec!["--world".to_string(), self.world.to_string()];
+        if let Some(t) = self.max_ticks {
+            v.extend(["--max-ticks".into(), t.to_string()]);
+        }
+        if self.tick_ms > 0 {
+            v.extend(["--tick-ms".into(), self.tick_ms.to_string()]);
+        }
+        v
+    }
+
+    /// Whether the robots share one grid.
+    pub fn shared(&self) -> bool {
+        self.world == World::Shared
+    }
+}
+
+impl MapArgs {
+    /// The shared grid of `agents` robots: the map, and robot `i`'s start and goal from line
+    /// `i` of `--scen` (MovingAI's "first N agents"), validated before anything starts.
+    pub fn instance(&self, agents: u32) -> Result<Instance, ArgsError> {
+        let Some(path) = &self.scen else {
+            return Err(ArgsError::Conflict(
+                "a shared grid takes every robot's start and goal from a scenario: give --scen \
+                 FILE (robot i takes line i)",
+            ));
+        };
+        if self.start.is_some() || self.goal.is_some() || self.scen_index.is_some() {
+            return Err(ArgsError::Conflict(
+                "a shared grid takes robot i's start and goal from line i of --scen; do not give \
+                 --start, --goal or --scen-index",
+            ));
+        }
+        let map = planner::map::load_map(&self.map)?;
+        let scen = planner::map::load_scen(path)?;
+        Ok(Instance::from_scen(&map, &scen, agents as usize)?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn map_args(scen: Option<&str>) -> MapArgs {
+        MapArgs {
+            map: "builtin:paper-10".into(),
+            start: None,
+            goal: None,
+            scen: scen.map(Into::into),
+            scen_index: None,
+        }
+    }
+
+    #[test]
+    fn a_shared_grid_needs_a_scenario_and_nothing_that_picks_one_task() {
+        assert!(matches!(
+            map_args(None).instance(2),
+            Err(ArgsError::Conflict(_))
+        ));
+        let mut m = map_args(Some("x.scen"));
+        m.scen_index = Some(1);
+        assert!(matches!(m.instance(2), Err(ArgsError::Conflict(_))));
+    }
+
+    #[test]
+    fn world_options_round_trip_through_the_command_line() {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Cli {
+            #[command(flatten)]
+            w: WorldArgs,
+        }
+        for w in [
+            WorldArgs::default(),
+            WorldArgs {
+                world: World::Shared,
+                max_ticks: Some(77),
+                tick_ms: 5,
+            },
+        ] {
+            let mut argv = vec!["x".to_string()];
+            argv.extend(w.to_cli());
+            let back = Cli::try_parse_from(argv).unwrap().w;
+            assert_eq!(
+                (back.world, back.max_ticks, back.tick_ms),
+                (w.world, w.max_ticks, w.tick_ms)
+            );
+        }
+    }
+}

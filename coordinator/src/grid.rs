@@ -1,0 +1,613 @@
+//! The coordinator as the authority of a shared grid (`--world shared`): after every robot
+//! learned its own goal, it drives the execution tick by tick and keeps the fleet free of
+//! collisions. The robot's side of the protocol is `robot_agent::execute`.
+//!
+//! # A tick
+//! 1. Publish a `Grant` with every robot's cell at tick `t` (tick 0: the starts) and wake the
+//!    robots.
+//! 2. Collect one `Intent` per robot on the grid ([`Round`]): its moves ranked by its own
+//!    learned values. Each is checked ([`accept`]): the sender is the robot's own node, the tick
+//!    is `t`, the cell is where the coordinator put the robot, the move codes are valid.
+//! 3. When every robot on the grid answered, or the rest are past the heartbeat deadline
+//!    (`--hang-ms`; they are *hung*: obstacles that wait and are never pushed, not waited for
+//!    again until they answer), resolve the tick with [`mapf::World`] (PIBT on the intents, a
+//!    look-ahead plan, a complete search when it stalls) and go on with `t + 1`.
+//!
+//! The execution ends when every robot on the grid stands on its goal (`Arrived`), when the
+//! resolver proves no plan exists (`Unsolvable`), at `--max-ticks`, or on a stop request; the
+//! last grant says so. A robot whose process dies (the liveness listing) leaves the grid: its
+//! cell is free from the next tick, and it counts as not arrived.
+//!
+//! The executed paths are checked again by [`mapf::check`], code that shares nothing with the
+//! resolver: the vertex and swap conflicts it finds among the robots that stayed on the grid are
+//! the result's `conflicts` (0 unless something is broken). A robot that left stays on its last
+//! cell in `paths.txt` (the format has no "gone"), where others may pass later.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use bus::bus_schema::{self, Command, GRANT_CAP, Grant, GridState, ROBOT_ID_ALL};
+use bus::iceoryx2::prelude::*;
+use bus::{BusError, CoordinatorBus, Lister, monotonic_ns};
+use hdrhistogram::Histogram;
+use mapf::{Instance, Status, World, WorldConfig};
+use planner::Cell;
+use report::hist::{new_hist, record};
+use report::{GridEnd, GridResult, GridRobot, LatencyStats, OutDir, OutFile};
+
+use crate::admission::Sender;
+use crate::engine::{Engine, tolerate};
+use crate::options::CoordError;
+
+/// A shared-grid execution to drive: the instance and its limits.
+#[derive(Debug, Clone)]
+pub struct GridPlan {
+    /// Starts, goals and the map.
+    pub instance: Instance,
+    /// Ticks after which the execution ends even if robots are under way.
+    pub max_ticks: u32,
+    /// The scenario file, for the result.
+    pub scen: Option<String>,
+    /// Shortest time per tick (`--tick-ms`: a pace a person can follow; zero: none).
+    pub tick_min: Duration,
+}
+
+impl GridPlan {
+    /// The default tick limit of `instance`: room for every robot to go the longest way several
+    /// times over and for the resolver's detours, never endless.
+    pub fn default_max_ticks(instance: &Instance) -> u32 {
+        let longest = (0..instance.agents())
+            .map(|a| instance.dist_from(a, instance.starts()[a]))
+            .filter(|&d| d != u32::MAX)
+            .max()
+            .unwrap_or(0);
+        longest
+            .saturating_mul(8)
+            .saturating_add(4 * instance.agents() as u32)
+            .saturating_add(256)
+    }
+}
+
+/// Why an intent was not taken.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Reject {
+    /// A robot id outside the fleet.
+    Robot(u32),
+    /// The intent answers another tick (an old one, or a forged one).
+    Tick {
+        /// The tick being collected.
+        want: u32,
+        /// The intent's.
+        got: u32,
+    },
+    /// The robot says it stands elsewhere than the coordinator put it.
+    Cell {
+        /// The coordinator's record.
+        want: Cell,
+        /// The intent's.
+        got: Cell,
+    },
+    /// The robot is not on the grid (it left).
+    Absent(u32),
+    /// Bad move codes.
+    Moves(mapf::IntentError),
+}
+
+/// Checks one intent against the tick being collected and the coordinator's positions; the
+/// robot and its ranked moves if it holds.
+pub fn accept(
+    m: &bus_schema::Intent,
+    tick: u32,
+    positions: &[Option<Cell>],
+) -> Result<(usize, mapf::Intent), Reject> {
+    let id = m.robot_id as usize;
+    let Some(at) = positions.get(id) else {
+        return Err(Reject::Robot(m.robot_id));
+    };
+    let Some(at) = *at else {
+        return Err(Reject::Absent(m.robot_id));
+    };
+    if m.tick != tick {
+        return Err(Reject::Tick {
+            want: tick,
+            got: m.tick,
+        });
+    }
+    let got = Cell::new(m.cell_x, m.cell_y);
+    if got != at {
+        return Err(Reject::Cell { want: at, got });
+    }
+    let n = usize::from(m.count).min(m.ranked.len());
+    let intent = mapf::Intent::from_bytes(&m.ranked[..n]).map_err(Reject::Moves)?;
+    Ok((id, intent))
+}
+
+/// The intents of one tick as they come in: who answered, who is waited for, who is hung.
+#[derive(Debug, Clone)]
+pub struct Round {
+    intents: Vec<Option<mapf::Intent>>,
+    /// Robots not waited for: silent past the deadline before (until they answer again).
+    hung: Vec<bool>,
+    missing: usize,
+}
+
+impl Round {
+    /// A round for `robots` robots, nobody hung.
+    pub fn new(robots: usize) -> Self {
+        Round {
+            intents: vec![None; robots],
+            hung: vec![false; robots],
+            missing: 0,
+        }
+    }
+
+    /// Starts collecting a tick: every robot on the grid (`present`) that is not hung is
+    /// waited for.
+    pub fn begin(&mut self, present: impl Fn(usize) -> bool) {
+        self.intents.fill(None);
+        self.missing = (0..self.intents.len())
+            .filter(|&i| present(i) && !self.hung[i])
+            .count();
+    }
+
+    /// Takes robot `id`'s intent; true if it was new this tick. A hung robot that answers is
+    /// not hung any more.
+    pub fn take(&mut self, id: usize, intent: mapf::Intent) -> bool {
+        let Some(slot) = self.intents.get_mut(id) else {
+            return false;
+        };
+        if slot.is_some() {
+            return false;
+        }
+        *slot = Some(intent);
+        if std::mem::replace(&mut self.hung[id], false) {
+            // answered again: waited for from the next tick on, not counted as missing now
+        } else {
+            self.missing = self.missing.saturating_sub(1);
+        }
+        true
+    }
+
+    /// Whether every robot waited for answered.
+    pub fn complete(&self) -> bool {
+        self.missing == 0
+    }
+
+    /// The deadline passed: every robot on the grid still silent is hung (an obstacle that
+    /// waits) from now on; returns them.
+    pub fn expire(&mut self, present: impl Fn(usize) -> bool) -> Vec<usize> {
+        let mut newly = Vec::new();
+        for i in 0..self.intents.len() {
+            if present(i) && self.intents[i].is_none() && !self.hung[i] {
+                self.hung[i] = true;
+                newly.push(i);
+            }
+        }
+        self.missing = 0;
+        newly
+    }
+
+    /// A robot left the grid: not waited for.
+    pub fn left(&mut self, id: usize) {
+        if let Some(slot) = self.intents.get(id)
+            && slot.is_none()
+            && !self.hung[id]
+        {
+            self.missing = self.missing.saturating_sub(1);
+        }
+        if let Some(h) = self.hung.get_mut(id) {
+            *h = false;
+        }
+    }
+
+    /// The intents of the tick, one slot per robot (`None`: silent or gone).
+    pub fn intents(&self) -> &[Option<mapf::Intent>] {
+        &self.intents
+    }
+}
+
+/// Drives one shared-grid execution on the bus (see the module docs) and returns its result;
+/// writes `paths.txt` into `out`.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn execute(
+    engine: &mut Engine,
+    bus: &CoordinatorBus,
+    lister: &Lister,
+    plan: &GridPlan,
+    spin: Duration,
+    hang: Duration,
+    stop: &AtomicBool,
+    out: &OutDir,
+) -> Result<GridResult, CoordError> {
+    let inst = &plan.instance;
+    let n = inst.agents();
+    let mut world = World::new(inst, WorldConfig::default());
+    // robots the coordinator lost before the execution never stand on the grid
+    for (id, slot) in engine.robots.iter().enumerate() {
+        if slot.lost || !slot.accepted {
+            world.remove(id);
+        }
+    }
+    bus.connect_all()?;
+    report::log_line!(
+        "qfleet-coordinator: shared grid: {} robots move from their starts (at most {} ticks)",
+        n,
+        plan.max_ticks
+    );
+    tolerate(bus.send_control(bus::control(Command::Execute, ROBOT_ID_ALL)))?;
+    let mut round = Round::new(n);
+    let mut tick_hist = new_hist();
+    let mut intent_hist = new_hist();
+    let mut rejected = 0u64;
+    let t0 = Instant::now();
+    let ended = loop {
+        let tick = world.tick();
+        let state = if world.all_arrived() {
+            GridState::Arrived
+        } else {
+            GridState::Moving
+        };
+        let start = Instant::now();
+        let sent_ns = publish(bus, &world, tick, state)?;
+        if state == GridState::Arrived {
+            break GridEnd::Arrived;
+        }
+        round.begin(|i| world.positions()[i].is_some());
+        let mut last = Instant::now();
+        while !round.complete() {
+            let took = collect(
+                engine,
+                bus,
+                &world,
+                &mut round,
+                tick,
+                sent_ns,
+                &mut intent_hist,
+                &mut rejected,
+            )?;
+            if took > 0 {
+                last = Instant::now();
+                continue;
+            }
+            if let Some(listing) = lister.poll() {
+                engine.liveness(bus, listing)?;
+                for (id, slot) in engine.robots.iter().enumerate() {
+                    if slot.lost && world.remove(id) {
+                        round.left(id);
+                        report::log_line!(
+                            "qfleet-coordinator: robot {id} left the shared grid at tick {tick} \
+                             (its process is gone)"
+                        );
+                    }
+                }
+            }
+            if stop.load(Ordering::Relaxed) {
+                break;
+            }
+            if start.elapsed() >= hang {
+                for id in round.expire(|i| world.positions()[i].is_some()) {
+                    report::log_line!(
+                        "qfleet-coordinator: robot {id} sent no intent for tick {tick} within \
+                         {hang:?}: an obstacle until it answers or leaves the grid"
+                    );
+                }
+                break;
+            }
+            if last.elapsed() >= spin {
+                bus.intent.wait(Duration::from_millis(5))?;
+            } else {
+                std::hint::spin_loop();
+            }
+        }
+        if stop.load(Ordering::Relaxed) {
+            publish(bus, &world, tick, GridState::Ended)?;
+            break GridEnd::Stopped;
+        }
+        let step = world
+            .step(round.intents())
+            .map_err(|e| CoordError::Grid(e.to_string()))?;
+        record(&mut tick_hist, start.elapsed().as_nanos() as u64);
+        if let Some(rest) = plan.tick_min.checked_sub(start.elapsed()) {
+            std::thread::sleep(rest);
+        }
+        if step.status == Status::Unsolvable {
+            publish(bus, &world, step.tick, GridState::Ended)?;
+            break GridEnd::Unsolvable;
+        }
+        if step.tick >= plan.max_ticks && !world.all_arrived() {
+            publish(bus, &world, step.tick, GridState::Ended)?;
+            break GridEnd::TickLimit;
+        }
+    };
+    let exec_s = t0.elapsed().as_secs_f64();
+    let paths = world.paths();
+    let paths_file = match out.write(OutFile::Paths, mapf::write_paths(&paths).as_bytes()) {
+        Ok(_) => Some(OutFile::Paths.name()),
+        Err(e) => {
+            report::log_line!("qfleet-coordinator: warning: {e}");
+            None
+        }
+    };
+    Ok(summarize(
+        plan,
+        &world,
+        &paths,
+        ended,
+        Figures {
+            exec_s,
+            rejected,
+            tick: &tick_hist,
+            intent: &intent_hist,
+            paths_file,
+        },
+    ))
+}
+
+/// Takes what waits in the intent inbox into the round; returns how many messages it took.
+#[allow(clippy::too_many_arguments)]
+fn collect(
+    engine: &mut Engine,
+    bus: &CoordinatorBus,
+    world: &World,
+    round: &mut Round,
+    tick: u32,
+    sent_ns: u64,
+    hist: &mut Histogram<u64>,
+    rejected: &mut u64,
+) -> Result<usize, CoordError> {
+    let mut n = 0;
+    while let Some(s) = bus.intent.receive_sample()? {
+        n += 1;
+        let from: Sender = s.header().node_id().value();
+        let m = s.payload();
+        if engine.trusted(m.robot_id, from).is_none() {
+            *rejected += 1;
+            continue;
+        }
+        match accept(m, tick, world.positions()) {
+            Ok((id, intent)) => {
+                if round.take(id, intent) {
+                    let now = monotonic_ns();
+                    record(hist, now.saturating_sub(sent_ns));
+                }
+            }
+            // an answer to an older grant is late, not wrong
+            Err(Reject::Tick { got, want }) if got < want => {}
+            Err(why) => {
+                *rejected += 1;
+                report::log_line!(
+                    "qfleet-coordinator: dropped an intent of robot {}: {why:?}",
+                    m.robot_id
+                );
+            }
+        }
+    }
+    engine.messages += n as u64;
+    Ok(n)
+}
+
+/// Publishes the configuration of `tick` with `state` and wakes the robots; returns the send
+/// time.
+fn publish(
+    bus: &CoordinatorBus,
+    world: &World,
+    tick: u32,
+    state: GridState,
+) -> Result<u64, CoordError> {
+    let pos = world.positions();
+    let mut sent_ns = 0;
+    let r = bus.grant.send_with(|g: &mut Grant| {
+        g.tick = tick;
+        g.robots = pos.len().min(GRANT_CAP) as u32;
+        g.state = state.as_u8();
+        g.seq = u64::from(tick);
+        for (i, p) in pos.iter().take(GRANT_CAP).enumerate() {
+            if let Some(c) = p {
+                g.cell_x[i] = c.x;
+                g.cell_y[i] = c.y;
+                g.present[i] = 1;
+            }
+        }
+        sent_ns = monotonic_ns();
+        g.send_time_ns = sent_ns;
+    });
+    match r {
+        // every robot already gone: nothing to tell, the execution still ends as it does
+        Ok(_) | Err(BusError::NoSubscriber { .. }) => {}
+        Err(e) => return Err(e.into()),
+    }
+    bus.grant.notify()?;
+    Ok(sent_ns)
+}
+
+/// What the loop measured, for [`summarize`].
+struct Figures<'a> {
+    exec_s: f64,
+    rejected: u64,
+    tick: &'a Histogram<u64>,
+    intent: &'a Histogram<u64>,
+    paths_file: Option<String>,
+}
+
+/// The result of an execution from its paths, checked independently of the resolver.
+fn summarize(
+    plan: &GridPlan,
+    world: &World,
+    paths: &[Vec<Cell>],
+    ended: GridEnd,
+    f: Figures<'_>,
+) -> GridResult {
+    let inst = &plan.instance;
+    let (starts, goals) = (inst.starts(), inst.goals());
+    let last_tick = world.tick();
+    let present = world.positions();
+    // a robot that left the grid stays on its last cell in the paths file; the check covers
+    // the robots on the grid to the end (the resolver never put two robots on one cell)
+    let stayed: Vec<usize> = (0..inst.agents())
+        .filter(|&i| present[i].is_some())
+        .collect();
+    let pick = |v: &[Cell]| stayed.iter().map(|&i| v[i]).collect::<Vec<_>>();
+    let stayed_paths: Vec<Vec<Cell>> = stayed.iter().map(|&i| paths[i].clone()).collect();
+    let conflicts = match mapf::check(inst.grid(), &pick(starts), &pick(goals), &stayed_paths) {
+        Ok(_) => 0,
+        Err(v) => mapf::check::conflicts(&v) as u64,
+    };
+    let robots: Vec<GridRobot> = (0..inst.agents())
+        .map(|i| {
+            let path = &paths[i];
+            let on_goal_from = settled_at(path, goals[i]);
+            let stats = world.stats()[i];
+            let until = on_goal_from.map_or(path.len(), |t| t as usize);
+            let waits = path[..until.min(path.len())]
+                .windows(2)
+                .filter(|w| w[0] == w[1])
+                .count() as u64;
+            GridRobot {
+                robot_id: i as u32,
+                start: starts[i].to_string(),
+                goal: goals[i].to_string(),
+                shortest: inst.dist_from(i, starts[i]),
+                arrived_at: on_goal_from.filter(|_| present[i].is_some()),
+                waits,
+                denied: u64::from(stats.denied),
+                left: present[i].is_none(),
+            }
+        })
+        .collect();
+    let costs: Vec<u32> = robots
+        .iter()
+        .map(|r| r.arrived_at.unwrap_or(last_tick))
+        .collect();
+    let sum_of_costs: u64 = costs.iter().map(|&c| u64::from(c)).sum();
+    let lower_bound = inst.lower_bound();
+    let arrived = robots.iter().filter(|r| r.arrived_at.is_some()).count() as u32;
+    GridResult {
+        agents: inst.agents() as u32,
+        scen: plan.scen.clone(),
+        ended,
+        all_arrived: arrived as usize == inst.agents(),
+        arrived,
+        sum_of_costs,
+        makespan: costs.iter().copied().max().unwrap_or(0),
+        lower_bound,
+        soc_ratio: if lower_bound > 0 {
+            sum_of_costs as f64 / lower_bound as f64
+        } else {
+            1.0
+        },
+        ticks: last_tick,
+        waits: robots.iter().map(|r| r.waits).sum(),
+        denied_moves: robots.iter().map(|r| r.denied).sum(),
+        conflicts,
+        intents_rejected: f.rejected,
+        exec_s: f.exec_s,
+        ticks_per_s: if f.exec_s > 0.0 {
+            f64::from(last_tick) / f.exec_s
+        } else {
+            0.0
+        },
+        tick_latency_ns: LatencyStats::of(f.tick),
+        intent_latency_ns: LatencyStats::of(f.intent),
+        paths_file: f.paths_file,
+        robots,
+    }
+}
+
+/// The tick from which `path` stays on `goal` to its end; `None` if it does not end there.
+pub fn settled_at(path: &[Cell], goal: Cell) -> Option<u32> {
+    if path.last() != Some(&goal) {
+        return None;
+    }
+    let away = path.iter().rposition(|&c| c != goal);
+    Some(away.map_or(0, |i| i as u32 + 1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mapf::Move;
+
+    fn intent(robot_id: u32, tick: u32, at: Cell, ranked: &[u8]) -> bus_schema::Intent {
+        let mut m = bus_schema::Intent {
+            robot_id,
+            tick,
+            cell_x: at.x,
+            cell_y: at.y,
+            count: ranked.len() as u8,
+            ..bus_schema::Intent::ZEROED
+        };
+        m.ranked[..ranked.len()].copy_from_slice(ranked);
+        m
+    }
+
+    #[test]
+    fn an_intent_counts_only_for_its_robot_tick_and_cell() {
+        let pos = [Some(Cell::new(1, 1)), None];
+        let ok = accept(&intent(0, 3, Cell::new(1, 1), &[2, 0]), 3, &pos).unwrap();
+        assert_eq!(ok.0, 0);
+        assert_eq!(ok.1.first(), Some(Move::Right));
+        assert_eq!(
+            accept(&intent(0, 2, Cell::new(1, 1), &[2]), 3, &pos),
+            Err(Reject::Tick { want: 3, got: 2 })
+        );
+        assert_eq!(
+            accept(&intent(0, 3, Cell::new(2, 1), &[2]), 3, &pos),
+            Err(Reject::Cell {
+                want: Cell::new(1, 1),
+                got: Cell::new(2, 1)
+            })
+        );
+        assert_eq!(
+            accept(&intent(1, 3, Cell::new(0, 0), &[0]), 3, &pos),
+            Err(Reject::Absent(1))
+        );
+        assert_eq!(
+            accept(&intent(7, 3, Cell::new(0, 0), &[0]), 3, &pos),
+            Err(Reject::Robot(7))
+        );
+        assert!(matches!(
+            accept(&intent(0, 3, Cell::new(1, 1), &[9]), 3, &pos),
+            Err(Reject::Moves(_))
+        ));
+        assert!(matches!(
+            accept(&intent(0, 3, Cell::new(1, 1), &[2, 2]), 3, &pos),
+            Err(Reject::Moves(_))
+        ));
+    }
+
+    #[test]
+    fn a_round_waits_for_present_robots_and_not_for_hung_ones() {
+        let wait = mapf::Intent::new(&[Move::Wait]).unwrap();
+        let mut r = Round::new(3);
+        let present = |i: usize| i != 2;
+        r.begin(present);
+        assert!(!r.complete());
+        assert!(r.take(0, wait));
+        assert!(!r.take(0, wait), "a second intent of one tick is not new");
+        assert!(!r.complete());
+        // robot 1 is silent past the deadline: hung, an obstacle
+        assert_eq!(r.expire(present), vec![1]);
+        assert!(r.complete());
+        // the next tick does not wait for it
+        r.begin(present);
+        assert!(r.take(0, wait));
+        assert!(r.complete());
+        // it answers again: taken, and waited for from then on
+        assert!(r.take(1, wait));
+        r.begin(present);
+        assert!(r.take(0, wait));
+        assert!(!r.complete());
+        r.left(1);
+        assert!(r.complete(), "a robot that left the grid is not waited for");
+    }
+
+    #[test]
+    fn settled_is_the_last_arrival_on_the_goal() {
+        let g = Cell::new(2, 0);
+        let p = |xs: &[u16]| xs.iter().map(|&x| Cell::new(x, 0)).collect::<Vec<_>>();
+        assert_eq!(settled_at(&p(&[0, 1, 2, 2]), g), Some(2));
+        assert_eq!(settled_at(&p(&[0, 1, 2, 1, 2]), g), Some(4));
+        assert_eq!(settled_at(&p(&[2, 2]), g), Some(0));
+        assert_eq!(settled_at(&p(&[0, 1]), g), None);
+    }
+}

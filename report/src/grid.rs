@@ -1,0 +1,93 @@
+//! What a shared-grid run reports ([`GridResult`]): the MAPF figures a user of such tools reads
+//! (all arrived, sum of costs, makespan, the lower bound and their ratio), what the
+//! coordinator's resolution cost (waits, denied moves), the independent check's conflict count
+//! (always 0 unless something is broken) and the tick loop's speed and latency.
+
+use serde::{Deserialize, Serialize};
+
+use crate::hist::LatencyStats;
+
+/// Why a shared-grid execution ended (as written in JSON: kebab case).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum GridEnd {
+    /// Every robot on the grid stood on its goal.
+    Arrived,
+    /// The tick limit (`--max-ticks`) passed first.
+    TickLimit,
+    /// The coordinator's complete search proved that no plan brings every robot home from
+    /// where they stood.
+    Unsolvable,
+    /// A stop request (signal, `q` in the live view, `--time-limit`).
+    Stopped,
+}
+
+/// One robot's part of a shared-grid execution.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GridRobot {
+    /// Robot id (its line in the scenario).
+    pub robot_id: u32,
+    /// Start cell `x,y`.
+    pub start: String,
+    /// Goal cell `x,y`.
+    pub goal: String,
+    /// Shortest path length alone on the map (BFS, moves).
+    pub shortest: u32,
+    /// The tick from which it stood on its goal for good; `None`: it never settled there.
+    pub arrived_at: Option<u32>,
+    /// Ticks it stood still before it settled on its goal (or to the end, if it never did).
+    pub waits: u64,
+    /// Ticks its first-ranked move was not granted.
+    pub denied: u64,
+    /// It left the grid (declared lost) before the end.
+    pub left: bool,
+}
+
+/// The shared grid of a run: the figures MAPF tools report, plus the tick loop's.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GridResult {
+    /// Number of robots (agents) on the grid at the start.
+    pub agents: u32,
+    /// The scenario file the starts and goals came from, if any.
+    pub scen: Option<String>,
+    /// Why the execution ended.
+    pub ended: GridEnd,
+    /// Every robot stands on its goal at the end.
+    pub all_arrived: bool,
+    /// Robots that settled on their goal.
+    pub arrived: u32,
+    /// Sum over robots of the tick from which each stood on its goal for good (a robot that
+    /// never settled counts the last tick).
+    pub sum_of_costs: u64,
+    /// The largest of those ticks.
+    pub makespan: u32,
+    /// Sum of the robots' shortest paths alone on the map (BFS): no plan costs less.
+    pub lower_bound: u64,
+    /// `sum_of_costs / lower_bound` (1.0: nobody waited or detoured).
+    pub soc_ratio: f64,
+    /// Ticks executed.
+    pub ticks: u32,
+    /// Ticks robots stood still before settling on their goals, summed.
+    pub waits: u64,
+    /// Ticks a robot's first-ranked move was not granted, summed.
+    pub denied_moves: u64,
+    /// Vertex and swap conflicts the coordinator's independent check found in the executed
+    /// paths: 0 unless something is broken.
+    pub conflicts: u64,
+    /// Intents dropped as invalid (a wrong tick or cell, a bad move code, a foreign sender).
+    pub intents_rejected: u64,
+    /// Seconds from the first grant to the last.
+    pub exec_s: f64,
+    /// Ticks per second over `exec_s`.
+    pub ticks_per_s: f64,
+    /// One tick at the coordinator: grant published (and the robots woken) → every robot's
+    /// intent in → resolved.
+    pub tick_latency_ns: LatencyStats,
+    /// Per robot and tick: grant published → that robot's intent received (the robot woke,
+    /// moved to its granted cell, ranked its moves and answered).
+    pub intent_latency_ns: LatencyStats,
+    /// The paths file in the out directory (mapf-visualizer format), if written.
+    pub paths_file: Option<String>,
+    /// Per robot.
+    pub robots: Vec<GridRobot>,
+}

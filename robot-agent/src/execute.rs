@@ -1,0 +1,223 @@
+//! Moving on a shared grid: after learning, a robot goes from its start to its goal among the
+//! other robots, one tick at a time, moving only where the coordinator grants.
+//!
+//! # Protocol (the robot's side; the coordinator's is `coordinator::grid`)
+//! 1. `Execute` on `coord/control` (after every robot finished learning).
+//! 2. The coordinator publishes a `Grant` on `coord/grant` for tick 0 (the starts), then one per
+//!    tick. For each grant newer than the last it answered, the robot takes its own cell from
+//!    it and sends one `Intent` on `robot/intent`: its five moves ranked by its own learned
+//!    values at that cell ([`Ranker`]), and wakes the coordinator. It also publishes its
+//!    `robot/state` with that cell (no wakeup), so observers see the ticks.
+//! 3. A grant whose state is not `Moving`, a grant where it is no longer present, or `Stop`
+//!    ends the execution; the robot goes back to waiting for `Stop` and reports as usual.
+//!
+//! A robot never moves on its own: the coordinator's grant is where it is. A grant missed in
+//! the latest-wins buffer is no loss, the next one carries every position.
+//!
+//! # Ranking
+//! The intent is the robot's learned values at its cell, in the order a tabular learner acts on
+//! them: moves it has tried there by Q-value (best first); waiting, valued one tick later than
+//! the best of them (`γ · max Q`), so moves that gain nothing over standing still come after
+//! it; then moves it never tried from that cell (a learner with a model of its moves knows
+//! which), ordered by the robot's own map distance, so a robot pushed off the part of the grid
+//! it explored still knows its way back. On its goal a robot prefers to wait. Walls and the
+//! border are never named.
+
+use planner::task::Task;
+use planner::{Action, Cell, QTable};
+
+/// Move code of a wait (the wire's `Intent::ranked` codes: 0 wait, 1 up, 2 right, 3 down, 4 left).
+pub const WAIT: u8 = 0;
+
+/// The wire code of a planner action (its Q-table column plus one).
+pub const fn move_code(a: Action) -> u8 {
+    a as u8 + 1
+}
+
+/// A robot's ranking of its moves from its learned values (see the module docs); IO-free.
+#[derive(Debug, Clone)]
+pub struct Ranker {
+    /// The robot's own map distance to its goal per cell (`u32::MAX` unreachable or a wall).
+    dist: Vec<u32>,
+    /// Per cell, a bitmask of the actions the learner tried there; empty: a learner without a
+    /// model, every action counts as tried.
+    tried: Vec<u8>,
+    goal: Cell,
+    gamma: f32,
+}
+
+impl Ranker {
+    /// A ranker for `task` with the learner's tried (state·4 + action) pairs and discount.
+    pub fn new(task: &Task, tried_pairs: &[u32], gamma: f32) -> Self {
+        let grid = &task.grid;
+        let mut tried = Vec::new();
+        if !tried_pairs.is_empty() {
+            tried = vec![0u8; grid.len()];
+            for &sa in tried_pairs {
+                if let Some(t) = tried.get_mut((sa >> 2) as usize) {
+                    *t |= 1 << (sa & 3);
+                }
+            }
+        }
+        Ranker {
+            dist: planner::path::bfs_distances(grid, task.goal),
+            tried,
+            goal: task.goal,
+            gamma,
+        }
+    }
+
+    /// The ranked move codes at `cell` (best first) and how many there are.
+    pub fn rank(&self, task: &Task, q: &QTable, cell: Cell) -> ([u8; 5], u8) {
+        let grid = &task.grid;
+        let mut out = [0u8; 5];
+        let mut n = 0;
+        let mut push = |code: u8| {
+            out[n] = code;
+            n += 1;
+        };
+        if !grid.contains(cell.x.into(), cell.y.into()) || !grid.is_free(cell) {
+            push(WAIT);
+            return (out, n as u8);
+        }
+        let s = grid.index(cell);
+        let dist_of = |c: Cell| self.dist[grid.index(c)];
+        // (action, next cell) for every legal move
+        let mut known: [(f32, u32, u8); 4] = [(0.0, 0, 0); 4];
+        let mut k = 0;
+        let mut unknown: [(u32, u8); 4] = [(0, 0); 4];
+        let mut u = 0;
+        let row = q.row(s);
+        for a in Action::ALL {
+            let Some(next) = grid.neighbor(cell, a) else {
+                continue;
+            };
+            let tried = self.tried.is_empty() || self.tried[s] & (1 << a as u8) != 0;
+            if tried && cell != self.goal {
+                known[k] = (row[a as usize], dist_of(next), move_code(a));
+                k += 1;
+            } else {
+                unknown[u] = (dist_of(next), move_code(a));
+                u += 1;
+            }
+        }
+        // best value first; equal values: the shorter way on the map
+        known[..k].sort_by(|x, y| y.0.total_cmp(&x.0).then(x.1.cmp(&y.1)));
+        unknown[..u].sort_by_key(|x| x.0);
+        if cell == self.goal {
+            push(WAIT);
+            for &(_, code) in &unknown[..u] {
+                push(code);
+            }
+            return (out, n as u8);
+        }
+        let here = self.dist[s];
+        let wait_value = if k > 0 {
+            self.gamma * known[0].0
+        } else {
+            f32::NAN
+        };
+        let mut waited = false;
+        for &(value, _, code) in &known[..k] {
+            if !waited && value <= wait_value {
+                push(WAIT);
+                waited = true;
+            }
+            push(code);
+        }
+        // nothing tried here: the map's way back first, then standing still
+        for &(d, code) in &unknown[..u] {
+            if !waited && (k > 0 || d >= here) {
+                push(WAIT);
+                waited = true;
+            }
+            push(code);
+        }
+        if !waited {
+            push(WAIT);
+        }
+        (out, n as u8)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use planner::map::load_map;
+    use planner::task::resolve_task;
+
+    fn task(map: &str, start: Cell, goal: Cell) -> Task {
+        let m = load_map(map).unwrap();
+        resolve_task(&m, Some(start), Some(goal)).unwrap()
+    }
+
+    fn corridor() -> Task {
+        // a 5x1 corridor: start at 0, goal at 4
+        let dir = std::env::temp_dir().join(format!("qfleet-rank-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let f = dir.join("c.txt");
+        std::fs::write(&f, ".....\n").unwrap();
+        let t = task(f.to_str().unwrap(), Cell::new(0, 0), Cell::new(4, 0));
+        let _ = std::fs::remove_dir_all(&dir);
+        t
+    }
+
+    fn ranked(r: &Ranker, t: &Task, q: &QTable, c: Cell) -> Vec<u8> {
+        let (codes, n) = r.rank(t, q, c);
+        codes[..usize::from(n)].to_vec()
+    }
+
+    const RIGHT: u8 = move_code(Action::Right);
+    const LEFT: u8 = move_code(Action::Left);
+
+    #[test]
+    fn learned_values_lead_and_moves_away_come_after_waiting() {
+        let t = corridor();
+        let mut q = QTable::new(&t.grid);
+        // converged values γ^(d-1) towards the goal
+        for x in 0..4u16 {
+            let s = t.grid.index(Cell::new(x, 0));
+            let d = 4 - u32::from(x);
+            q.row_mut(s)[Action::Right as usize] = 0.9f32.powi(d as i32 - 1);
+            q.row_mut(s)[Action::Left as usize] = 0.9f32.powi(d as i32 + 1);
+        }
+        let r = Ranker::new(&t, &[], 0.9);
+        assert_eq!(ranked(&r, &t, &q, Cell::new(2, 0)), vec![RIGHT, WAIT, LEFT]);
+        // the border is never named
+        assert_eq!(ranked(&r, &t, &q, Cell::new(0, 0)), vec![RIGHT, WAIT]);
+    }
+
+    #[test]
+    fn on_its_goal_a_robot_waits_first_and_names_every_way_out() {
+        let t = corridor();
+        let q = QTable::new(&t.grid);
+        let r = Ranker::new(&t, &[], 0.9);
+        assert_eq!(ranked(&r, &t, &q, Cell::new(4, 0)), vec![WAIT, LEFT]);
+    }
+
+    #[test]
+    fn moves_never_tried_come_after_tried_ones_in_map_order() {
+        let t = corridor();
+        let mut q = QTable::new(&t.grid);
+        // optimistic untried values must not outrank what was learned
+        for row in q.rows_mut() {
+            *row = [1.0; 4];
+        }
+        let s = t.grid.index(Cell::new(2, 0));
+        q.row_mut(s)[Action::Left as usize] = 0.5;
+        let tried = [s as u32 * 4 + Action::Left as u32];
+        let r = Ranker::new(&t, &tried, 0.9);
+        // only Left was tried there: it leads, waiting is worth 0.45, then Right by the map
+        assert_eq!(ranked(&r, &t, &q, Cell::new(2, 0)), vec![LEFT, WAIT, RIGHT]);
+        // a cell with nothing tried: the map's way back, then waiting, then away
+        assert_eq!(ranked(&r, &t, &q, Cell::new(1, 0)), vec![RIGHT, WAIT, LEFT]);
+    }
+
+    #[test]
+    fn a_cell_off_the_grid_or_on_a_wall_only_waits() {
+        let t = corridor();
+        let q = QTable::new(&t.grid);
+        let r = Ranker::new(&t, &[], 0.9);
+        assert_eq!(ranked(&r, &t, &q, Cell::new(9, 9)), vec![WAIT]);
+    }
+}

@@ -1,0 +1,278 @@
+//! End-to-end: a shared grid (`qfleet run --world shared`). Real processes learn their own
+//! starts and goals, then move tick by tick as the coordinator grants; every result is checked
+//! by `qfleet_suite::mapf_check`, a validator written from the MAPF benchmark's rules that shares
+//! no code with the project (starts, goals, legal moves, vertex and swap conflicts, costs).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Duration;
+
+use qfleet_suite::mapf_check::{self, Map};
+use qfleet_suite::{
+    PROCESS_TIMEOUT, bin, describe, leftovers, pid_with_arg, run_bounded, run_id, scratch, skip,
+    spawn, wait_bounded, wait_until,
+};
+use serde_json::Value;
+
+/// An open 12x8 room with a wall segment: small enough to learn in a moment, room to pass.
+const ROOM: &str = "type octile\nheight 8\nwidth 12\nmap\n\
+............\n\
+............\n\
+....@@@@....\n\
+............\n\
+............\n\
+....@@@@....\n\
+............\n\
+............\n";
+
+/// One scenario line: start x, y, goal x, y.
+type Pair = (u16, u16, u16, u16);
+
+/// Scenario lines (start x, y → goal x, y) for the room: robots cross each other's ways.
+const ROOM_PAIRS: [Pair; 6] = [
+    (0, 0, 11, 7),
+    (11, 7, 0, 0),
+    (0, 7, 11, 0),
+    (11, 0, 0, 7),
+    (5, 3, 6, 4),
+    (6, 4, 5, 3),
+];
+
+fn scen_text(map: &str, w: usize, h: usize, pairs: &[Pair]) -> String {
+    let mut s = String::from("version 1\n");
+    for &(sx, sy, gx, gy) in pairs {
+        s.push_str(&format!(
+            "0\t{map}\t{w}\t{h}\t{sx}\t{sy}\t{gx}\t{gy}\t1.0\n"
+        ));
+    }
+    s
+}
+
+/// Writes `room.map` and `room.scen` into `dir`.
+fn room(dir: &Path, pairs: &[Pair]) -> (PathBuf, PathBuf) {
+    let map = dir.join("room.map");
+    let scen = dir.join("room.scen");
+    std::fs::write(&map, ROOM).unwrap();
+    std::fs::write(&scen, scen_text("room.map", 12, 8, pairs)).unwrap();
+    (map, scen)
+}
+
+fn qfleet(args: &[&str]) -> std::process::Output {
+    run_bounded(Command::new(bin("qfleet")).args(args))
+}
+
+/// Checks a finished shared-grid run's `paths.txt` independently and against its result.
+fn validate(out: &Path, map: &Path, scen: &Path, agents: usize, grid: &Value) {
+    let m = Map::parse(&std::fs::read_to_string(map).unwrap());
+    let pairs = mapf_check::scen_pairs(&std::fs::read_to_string(scen).unwrap(), agents);
+    let paths = mapf_check::parse_paths(&std::fs::read_to_string(out.join("paths.txt")).unwrap());
+    let c = mapf_check::check(&m, &pairs, &paths);
+    assert_eq!(
+        (c.vertex, c.swap, c.illegal, c.bad_start),
+        (0, 0, 0, 0),
+        "{c:?}"
+    );
+    assert_eq!(grid["conflicts"], 0, "{grid}");
+    if grid["all_arrived"] == true {
+        assert_eq!(c.not_arrived, 0, "{c:?}");
+        assert_eq!(
+            grid["sum_of_costs"].as_u64(),
+            Some(c.sum_of_costs),
+            "{grid}"
+        );
+        assert_eq!(grid["makespan"].as_u64(), Some(c.makespan), "{grid}");
+        // the paths file runs from tick 0 to the makespan
+        assert_eq!(paths[0].len() as u64, c.makespan + 1);
+    }
+    assert_eq!(grid["lower_bound"].as_u64(), Some(c.lower_bound), "{grid}");
+}
+
+#[test]
+fn robots_crossing_a_room_all_arrive_without_a_conflict() {
+    let dir = scratch("grid-room");
+    let (map, scen) = room(&dir, &ROOM_PAIRS);
+    let out = dir.join("out");
+    let id = run_id("grid-room");
+    let o = qfleet(&[
+        "run",
+        "--json",
+        "--run-id",
+        &id,
+        "--world",
+        "shared",
+        "--map",
+        map.to_str().unwrap(),
+        "--scen",
+        scen.to_str().unwrap(),
+        "--agents",
+        "6",
+        "--episodes",
+        "300",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", describe(&o));
+    let r: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(r["robots"].as_array().unwrap().len(), 6);
+    let g = &r["grid"];
+    assert_eq!(g["ended"], "arrived", "{g}");
+    assert_eq!(g["all_arrived"], true, "{g}");
+    assert_eq!(g["agents"], 6);
+    validate(&out, &map, &scen, 6, g);
+    // robots 4 and 5 swap neighbouring cells: one of them had to step aside
+    assert!(g["soc_ratio"].as_f64().unwrap() >= 1.0);
+    assert!(g["tick_latency_ns"]["count"].as_u64().unwrap() > 0, "{g}");
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+}
+
+#[test]
+fn an_instance_that_cannot_run_is_refused_before_anything_starts() {
+    let dir = scratch("grid-bad");
+    let cases: [(&str, Vec<Pair>, &str); 3] = [
+        ("one start", vec![(0, 0, 5, 0), (0, 0, 7, 0)], "start"),
+        ("one goal", vec![(0, 0, 5, 0), (1, 0, 5, 0)], "goal"),
+        // (4, 2) is a wall
+        ("walled", vec![(0, 0, 4, 2), (1, 0, 5, 0)], "4,2"),
+    ];
+    for (name, pairs, needle) in cases {
+        let (map, scen) = room(&dir, &pairs);
+        let id = run_id("grid-bad");
+        let o = qfleet(&[
+            "run",
+            "--run-id",
+            &id,
+            "--world",
+            "shared",
+            "--map",
+            map.to_str().unwrap(),
+            "--scen",
+            scen.to_str().unwrap(),
+            "--agents",
+            "2",
+        ]);
+        assert_eq!(o.status.code(), Some(2), "{name}: {}", describe(&o));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(needle), "{name}: {err}");
+        assert!(pid_with_arg(&id, "--run-id", &id).is_none());
+    }
+    // more agents than scenario lines, and --agents without a shared world
+    let (map, scen) = room(&dir, &ROOM_PAIRS[..2]);
+    for extra in [
+        &["--world", "shared", "--agents", "3"][..],
+        &["--agents", "2"][..],
+        &["--world", "shared", "--agents", "2", "--robots", "3"][..],
+    ] {
+        let o = qfleet(
+            &[
+                &["run", "--map", map.to_str().unwrap()][..],
+                &["--scen", scen.to_str().unwrap()][..],
+                extra,
+            ]
+            .concat(),
+        );
+        assert_eq!(o.status.code(), Some(2), "{extra:?}: {}", describe(&o));
+    }
+}
+
+#[test]
+fn a_robot_killed_while_the_fleet_moves_leaves_the_grid_and_the_others_arrive() {
+    let dir = scratch("grid-kill");
+    let (map, scen) = room(&dir, &ROOM_PAIRS[..4]);
+    let out = dir.join("out");
+    let id = run_id("grid-kill");
+    // 60 ms a tick: the execution lasts seconds, time to kill robot 2 in the middle of it
+    let child = spawn(Command::new(bin("qfleet")).args([
+        "run",
+        "--json",
+        "--run-id",
+        &id,
+        "--world",
+        "shared",
+        "--map",
+        map.to_str().unwrap(),
+        "--scen",
+        scen.to_str().unwrap(),
+        "--agents",
+        "4",
+        "--episodes",
+        "300",
+        "--tick-ms",
+        "60",
+        "--out",
+        out.to_str().unwrap(),
+    ]));
+    let log = out.join("coordinator.log");
+    let moving = wait_until(PROCESS_TIMEOUT, || {
+        std::fs::read_to_string(&log).is_ok_and(|l| l.contains("shared grid:"))
+    });
+    assert!(moving, "the execution never started");
+    std::thread::sleep(Duration::from_millis(300));
+    let pid = pid_with_arg(&id, "--robot-id", "2").expect("robot 2 alive");
+    // SAFETY: a plain kill(2) of a process of this test's run.
+    unsafe { libc::kill(pid, libc::SIGKILL) };
+    let o = wait_bounded(child, PROCESS_TIMEOUT);
+    // a lost robot is a run that completed without all its robots: exit 1 with the result
+    assert!(!o.status.success(), "{}", describe(&o));
+    let r: Value = serde_json::from_slice(&o.stdout).expect("the result is printed");
+    let g = &r["grid"];
+    assert_eq!(g["robots"][2]["left"], true, "{g}");
+    assert_eq!(g["all_arrived"], false, "{g}");
+    for i in [0, 1, 3] {
+        assert!(g["robots"][i]["arrived_at"].as_u64().is_some(), "{g}");
+    }
+    assert_eq!(g["conflicts"], 0, "{g}");
+    // the paths up to the kill hold no conflict either (robot 2 stays where it left)
+    let m = Map::parse(ROOM);
+    let pairs = mapf_check::scen_pairs(&std::fs::read_to_string(&scen).unwrap(), 4);
+    let paths = mapf_check::parse_paths(&std::fs::read_to_string(out.join("paths.txt")).unwrap());
+    let c = mapf_check::check(&m, &pairs, &paths);
+    assert_eq!((c.swap, c.illegal, c.bad_start), (0, 0, 0), "{c:?}");
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+}
+
+/// MovingAI's random-32-32-10 with the first N pairs of its random-1 scenario, when the shared
+/// data is there.
+fn movingai() -> Option<(PathBuf, PathBuf)> {
+    let d = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/movingai");
+    let map = d.join("random-32-32-10.map");
+    let scen = d.join("random-32-32-10-random-1.scen");
+    (map.exists() && scen.exists()).then_some((map, scen))
+}
+
+#[test]
+fn sixteen_robots_on_a_movingai_instance_arrive_near_the_lower_bound() {
+    let Some((map, scen)) = movingai() else {
+        skip(
+            "sixteen_robots_on_a_movingai_instance_arrive_near_the_lower_bound",
+            "../shared/data/movingai is not there",
+        );
+        return;
+    };
+    let dir = scratch("grid-movingai");
+    let out = dir.join("out");
+    let id = run_id("grid-mai");
+    let o = qfleet(&[
+        "run",
+        "--json",
+        "--run-id",
+        &id,
+        "--world",
+        "shared",
+        "--map",
+        map.to_str().unwrap(),
+        "--scen",
+        scen.to_str().unwrap(),
+        "--agents",
+        "16",
+        "--episodes",
+        "200",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", describe(&o));
+    let r: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let g = &r["grid"];
+    assert_eq!(g["all_arrived"], true, "{g}");
+    validate(&out, &map, &scen, 16, g);
+    assert!(g["soc_ratio"].as_f64().unwrap() <= 1.10, "{g}");
+}
