@@ -5,7 +5,7 @@
 //! MovingAI maps of `--movingai DIR` when that directory exists. `--split tuning` is where
 //! defaults are chosen, `--split heldout` where figures are reported.
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use clap::Args;
 use crossbeam::channel;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -402,7 +402,8 @@ impl EvalCmd {
             SplitArg::Heldout => t.split == Split::Heldout,
         });
         if tasks.is_empty() {
-            return Err(anyhow::anyhow!("no maps match the filters")).context(launcher::Exit::BadInput);
+            return Err(anyhow::anyhow!("no maps match the filters"))
+                .context(launcher::Exit::BadInput);
         }
         let threads = self
             .threads
