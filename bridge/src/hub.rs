@@ -464,7 +464,12 @@ fn answer_join(
         Ok(x) => x,
         Err(reason) => {
             if refused.push(&reason) {
-                report::log_line!("qfleet: refused a join: {}", report::escape(&reason));
+                let host: String = req.host.chars().take(crate::join::MAX_HOST_NAME).collect();
+                report::log_line!(
+                    "qfleet: refused the join of host {}: {}",
+                    report::escape(&host),
+                    report::escape(&reason)
+                );
             }
             reply(&JoinReply::Refused { reason });
             return;
