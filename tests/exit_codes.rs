@@ -17,6 +17,11 @@ fn bad_input_to_every_command_is_exit_code_2_with_a_clear_error() {
     let missing = dir.join("missing.toml");
     // a recording in a directory that does not exist: refused before the run starts
     let no_dir = dir.join("no/such/dir/run.mcap");
+    // `qfleet join --out` onto a non-empty directory, refused before anything connects
+    let full = dir.join("full");
+    std::fs::create_dir_all(&full).unwrap();
+    std::fs::write(full.join("keep.txt"), "mine").unwrap();
+    let full = full.to_str().unwrap().to_string();
     let (not_mcap, not_a_map, missing, no_dir) = (
         not_mcap.to_str().unwrap(),
         not_a_map.to_str().unwrap(),
@@ -58,6 +63,8 @@ fn bad_input_to_every_command_is_exit_code_2_with_a_clear_error() {
         vec!["experiment", manifest, "--record", no_dir],
         vec!["experiment", missing],
         vec!["clean", "--run-id", "../x"],
+        vec!["join", "tcp/127.0.0.1:9", "--out", &full],
+        vec!["eval", "--families", "movingai", "--movingai", "/dev/zero"],
     ];
     let mut wrong = Vec::new();
     for args in &cases {

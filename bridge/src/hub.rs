@@ -13,7 +13,7 @@
 //! the deadline.
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::ops::Range;
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
@@ -35,7 +35,7 @@ use zenoh::query::{Query, Queryable};
 use zenoh::sample::Sample;
 
 use crate::health::{ClockSync, LinkEvent, LinkState, LinkWatch};
-use crate::join::{Admission, JOIN_KEY, JoinPlan, JoinReply, JoinRequest, RemotePlan};
+use crate::join::{Admission, JOIN_KEY, JoinPlan, JoinReply, JoinRequest, RefusedLog, RemotePlan};
 use crate::link::{self, Tuning, Tx};
 use crate::reliable::{Arrival, Incoming, Outgoing, Pending};
 use crate::stats::{HostEntry, HostReport, Percentiles, new_hist, record};
@@ -56,6 +56,16 @@ pub struct HubOptions {
     pub deadline: Duration,
     /// Zenoh settings.
     pub tuning: Tuning,
+    /// A joined host whose robots have not all registered this long after its join is given
+    /// up: its robot ids go back to the open slots.
+    pub start_within: Duration,
+    /// After this long from the hub's start no host may join any more: robot ids no host
+    /// holds then are given up, and the coordinator goes on without them.
+    pub join_within: Duration,
+    /// The run's out directory: a given-up robot id gets the note `robot-<id>.exited` there
+    /// (what the launcher leaves for a robot that died before it registered), so the
+    /// coordinator's start does not wait for it.
+    pub out: Option<PathBuf>,
 }
 
 /// What the hub saw, for the run's result.
@@ -67,8 +77,16 @@ pub struct HubReport {
     pub remote_robots: u32,
     /// Remote robots that joined.
     pub joined_robots: u32,
-    /// Joins refused, with their reasons.
+    /// Joins refused, with their reasons (the first [`RefusedLog::KEEP`] kept).
     pub refused: Vec<String>,
+    /// Joins refused in all.
+    pub refused_total: u64,
+    /// Frames on a joined host's key for a host index that never joined, or unparsable keys.
+    pub foreign_frames: u64,
+    /// Hosts that joined but did not start their robots within `start_within`.
+    pub expired_hosts: u32,
+    /// Robot ids no host ran: the run went on without them.
+    pub given_up: Vec<u32>,
     /// One entry per joined host.
     pub hosts: Vec<HostReport>,
 }
@@ -143,10 +161,56 @@ struct Proxy {
     wake: [bool; 5],
 }
 
+/// Robots a host reported gone, each applied once every frame that host sent before the
+/// report is delivered. Only the host's own ids are taken, each once, so whatever a peer sends
+/// this holds at most one entry per robot of that host; the rest is counted as dropped.
+#[derive(Debug, Default)]
+pub struct GoneQueue {
+    waiting: Vec<(u64, u32)>,
+    /// Robots whose gone report was applied.
+    pub applied: BTreeSet<u32>,
+}
+
+impl GoneQueue {
+    /// `ids` gone after the host's lossless frame `after`: takes those of `own` not reported
+    /// yet; returns how many were dropped (other hosts' ids, repeats).
+    pub fn report(&mut self, after: u64, ids: &[u32], own: &[u32]) -> u64 {
+        let mut dropped = 0;
+        for &id in ids {
+            let known = self.applied.contains(&id) || self.waiting.iter().any(|(_, w)| *w == id);
+            if known || !own.contains(&id) {
+                dropped += 1;
+            } else {
+                self.waiting.push((after, id));
+            }
+        }
+        dropped
+    }
+
+    /// Robots whose report is due now that `delivered` frames are delivered (each returned once).
+    pub fn due(&mut self, delivered: u64) -> Vec<u32> {
+        let mut out = Vec::new();
+        self.waiting.retain(|&(after, id)| {
+            let go = after <= delivered;
+            if go {
+                out.push(id);
+            }
+            !go
+        });
+        self.applied.extend(&out);
+        out
+    }
+
+    /// Entries waiting.
+    pub fn waiting(&self) -> usize {
+        self.waiting.len()
+    }
+}
+
 /// One joined host.
 struct Host {
     name: String,
-    ids: Range<u32>,
+    ids: Vec<u32>,
     tx: Tx,
     out: Outgoing,
     inc: Incoming,
@@ -159,8 +223,13 @@ struct Host {
     pending: Pending,
     proxies: BTreeMap<u32, Proxy>,
     /// Robots the host reported gone, applied once every frame it sent before is delivered.
-    gone_after: Vec<(u64, Vec<u32>)>,
+    gone_after: GoneQueue,
     gone: BTreeSet<u32>,
+    /// When it joined, and which of its robots registered since: a host that does not start
+    /// its robots within `start_within` is given up.
+    joined_at: Instant,
+    registered: BTreeSet<u32>,
+    expired: bool,
     last_control: Option<u64>,
     last_relay: Option<u64>,
     left: bool,
@@ -215,6 +284,8 @@ fn run(
     let _wake_guard = wakes.attach(&waitset)?;
     let remote = plan.robots_total - plan.first_remote;
     let mut admission = Admission::new(plan.first_remote, plan.robots_total);
+    let mut refused = RefusedLog::default();
+    let started = Instant::now();
     let mut hosts: Vec<Host> = Vec::new();
     let mut report = HubReport {
         listen: opts.listen.clone(),
@@ -234,7 +305,7 @@ fn run(
         // joins
         while let Ok(q) = joins.try_recv() {
             busy = true;
-            answer_join(session, &q, opts, &mut admission, &mut hosts, &mut report);
+            answer_join(session, &q, opts, &mut admission, &mut hosts, &mut refused);
         }
         // frames from the joined hosts
         for _ in 0..4096 {
@@ -243,12 +314,39 @@ fn run(
             };
             busy = true;
             let key = sample.key_expr().as_str();
-            let Some(h) = key.rsplit('/').next().and_then(|s| s.parse::<usize>().ok()) else {
-                continue;
-            };
-            if let Some(host) = hosts.get_mut(h) {
-                host.on_frame(&sample.payload().to_bytes(), now, &cfg);
+            let host = key
+                .rsplit('/')
+                .next()
+                .and_then(|s| s.parse::<usize>().ok())
+                .and_then(|h| hosts.get_mut(h));
+            match host {
+                Some(host) => host.on_frame(&sample.payload().to_bytes(), now, &cfg),
+                None => report.foreign_frames += 1,
             }
+        }
+        // hosts that did not start their robots in time give their slots back; once the join
+        // window is over, slots no host holds are given up and the run goes on without them
+        for host in &mut hosts {
+            if let Some(ids) = host.expire_if_late(now, opts.start_within) {
+                report.expired_hosts += 1;
+                admission.release(&ids);
+            }
+        }
+        if !admission.is_closed() && now.duration_since(started) >= opts.join_within {
+            let ids = admission.close();
+            if !ids.is_empty() {
+                report::log_line!(
+                    "qfleet: no host runs robots {ids:?} {:?} after the start: the run goes on without them",
+                    opts.join_within
+                );
+                give_up(opts.out.as_deref(), &ids);
+                report.given_up.extend(ids);
+            }
+        }
+        if admission.is_closed() && admission.open_slots() > 0 {
+            let ids = admission.close();
+            give_up(opts.out.as_deref(), &ids);
+            report.given_up.extend(ids);
         }
         let mut data = false;
         for host in &mut hosts {
@@ -308,9 +406,29 @@ fn run(
     for host in &mut hosts {
         host.tx.send(true, &wire::goodbye_frame());
     }
-    report.joined_robots = hosts.iter().map(|h| h.ids.len() as u32).sum();
+    report.joined_robots = hosts
+        .iter()
+        .filter(|h| !h.expired)
+        .map(|h| h.ids.len() as u32)
+        .sum();
+    report.refused_total = refused.total;
+    report.refused = refused.reasons;
     report.hosts = hosts.into_iter().map(Host::into_report).collect();
     Ok(report)
+}
+
+/// Leaves `robot-<id>.exited` in the run's out directory for robot ids no host runs, so the
+/// coordinator's start goes on without them (as for a robot that died before it registered).
+fn give_up(out: Option<&std::path::Path>, ids: &[u32]) {
+    let Some(out) = out else {
+        return;
+    };
+    for &id in ids {
+        let path = out.join(format!("robot-{id}.exited"));
+        if let Err(e) = std::fs::write(&path, b"no host ran this robot\n") {
+            report::log_line!("qfleet: warning: writing {}: {e}", path.display());
+        }
+    }
 }
 
 fn answer_join(
@@ -319,7 +437,7 @@ fn answer_join(
     opts: &HubOptions,
     admission: &mut Admission,
     hosts: &mut Vec<Host>,
-    report: &mut HubReport,
+    refused: &mut RefusedLog,
 ) {
     let plan = &opts.plan;
     let reply = |r: &JoinReply| {
@@ -335,8 +453,9 @@ fn answer_join(
                 Some(Err(e)) => format!("unreadable join request ({e}): another qfleet version?"),
                 _ => "empty join request".to_string(),
             };
-            report::log_line!("qfleet: refused a join: {reason}");
-            report.refused.push(reason.clone());
+            if refused.push(&reason) {
+                report::log_line!("qfleet: refused a join: {}", report::escape(&reason));
+            }
             reply(&JoinReply::Refused { reason });
             return;
         }
@@ -344,8 +463,14 @@ fn answer_join(
     let (index, ids) = match admission.admit(&req) {
         Ok(x) => x,
         Err(reason) => {
-            report::log_line!("qfleet: refused the join of host {}: {reason}", req.host);
-            report.refused.push(reason.clone());
+            if refused.push(&reason) {
+                let host: String = req.host.chars().take(crate::join::MAX_HOST_NAME).collect();
+                report::log_line!(
+                    "qfleet: refused the join of host {}: {}",
+                    report::escape(&host),
+                    report::escape(&reason)
+                );
+            }
             reply(&JoinReply::Refused { reason });
             return;
         }
@@ -354,6 +479,8 @@ fn answer_join(
         Ok(p) => p,
         Err(e) => {
             let reason = format!("the coordinator's host could not open the link: {e}");
+            admission.release(&ids);
+            refused.push(&reason);
             reply(&JoinReply::Refused { reason });
             return;
         }
@@ -363,10 +490,10 @@ fn answer_join(
         run_id: plan.run_id.clone(),
         host_index: index,
         robots_total: plan.robots_total,
-        robot_ids: ids.clone().collect(),
+        robot_ids: ids.clone(),
         robot_args: ids
-            .clone()
-            .map(|id| {
+            .iter()
+            .map(|&id| {
                 plan.robot_args
                     .get(id as usize)
                     .cloned()
@@ -382,10 +509,8 @@ fn answer_join(
     };
     reply(&JoinReply::Accepted(accepted));
     report::log_line!(
-        "qfleet: host {} joined with robots {}..{} ({} of {} remote robots now)",
-        req.host,
-        ids.start,
-        ids.end - 1,
+        "qfleet: host {} joined with robots {ids:?} ({} of {} remote robots now)",
+        report::escape(&req.host),
         plan.robots_total - plan.first_remote - admission.open_slots(),
         plan.robots_total - plan.first_remote
     );
@@ -394,7 +519,7 @@ fn answer_join(
     hosts.push(Host {
         report: HostReport {
             host: req.host.clone(),
-            robots: ids.clone().collect(),
+            robots: ids.clone(),
             ..HostReport::default()
         },
         name: req.host,
@@ -408,8 +533,11 @@ fn answer_join(
         last_beat: now - HEARTBEAT_EVERY,
         pending: Pending::default(),
         proxies: BTreeMap::new(),
-        gone_after: Vec::new(),
+        gone_after: GoneQueue::default(),
         gone: BTreeSet::new(),
+        joined_at: now,
+        registered: BTreeSet::new(),
+        expired: false,
         last_control: None,
         last_relay: None,
         left: false,
@@ -433,7 +561,7 @@ impl Host {
     }
 
     fn on_frame(&mut self, frame: &[u8], now: Instant, cfg: &BusConfig) {
-        if self.lost() {
+        if self.lost() || self.expired {
             return;
         }
         self.report.link.frames_in += 1;
@@ -447,13 +575,13 @@ impl Host {
         if let Some(LinkEvent::CameBack) = self.watch.heard(now) {
             report::log_line!(
                 "qfleet: host {} is back; resending what it missed",
-                self.name
+                report::escape(&self.name)
             );
             self.resend(now, true);
         }
         match h.kind {
             Kind::Heartbeat => {
-                let Ok(hb) = serde_json::from_slice::<Heartbeat>(&frame[HEADER..]) else {
+                let Ok(hb) = wire::read_heartbeat(&frame[HEADER..]) else {
                     self.report.link.rejected += 1;
                     return;
                 };
@@ -462,13 +590,18 @@ impl Host {
                     record(&mut self.rtt, rtt);
                 }
                 self.echo = (hb.t_ns, t);
-                self.out.ack(hb.acked, now);
+                if !self.out.ack(hb.acked, now) {
+                    self.report.link.rejected += 1;
+                }
                 if !hb.gone.is_empty() {
-                    self.gone_after.push((hb.sent, hb.gone));
+                    self.report.link.capped += self.gone_after.report(hb.sent, &hb.gone, &self.ids);
                 }
             }
             Kind::Lossless => {
-                if self.inc.arrive(h.seq) == Arrival::Next {
+                if self.pending.is_full() {
+                    // not taken, not acknowledged: the host sends it again later
+                    self.report.link.capped += 1;
+                } else if self.inc.arrive(h.seq) == Arrival::Next {
                     self.pending.push(frame);
                 }
             }
@@ -477,8 +610,9 @@ impl Host {
             }
             Kind::Goodbye => {
                 self.left = true;
-                let ids: Vec<u32> = self.ids.clone().collect();
-                self.gone_after.push((self.inc.acked(), ids));
+                let after = self.inc.acked();
+                let ids = self.ids.clone();
+                self.gone_after.report(after, &ids, &ids);
             }
         }
     }
@@ -543,6 +677,9 @@ impl Host {
         match T::outbox(&proxy.bus).send(&m) {
             Ok(_) => {
                 proxy.wake[slot] = true;
+                if T::TOPIC == Topic::Register {
+                    self.registered.insert(id);
+                }
                 let t = monotonic_ns();
                 let sent = m.send_ns();
                 if sent != 0 && sent <= t {
@@ -561,26 +698,41 @@ impl Host {
     /// Drops proxies of robots the host reported gone, once their last frames are delivered.
     fn apply_gone(&mut self) {
         let delivered = self.inc.acked() - self.pending.len() as u64;
-        let mut i = 0;
-        while i < self.gone_after.len() {
-            if self.gone_after[i].0 <= delivered {
-                let (_, ids) = self.gone_after.swap_remove(i);
-                for id in ids {
-                    if self.gone.insert(id) {
-                        self.proxies.remove(&id);
-                    }
-                }
-            } else {
-                i += 1;
+        for id in self.gone_after.due(delivered) {
+            if self.gone.insert(id) {
+                self.proxies.remove(&id);
             }
         }
+    }
+
+    /// Gives the host up when its robots have not all registered within `within` of its join:
+    /// its proxies go, nothing more is taken from it, and its robot ids are returned for
+    /// another host (or for the run to go on without them).
+    fn expire_if_late(&mut self, now: Instant, within: Duration) -> Option<Vec<u32>> {
+        let late = !self.expired
+            && !self.lost()
+            && self.registered.len() < self.ids.len()
+            && now.duration_since(self.joined_at) >= within;
+        if !late {
+            return None;
+        }
+        report::log_line!(
+            "qfleet: host {} did not start its robots {:?} within {within:?} of its join: its slots are open again",
+            report::escape(&self.name),
+            self.ids
+        );
+        self.expired = true;
+        self.proxies.clear();
+        self.gone.extend(self.ids.iter().copied());
+        self.report.robots.clear();
+        Some(self.ids.clone())
     }
 
     /// Reads what the coordinator sent through the proxies and publishes it to the host
     /// straight from the proxies' shared memory (one reused frame buffer; lossless frames are
     /// kept in the resend window's reused buffers).
     fn forward_down(&mut self, now: Instant) -> bool {
-        if self.proxies.is_empty() || self.lost() {
+        if self.proxies.is_empty() || self.lost() || self.expired {
             return false;
         }
         let up = self.watch.state() == LinkState::Up;
@@ -631,7 +783,7 @@ impl Host {
             });
         }
         if let Some(e) = overflow {
-            report::log_line!("qfleet: warning: host {name}: {e}");
+            report::log_line!("qfleet: warning: host {}: {e}", report::escape(name));
         }
         any
     }
@@ -643,19 +795,19 @@ impl Host {
 
     /// Heartbeat, resends, and the link's state.
     fn tick(&mut self, now: Instant) {
-        if self.lost() {
+        if self.lost() || self.expired {
             return;
         }
         match self.watch.tick(now) {
             Some(LinkEvent::WentDown) => report::log_line!(
                 "qfleet: host {} is silent; its robots' lossless messages are kept for it",
-                self.name
+                report::escape(&self.name)
             ),
             Some(LinkEvent::Lost) => {
-                let ids: Vec<u32> = self.ids.clone().collect();
+                let ids: Vec<u32> = self.ids.clone();
                 report::log_line!(
                     "qfleet: host {} silent for {:?}: given up, its robots {ids:?} are reported lost",
-                    self.name,
+                    report::escape(&self.name),
                     self.deadline
                 );
                 self.proxies.clear();
@@ -701,7 +853,11 @@ impl Host {
     fn into_report(self) -> HostReport {
         let mut r = self.report;
         r.link.frames_out = self.tx.frames_out;
-        r.state = Some(self.watch.state());
+        r.state = Some(if self.expired {
+            LinkState::Lost
+        } else {
+            self.watch.state()
+        });
         r.link.reconnects = self.watch.reconnects;
         r.link.down_ms = self.watch.down_for.as_millis() as u64;
         r.link.clock_offset_ns = self.clock.offset_ns();
@@ -717,4 +873,37 @@ impl Host {
 /// Takes every message waiting in a proxy's inbox of `T`.
 fn drain<T: ToRobot>(bus: &RobotBus, mut f: impl FnMut(&T)) {
     let _ = T::inbox(bus).drain(usize::MAX, |m| f(m));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::wire::{Heartbeat, heartbeat_frame, read_heartbeat};
+
+    #[test]
+    fn gone_reports_hold_one_entry_per_own_robot_whatever_a_peer_sends() {
+        let own = [4, 5];
+        let mut q = GoneQueue::default();
+        let mut dropped = 0;
+        // a flood of heartbeats naming the host's robots again and again, and others' ids
+        for i in 0..10_000u64 {
+            let hb = Heartbeat {
+                sent: 1_000_000 + i,
+                gone: vec![0, 4, 5, 6, 4, u32::MAX],
+                ..Heartbeat::default()
+            };
+            let f = heartbeat_frame(&hb);
+            let hb = read_heartbeat(&f[wire::HEADER..]).unwrap();
+            dropped += q.report(hb.sent, &hb.gone, &own);
+        }
+        assert_eq!(q.waiting(), 2, "one entry per robot of the host");
+        assert_eq!(dropped, 10_000 * 6 - 2);
+        // nothing applies before the frames sent before the report are delivered
+        assert!(q.due(999_999).is_empty());
+        assert_eq!(q.due(1_000_000), vec![4, 5]);
+        assert_eq!(q.waiting(), 0);
+        // applied robots are not queued again
+        assert_eq!(q.report(0, &[4], &own), 1);
+        assert!(q.due(u64::MAX).is_empty());
+    }
 }

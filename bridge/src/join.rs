@@ -85,6 +85,277 @@ pub struct JoinPlan {
     pub t_ns: u64,
 }
 
+/// Most files a plan may ship (a run ships at most a map and a scenario per distinct file).
+pub const MAX_PLAN_FILES: usize = 64;
+
+/// Most bytes of one shipped file (the largest suite map is a few MB).
+pub const MAX_FILE_BYTES: usize = 64 << 20;
+
+/// Most arguments of one robot's command line.
+pub const MAX_ROBOT_ARGS: usize = 256;
+
+/// Longest heartbeat silence and host deadline a plan may ask for, ms (a day).
+pub const MAX_PLAN_MS: u64 = 24 * 3600 * 1000;
+
+/// Why a joining host refuses the plan the coordinator's host sent (checked before anything
+/// is written, started or named after it on the joining host).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum PlanError {
+    /// The run id is not a run id (`../`, `/`, control characters, too long…).
+    #[error("the coordinator's host sent an invalid run id {0:?} (1 to {max} of A-Z a-z 0-9 _ -, starting with a letter or digit)", max = bus::bus_schema::RUN_ID_MAX_LEN)]
+    RunId(String),
+    /// More robots than this host offered.
+    #[error("the coordinator's host asks for {asked} robots but this host offered {offered}")]
+    TooManyRobots {
+        /// Robots in the plan.
+        asked: usize,
+        /// `--robots`.
+        offered: u32,
+    },
+    /// A plan with no robot.
+    #[error("the coordinator's host sent a plan with no robot")]
+    NoRobots,
+    /// Fleet size, robot ids or argument lists that do not fit together.
+    #[error("the coordinator's host sent an inconsistent plan: {0}")]
+    Inconsistent(String),
+    /// A file name that is not a plain file name.
+    #[error(
+        "the coordinator's host sent a file name {name:?} that is not a plain file name: {reason}"
+    )]
+    FileName {
+        /// The name as sent.
+        name: String,
+        /// What is wrong with it.
+        reason: &'static str,
+    },
+    /// Too many or too large files.
+    #[error("the coordinator's host sent too much: {0}")]
+    TooLarge(String),
+    /// A robot option this host does not let the other host choose.
+    #[error("the coordinator's host sent robot {robot} an option it may not choose: {detail}")]
+    Option {
+        /// The robot id.
+        robot: u32,
+        /// Which option and why.
+        detail: String,
+    },
+}
+
+/// The launcher's run-id rule (`launcher::run_id::validate`): 1 to `RUN_ID_MAX_LEN` of
+/// `A-Z a-z 0-9 _ -`, starting with a letter or digit.
+pub fn check_run_id(id: &str) -> Result<(), PlanError> {
+    let ok = bus::validate_run_id(id).is_ok()
+        && id.chars().next().is_some_and(|c| c.is_ascii_alphanumeric());
+    if ok {
+        Ok(())
+    } else {
+        Err(PlanError::RunId(id.to_string()))
+    }
+}
+
+/// A file name sent by the other host, accepted only as a plain name: no `/`, not `.` or `..`,
+/// not empty, no NUL or other control character, at most 255 bytes.
+pub fn plain_file_name(name: &str) -> Result<&str, PlanError> {
+    let bad = |reason| {
+        Err(PlanError::FileName {
+            name: name.to_string(),
+            reason,
+        })
+    };
+    if name.is_empty() {
+        return bad("it is empty");
+    }
+    if name.len() > 255 {
+        return bad("it is longer than 255 bytes");
+    }
+    if name.contains('/') {
+        return bad("it holds a '/'");
+    }
+    if name == "." || name == ".." {
+        return bad("it names a directory");
+    }
+    if name.chars().any(char::is_control) {
+        return bad("it holds a control character");
+    }
+    Ok(name)
+}
+
+/// The name inside a `{file:NAME}` placeholder, if `arg` is one.
+pub fn placeholder(arg: &str) -> Option<&str> {
+    arg.strip_prefix(FILE_PLACEHOLDER)?.strip_suffix('}')
+}
+
+impl JoinPlan {
+    /// Checks everything the joining host will use before it uses any of it: the run id, the
+    /// robot count against `offered` (`--robots`), ids and fleet size, buffer sizes and
+    /// deadlines, every shipped file name, and each robot's options (no `--out`, `--run-id`
+    /// `--robot-id` `--robots` as the plan says, `--map`/`--scen` only built-in maps or a
+    /// shipped file, placeholders nowhere else).
+    pub fn check(&self, offered: u32) -> Result<(), PlanError> {
+        check_run_id(&self.run_id)?;
+        let n = self.robot_ids.len();
+        if n == 0 {
+            return Err(PlanError::NoRobots);
+        }
+        if n > offered as usize {
+            return Err(PlanError::TooManyRobots { asked: n, offered });
+        }
+        let incons = |s: String| Err(PlanError::Inconsistent(s));
+        if !(1..=bus::MAX_ROBOTS).contains(&self.robots_total) {
+            return incons(format!(
+                "fleet size {} is not 1..={}",
+                self.robots_total,
+                bus::MAX_ROBOTS
+            ));
+        }
+        if self.robot_args.len() != n {
+            return incons(format!(
+                "{} robot ids but {} command lines",
+                n,
+                self.robot_args.len()
+            ));
+        }
+        let mut ids = std::collections::BTreeSet::new();
+        for &id in &self.robot_ids {
+            if id >= self.robots_total || !ids.insert(id) {
+                return incons(format!(
+                    "robot id {id} is repeated or outside the fleet of {}",
+                    self.robots_total
+                ));
+            }
+        }
+        for (what, v) in [
+            ("hint buffer", self.hint_buffer),
+            ("merged buffer", self.merged_buffer),
+        ] {
+            if !(1..=bus::MAX_BUFFER).contains(&v) {
+                return incons(format!("{what} {v} is not 1..={}", bus::MAX_BUFFER));
+            }
+        }
+        for (what, v) in [
+            ("link-down time", self.down_after_ms),
+            ("host deadline", self.deadline_ms),
+        ] {
+            if !(1..=MAX_PLAN_MS).contains(&v) {
+                return incons(format!("{what} {v} ms is not 1..={MAX_PLAN_MS}"));
+            }
+        }
+        if self.files.len() > MAX_PLAN_FILES {
+            return Err(PlanError::TooLarge(format!(
+                "{} files (at most {MAX_PLAN_FILES})",
+                self.files.len()
+            )));
+        }
+        for (name, text) in &self.files {
+            plain_file_name(name)?;
+            if text.len() > MAX_FILE_BYTES {
+                return Err(PlanError::TooLarge(format!(
+                    "file {name:?} of {} bytes (at most {MAX_FILE_BYTES})",
+                    text.len()
+                )));
+            }
+        }
+        for (&id, args) in self.robot_ids.iter().zip(&self.robot_args) {
+            self.check_args(id, args)?;
+        }
+        Ok(())
+    }
+
+    fn check_args(&self, id: u32, args: &[String]) -> Result<(), PlanError> {
+        let refuse = |detail: String| Err(PlanError::Option { robot: id, detail });
+        if args.len() > MAX_ROBOT_ARGS {
+            return refuse(format!(
+                "{} arguments (at most {MAX_ROBOT_ARGS})",
+                args.len()
+            ));
+        }
+        let mut it = args.iter();
+        let mut seen_run_id = false;
+        while let Some(a) = it.next() {
+            if a.chars().any(|c| c == '\0') {
+                return refuse("an argument holds a NUL".into());
+            }
+            let name = a.split('=').next().unwrap_or(a);
+            if a.starts_with("--") && a.contains('=') && is_checked_option(name) {
+                return refuse(format!("{name} given as {name}=VALUE"));
+            }
+            if a == "--" || a == "--out" {
+                return refuse(format!("{a} is this host's to choose"));
+            }
+            if placeholder(a).is_some() {
+                return refuse(format!("a file placeholder outside --map/--scen: {a:?}"));
+            }
+            let value = match a.as_str() {
+                "--map" | "--scen" | "--run-id" | "--robot-id" | "--robots" => match it.next() {
+                    Some(v) => v,
+                    None => return refuse(format!("{a} without a value")),
+                },
+                _ => continue,
+            };
+            match a.as_str() {
+                "--map" | "--scen" => {
+                    let builtin = a == "--map"
+                        && (value.starts_with("builtin:") || value.starts_with("suite:"));
+                    match placeholder(value) {
+                        Some(name) if self.files.contains_key(plain_file_name(name)?) => {}
+                        Some(name) => {
+                            return refuse(format!("{a} names file {name:?}, which was not sent"));
+                        }
+                        None if builtin => {}
+                        None => {
+                            return refuse(format!(
+                                "{a} {value:?} is a path on this host (only a shipped file or a built-in map)"
+                            ));
+                        }
+                    }
+                }
+                "--run-id" if *value != self.run_id => {
+                    return refuse(format!(
+                        "--run-id {value:?} is not the run's {:?}",
+                        self.run_id
+                    ));
+                }
+                "--run-id" => seen_run_id = true,
+                "--robot-id" if *value != id.to_string() => {
+                    return refuse(format!("--robot-id {value:?}"));
+                }
+                "--robots" if *value != self.robots_total.to_string() => {
+                    return refuse(format!("--robots {value:?} is not the fleet size"));
+                }
+                _ => {}
+            }
+        }
+        if !seen_run_id {
+            return refuse("no --run-id".into());
+        }
+        Ok(())
+    }
+
+    /// Robot `i`'s command line on this host: each `{file:NAME}` becomes the path of NAME in
+    /// `out` (call after [`JoinPlan::check`]; an unchecked name is refused again here).
+    pub fn robot_command_line(
+        &self,
+        i: usize,
+        out: &std::path::Path,
+    ) -> Result<Vec<String>, PlanError> {
+        let args = self.robot_args.get(i).map(Vec::as_slice).unwrap_or(&[]);
+        args.iter()
+            .map(|a| match placeholder(a) {
+                Some(name) => Ok(out.join(plain_file_name(name)?).display().to_string()),
+                None => Ok(a.clone()),
+            })
+            .collect()
+    }
+}
+
+/// Options whose value [`JoinPlan::check`] looks at, refused in their `--opt=VALUE` form.
+fn is_checked_option(name: &str) -> bool {
+    matches!(
+        name,
+        "--map" | "--scen" | "--run-id" | "--robot-id" | "--robots" | "--out"
+    )
+}
+
 /// What the hub offers to joining hosts (the run's side of [`JoinPlan`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RemotePlan {
@@ -105,11 +376,16 @@ pub struct RemotePlan {
     pub merged_buffer: usize,
 }
 
-/// Who gets which robot ids; refuses what cannot work.
+/// Longest host name a join may carry (it is stored and printed).
+pub const MAX_HOST_NAME: usize = 64;
+
+/// Who gets which robot ids; refuses what cannot work. Ids are taken only by a valid join and
+/// come back ([`Admission::release`]) when a host does not start its robots in time; once the
+/// join window closes ([`Admission::close`]) the ids still free are given up for good.
 #[derive(Debug, Clone)]
 pub struct Admission {
-    next: u32,
-    end: u32,
+    free: std::collections::BTreeSet<u32>,
+    closed: bool,
     /// Names of the hosts admitted, by host index.
     pub hosts: Vec<String>,
 }
@@ -118,19 +394,25 @@ impl Admission {
     /// Hands out ids `first..end`.
     pub fn new(first: u32, end: u32) -> Self {
         Admission {
-            next: first,
-            end,
+            free: (first..end).collect(),
+            closed: false,
             hosts: Vec::new(),
         }
     }
 
     /// Remote robots not yet taken by a host.
     pub fn open_slots(&self) -> u32 {
-        self.end - self.next
+        self.free.len() as u32
     }
 
     /// Admits a request: `(host index, robot ids)`, or the reason it is refused.
-    pub fn admit(&mut self, req: &JoinRequest) -> Result<(u32, std::ops::Range<u32>), String> {
+    pub fn admit(&mut self, req: &JoinRequest) -> Result<(u32, Vec<u32>), String> {
+        if req.host.len() > MAX_HOST_NAME || req.host.chars().any(char::is_control) {
+            let shown: String = req.host.chars().take(MAX_HOST_NAME).collect();
+            return Err(format!(
+                "host name {shown:?}… is longer than {MAX_HOST_NAME} bytes or holds control characters"
+            ));
+        }
         let ours = bus::bus_schema::SCHEMA_VERSION;
         if req.schema_version != ours {
             return Err(format!(
@@ -149,6 +431,12 @@ impl Admission {
         if req.robots == 0 {
             return Err("a join must bring at least one robot".into());
         }
+        if self.closed {
+            return Err(format!(
+                "host {} is too late: the run stopped waiting for other hosts",
+                req.host
+            ));
+        }
         let open = self.open_slots();
         if req.robots > open {
             return Err(format!(
@@ -156,10 +444,69 @@ impl Admission {
                 req.host, req.robots
             ));
         }
-        let ids = self.next..self.next + req.robots;
-        self.next += req.robots;
+        let ids: Vec<u32> = self
+            .free
+            .iter()
+            .copied()
+            .take(req.robots as usize)
+            .collect();
+        for id in &ids {
+            self.free.remove(id);
+        }
         self.hosts.push(req.host.clone());
         Ok((self.hosts.len() as u32 - 1, ids))
+    }
+
+    /// A host did not start its robots in time: its ids can be taken by another host (or,
+    /// after [`Admission::close`], are given up).
+    pub fn release(&mut self, ids: &[u32]) {
+        self.free.extend(ids);
+    }
+
+    /// The join window is over: no more joins; returns the ids no host holds, which the run
+    /// goes on without.
+    pub fn close(&mut self) -> Vec<u32> {
+        self.closed = true;
+        std::mem::take(&mut self.free).into_iter().collect()
+    }
+
+    /// Whether [`Admission::close`] was called.
+    pub fn is_closed(&self) -> bool {
+        self.closed
+    }
+}
+
+/// Refused joins as a bounded log: the first [`RefusedLog::KEEP`] reasons are kept (each cut
+/// to [`RefusedLog::REASON_LEN`] characters), the rest only counted.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize)]
+pub struct RefusedLog {
+    /// Reasons kept.
+    pub reasons: Vec<String>,
+    /// Joins refused in all (kept or not).
+    pub total: u64,
+}
+
+impl RefusedLog {
+    /// Reasons kept at most.
+    pub const KEEP: usize = 32;
+    /// Characters kept of a reason.
+    pub const REASON_LEN: usize = 300;
+
+    /// Counts a refusal, keeping its reason while there is room; whether it was kept (the
+    /// caller logs only kept ones, so a flood does not fill the log either).
+    pub fn push(&mut self, reason: &str) -> bool {
+        self.total += 1;
+        if self.reasons.len() >= Self::KEEP {
+            return false;
+        }
+        self.reasons
+            .push(reason.chars().take(Self::REASON_LEN).collect());
+        true
+    }
+
+    /// Refusals counted but not kept.
+    pub fn dropped(&self) -> u64 {
+        self.total - self.reasons.len() as u64
     }
 }
 
@@ -174,14 +521,14 @@ mod tests {
     #[test]
     fn hosts_get_consecutive_ids_until_the_run_is_full() {
         let mut a = Admission::new(2, 6);
-        assert_eq!(a.admit(&req(3)), Ok((0, 2..5)));
+        assert_eq!(a.admit(&req(3)), Ok((0, vec![2, 3, 4])));
         assert_eq!(a.open_slots(), 1);
         let e = a.admit(&req(2)).unwrap_err();
         assert!(
             e.contains("offers 2 robots but the run waits for 1 more"),
             "{e}"
         );
-        assert_eq!(a.admit(&req(1)), Ok((1, 5..6)));
+        assert_eq!(a.admit(&req(1)), Ok((1, vec![5])));
         assert_eq!(a.open_slots(), 0);
     }
 
@@ -203,6 +550,228 @@ mod tests {
         let mut r = req(1);
         r.little_endian = !r.little_endian;
         assert!(a.admit(&r).unwrap_err().contains("byte order"));
+    }
+
+    fn plan() -> JoinPlan {
+        let args = |id: u32| -> Vec<String> {
+            [
+                "--run-id",
+                "r1",
+                "--robot-id",
+                &id.to_string(),
+                "--robots",
+                "4",
+                "--map",
+                "{file:m.map}",
+                "--seed",
+                "3",
+            ]
+            .iter()
+            .map(|s| s.to_string())
+            .collect()
+        };
+        JoinPlan {
+            run_id: "r1".into(),
+            host_index: 0,
+            robots_total: 4,
+            robot_ids: vec![2, 3],
+            robot_args: vec![args(2), args(3)],
+            files: BTreeMap::from([("m.map".into(), "map".into())]),
+            hint_buffer: 64,
+            merged_buffer: 64,
+            down_after_ms: 500,
+            deadline_ms: 10_000,
+            t_ns: 1,
+        }
+    }
+
+    #[test]
+    fn a_plan_as_the_hub_makes_it_passes_and_places_files_inside_out() {
+        let p = plan();
+        assert_eq!(p.check(2), Ok(()));
+        let line = p.robot_command_line(0, std::path::Path::new("/o")).unwrap();
+        assert!(line.contains(&"/o/m.map".to_string()), "{line:?}");
+    }
+
+    #[test]
+    fn a_run_id_outside_the_launchers_rule_is_refused() {
+        for bad in [
+            "../x",
+            "a/b",
+            "..",
+            "",
+            "-x",
+            "a.b",
+            "a\u{1b}[2J",
+            &"a".repeat(49),
+        ] {
+            let mut p = plan();
+            p.run_id = bad.into();
+            assert_eq!(p.check(2), Err(PlanError::RunId(bad.into())), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn more_robots_than_offered_are_refused() {
+        let mut p = plan();
+        p.robot_ids = (0..40).collect();
+        p.robots_total = 40;
+        assert_eq!(
+            p.check(1),
+            Err(PlanError::TooManyRobots {
+                asked: 40,
+                offered: 1
+            })
+        );
+        assert!(
+            plan()
+                .check(1)
+                .unwrap_err()
+                .to_string()
+                .contains("offered 1")
+        );
+    }
+
+    #[test]
+    fn file_names_are_plain_names_only() {
+        for bad in [
+            "../etc/passwd",
+            "/etc/passwd",
+            "a/b",
+            "..",
+            ".",
+            "",
+            "a\0b",
+            "a\u{1b}b",
+        ] {
+            assert!(plain_file_name(bad).is_err(), "{bad:?}");
+            let mut p = plan();
+            p.files.insert(bad.into(), "x".into());
+            assert!(
+                matches!(p.check(2), Err(PlanError::FileName { .. })),
+                "{bad:?}"
+            );
+        }
+        assert_eq!(plain_file_name("maze-1.map"), Ok("maze-1.map"));
+    }
+
+    #[test]
+    fn a_placeholder_cannot_point_outside_out() {
+        let mut p = plan();
+        p.robot_args[0][7] = "{file:../../etc/shadow}".into();
+        assert!(matches!(p.check(2), Err(PlanError::FileName { .. })));
+        let err = p
+            .robot_command_line(0, std::path::Path::new("/o"))
+            .unwrap_err();
+        assert!(matches!(err, PlanError::FileName { .. }));
+        // a name that was not shipped
+        let mut p = plan();
+        p.robot_args[0][7] = "{file:other.map}".into();
+        assert!(matches!(
+            p.check(2),
+            Err(PlanError::Option { robot: 2, .. })
+        ));
+    }
+
+    #[test]
+    fn a_path_on_this_host_an_out_or_another_run_is_refused() {
+        let cases: [(usize, &str); 6] = [
+            (7, "/etc/shadow"),
+            (7, "relative/map"),
+            (1, "other-run"),
+            (3, "7"),
+            (5, "99"),
+            (8, "{file:m.map}"),
+        ];
+        for (i, v) in cases {
+            let mut p = plan();
+            p.robot_args[0][i] = v.into();
+            assert!(
+                matches!(p.check(2), Err(PlanError::Option { robot: 2, .. })),
+                "arg {i} = {v:?}"
+            );
+        }
+        for extra in [
+            vec!["--out", "/tmp/x"],
+            vec!["--map=/etc/shadow"],
+            vec!["--out=/x"],
+            vec!["--", "x"],
+        ] {
+            let mut p = plan();
+            p.robot_args[0].extend(extra.iter().map(|s| s.to_string()));
+            assert!(
+                matches!(p.check(2), Err(PlanError::Option { robot: 2, .. })),
+                "{extra:?}"
+            );
+        }
+        let mut p = plan();
+        p.robot_args[0][7] = "builtin:paper-20".into();
+        assert_eq!(p.check(2), Ok(()), "built-in maps need no file");
+    }
+
+    #[test]
+    fn inconsistent_plans_are_refused() {
+        let mut p = plan();
+        p.robot_ids = vec![2, 2];
+        assert!(matches!(p.check(2), Err(PlanError::Inconsistent(_))));
+        let mut p = plan();
+        p.robot_ids = vec![2, 9];
+        assert!(matches!(p.check(2), Err(PlanError::Inconsistent(_))));
+        let mut p = plan();
+        p.robot_args.pop();
+        assert!(matches!(p.check(2), Err(PlanError::Inconsistent(_))));
+        let mut p = plan();
+        p.merged_buffer = usize::MAX;
+        assert!(matches!(p.check(2), Err(PlanError::Inconsistent(_))));
+        let mut p = plan();
+        p.robot_ids.clear();
+        p.robot_args.clear();
+        assert_eq!(p.check(2), Err(PlanError::NoRobots));
+    }
+
+    #[test]
+    fn released_slots_go_to_the_next_host_and_close_gives_up_the_rest() {
+        let mut a = Admission::new(2, 6);
+        let (_, stranger) = a.admit(&req(4)).unwrap();
+        assert!(a.admit(&req(1)).is_err(), "all slots taken");
+        a.release(&stranger);
+        assert_eq!(a.admit(&req(3)), Ok((1, vec![2, 3, 4])));
+        assert_eq!(a.close(), vec![5]);
+        assert!(a.admit(&req(1)).unwrap_err().contains("too late"));
+        assert_eq!(a.open_slots(), 0);
+    }
+
+    #[test]
+    fn a_long_or_control_character_host_name_is_refused() {
+        let mut a = Admission::new(0, 4);
+        let mut r = req(1);
+        r.host = "x".repeat(10_000);
+        let e = a.admit(&r).unwrap_err();
+        assert!(
+            e.len() < 200,
+            "the reason does not carry the whole name: {}",
+            e.len()
+        );
+        r.host = "evil\u{1b}]0;title\u{7}".into();
+        assert!(a.admit(&r).is_err());
+        assert_eq!(a.open_slots(), 4);
+    }
+
+    #[test]
+    fn refused_joins_are_counted_but_only_the_first_reasons_kept() {
+        let mut log = RefusedLog::default();
+        let long = "r".repeat(10_000);
+        for _ in 0..10_000 {
+            log.push(&long);
+        }
+        assert_eq!(log.total, 10_000);
+        assert_eq!(log.reasons.len(), RefusedLog::KEEP);
+        assert_eq!(log.dropped(), 10_000 - RefusedLog::KEEP as u64);
+        assert!(
+            log.reasons
+                .iter()
+                .all(|r| r.len() == RefusedLog::REASON_LEN)
+        );
     }
 
     #[test]

@@ -33,7 +33,7 @@ use std::time::Duration;
 
 pub use health::{ClockSync, LinkState, LinkWatch};
 pub use hub::{Hub, HubOptions, HubReport};
-pub use join::{JoinPlan, JoinReply, JoinRequest, RemotePlan};
+pub use join::{JoinPlan, JoinReply, JoinRequest, PlanError, RemotePlan};
 pub use link::{RUNTIME_THREADS, SPIN_AFTER, Tuning, prefer_runtime_threads};
 pub use remote::{Ending, Joiner, request};
 pub use stats::{HostEntry, HostLink, HostReport, HostState, Percentiles};
@@ -47,6 +47,13 @@ pub const DEFAULT_DOWN_AFTER: Duration = Duration::from_millis(500);
 
 /// Default silence after which a host is given up on.
 pub const DEFAULT_DEADLINE: Duration = Duration::from_secs(10);
+
+/// Default time a joined host has to start (register) its robots before its slots open again.
+pub const DEFAULT_START_WITHIN: Duration = Duration::from_secs(10);
+
+/// Default time after the hub's start during which hosts may join (before the coordinator's
+/// 30 s registration timeout, so a run whose remote slots stay empty still completes).
+pub const DEFAULT_JOIN_WITHIN: Duration = Duration::from_secs(15);
 
 /// Zenoh key the hub publishes to joined host `host` on.
 pub fn down_key(run_id: &str, host: u32) -> String {

@@ -87,8 +87,12 @@ impl Outgoing {
         })
     }
 
-    /// The peer has every frame with seq `< acked`: forget them.
-    pub fn ack(&mut self, acked: u64, now: Instant) {
+    /// The peer has every frame with seq `< acked`: forget them. An ack of frames never sent
+    /// (`acked` past [`Outgoing::next_seq`]) is a forgery or garbage: ignored, false.
+    pub fn ack(&mut self, acked: u64, now: Instant) -> bool {
+        if acked > self.next {
+            return false;
+        }
         let before = self.kept.len();
         while self.kept.front().is_some_and(|(s, _)| *s < acked) {
             if let Some((_, f)) = self.kept.pop_front()
@@ -101,6 +105,7 @@ impl Outgoing {
             // progress: the remaining frames get a fresh wait
             self.last_send = Some(now);
         }
+        true
     }
 
     /// Frames to send again now: all kept ones when the oldest has waited [`RESEND_AFTER`]
@@ -163,6 +168,11 @@ impl Incoming {
     }
 }
 
+/// Most lossless frames one peer may have waiting in a [`Pending`] queue: past it a frame is
+/// not taken (not acknowledged either), so the peer sends it again later; nothing is lost and
+/// a peer cannot grow this host's memory by sending faster than the bus takes.
+pub const MAX_PENDING: usize = 1 << 16;
+
 /// Lossless frames received in order and not yet written into this host's bus (both bridge
 /// ends keep one): a full inbox here delays them, never reorders or drops them.
 #[derive(Debug, Default)]
@@ -173,6 +183,11 @@ pub struct Pending {
 }
 
 impl Pending {
+    /// Whether [`MAX_PENDING`] frames are waiting (take no more: see [`MAX_PENDING`]).
+    pub fn is_full(&self) -> bool {
+        self.queue.len() >= MAX_PENDING
+    }
+
     /// Keeps a copy of `frame` behind the ones before it (in a reused buffer once warm).
     pub fn push(&mut self, frame: &[u8]) {
         let mut buf = self.spare.pop().unwrap_or_default();
@@ -349,5 +364,38 @@ mod tests {
         out.ack(1, t0 + RESEND_AFTER);
         assert_eq!(out.due(t0 + RESEND_AFTER, false).count(), 0);
         assert_eq!(out.due(t0 + RESEND_AFTER * 2, false).count(), 1);
+    }
+
+    #[test]
+    fn an_ack_of_frames_never_sent_is_ignored_and_nothing_is_discarded() {
+        let t0 = Instant::now();
+        let mut out = Outgoing::default();
+        for _ in 0..3 {
+            out.push(t0, frame).unwrap();
+        }
+        // a stranger's heartbeat claiming everything up to 1000 arrived
+        assert!(!out.ack(1000, t0));
+        assert_eq!(
+            out.unacked(),
+            3,
+            "the frames the peer never got are still kept"
+        );
+        assert!(out.ack(2, t0));
+        assert_eq!(out.unacked(), 1);
+    }
+
+    #[test]
+    fn a_full_pending_queue_says_so_instead_of_growing() {
+        let mut p = Pending::default();
+        for seq in 0..MAX_PENDING as u64 {
+            assert!(!p.is_full());
+            p.push(&frame(seq));
+        }
+        assert!(p.is_full());
+        assert_eq!(p.len(), MAX_PENDING);
+        // the receiver then leaves the frame unacknowledged (see MAX_PENDING): once the bus
+        // takes frames again there is room
+        p.deliver(|_| true);
+        assert!(!p.is_full());
     }
 }

@@ -339,7 +339,7 @@ impl Joiner {
         }
         match h.kind {
             Kind::Heartbeat => {
-                let Ok(hb) = serde_json::from_slice::<Heartbeat>(&frame[HEADER..]) else {
+                let Ok(hb) = wire::read_heartbeat(&frame[HEADER..]) else {
                     self.report.link.rejected += 1;
                     return false;
                 };
@@ -348,10 +348,15 @@ impl Joiner {
                     record(&mut self.rtt, rtt);
                 }
                 self.echo = (hb.t_ns, t);
-                self.out.ack(hb.acked, now);
+                if !self.out.ack(hb.acked, now) {
+                    self.report.link.rejected += 1;
+                }
             }
             Kind::Lossless => {
-                if self.inc.arrive(h.seq) == Arrival::Next {
+                if self.pending.is_full() {
+                    // not taken, not acknowledged: the hub sends it again later
+                    self.report.link.capped += 1;
+                } else if self.inc.arrive(h.seq) == Arrival::Next {
                     self.pending.push(frame);
                 }
             }

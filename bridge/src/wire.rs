@@ -60,6 +60,9 @@ pub enum FrameError {
     /// Unknown topic byte.
     #[error("unknown topic index {0}")]
     Topic(u8),
+    /// A heartbeat larger than [`MAX_HEARTBEAT`] or not a heartbeat.
+    #[error("heartbeat of {0} bytes is too large or unreadable")]
+    Heartbeat(usize),
     /// The payload is not the size of the topic's message.
     #[error("{topic:?} payload of {got} bytes, expected {want}")]
     Size {
@@ -237,6 +240,22 @@ impl Heartbeat {
     }
 }
 
+/// Largest heartbeat payload read: a real one is under 100 bytes plus a few per gone robot
+/// (at most `bus::MAX_ROBOTS` of them); anything larger is dropped before it is parsed.
+pub const MAX_HEARTBEAT: usize = 4096;
+
+/// Reads a heartbeat payload (`&frame[HEADER..]`), refusing one larger than [`MAX_HEARTBEAT`]
+/// or with more gone robots than a fleet has.
+pub fn read_heartbeat(payload: &[u8]) -> Result<Heartbeat, FrameError> {
+    if payload.len() > MAX_HEARTBEAT {
+        return Err(FrameError::Heartbeat(payload.len()));
+    }
+    match serde_json::from_slice::<Heartbeat>(payload) {
+        Ok(hb) if hb.gone.len() <= bus::MAX_ROBOTS as usize => Ok(hb),
+        _ => Err(FrameError::Heartbeat(payload.len())),
+    }
+}
+
 /// A heartbeat frame.
 pub fn heartbeat_frame(hb: &Heartbeat) -> Vec<u8> {
     let mut out = Vec::with_capacity(HEADER + 96);
@@ -357,5 +376,35 @@ mod tests {
         assert_eq!(header(&f).unwrap().kind, Kind::Heartbeat);
         let back: Heartbeat = serde_json::from_slice(&f[HEADER..]).unwrap();
         assert_eq!(back, hb);
+        assert_eq!(read_heartbeat(&f[HEADER..]), Ok(hb));
+    }
+
+    #[test]
+    fn a_huge_heartbeat_is_refused_before_it_is_parsed() {
+        // a `gone` list of a million ids, as a stranger would send to grow host A's memory
+        let hb = Heartbeat {
+            gone: (0..1_000_000).collect(),
+            ..Heartbeat::default()
+        };
+        let f = heartbeat_frame(&hb);
+        assert!(f.len() > MAX_HEARTBEAT);
+        assert!(matches!(
+            read_heartbeat(&f[HEADER..]),
+            Err(FrameError::Heartbeat(_))
+        ));
+        // small in bytes but more gone robots than any fleet: refused too
+        let mut f = Vec::new();
+        put_header(&mut f, Kind::Heartbeat, Topic::Register, 0);
+        f.extend_from_slice(
+            b"{\"t_ns\":1,\"echo_ns\":0,\"hold_ns\":0,\"acked\":0,\"sent\":0,\"gone\":[",
+        );
+        f.extend_from_slice(b"1");
+        for _ in 0..300 {
+            f.extend_from_slice(b",1");
+        }
+        f.extend_from_slice(b"]}");
+        assert!(f.len() - HEADER <= MAX_HEARTBEAT);
+        assert!(read_heartbeat(&f[HEADER..]).is_err());
+        assert!(read_heartbeat(b"not json").is_err());
     }
 }

@@ -87,6 +87,9 @@ pub(crate) struct Assignment {
 /// The shared coordinator state and its IO around the bus.
 pub(crate) struct Engine {
     pub(crate) shape: Shape,
+    /// The BFS optimum of each robot's task on this coordinator's map, `[robot][goal]`
+    /// (empty: unknown); a report must agree with it (`validate::report`).
+    pub(crate) optimum: Vec<Vec<u32>>,
     pub(crate) roster: Roster,
     pub(crate) robots: Vec<Slot>,
     pub(crate) tables: Vec<FleetTable>,
@@ -181,6 +184,7 @@ impl Engine {
         let robots = expected.robots;
         Engine {
             shape,
+            optimum: Vec::new(),
             roster: Roster::new(expected),
             robots: vec![Slot::default(); robots as usize],
             tables: (0..goals)
@@ -772,7 +776,12 @@ impl Engine {
                 .get(r.robot_id as usize)
                 .map_or(0, |s| s.episodes_total),
         };
-        if let Err(why) = validate::report(r, &self.shape, assigned, max_episodes) {
+        let optimum = self
+            .optimum
+            .get(r.robot_id as usize)
+            .and_then(|g| g.get(r.goal_id as usize))
+            .copied();
+        if let Err(why) = validate::report(r, &self.shape, assigned, max_episodes, optimum) {
             self.rejected += 1;
             report::log_line!(
                 "qfleet-coordinator: rejected a report for robot {}: {why}",

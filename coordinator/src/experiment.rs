@@ -124,6 +124,7 @@ pub fn run(
         cfg.merged_buffer,
         args.out.clone(),
     );
+    engine.optimum = plan.optimal.clone();
     let ctx = Ctx {
         args,
         plan,

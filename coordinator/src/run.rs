@@ -112,6 +112,18 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         args.out.clone(),
     );
     engine.starts = grid.as_ref().map(|g| g.instance.starts().to_vec());
+    // every robot learns its task on this map: its reports must agree with it (one task for
+    // the fleet, or on a shared grid robot i's own, as its goal i)
+    engine.optimum = match &grid {
+        None => vec![vec![task.optimal_len]; args.robots as usize],
+        Some(g) => (0..g.instance.agents())
+            .map(|i| {
+                let mut per_goal = vec![0; g.instance.agents()];
+                per_goal[i] = g.instance.dist_from(i, g.instance.starts()[i]);
+                per_goal
+            })
+            .collect(),
+    };
     take_over(&dir, &args, &mut engine);
     let mut cp = Checkpoints::new(dir.clone(), args.run_id.clone());
     let outcome = drive(

@@ -61,6 +61,16 @@ pub enum Invalid {
     /// A count or length that contradicts another field or the run.
     #[error("{0}")]
     Inconsistent(&'static str),
+    /// A path length that contradicts the coordinator's own BFS optimum of the robot's task.
+    #[error("{what} {got} against the BFS optimum {optimum} of the robot's task on this map")]
+    Optimum {
+        /// Which length.
+        what: &'static str,
+        /// What the report said.
+        got: i32,
+        /// The coordinator's optimum.
+        optimum: i64,
+    },
 }
 
 fn goal(got: u32, shape: &Shape, assigned: Option<u32>) -> Result<(), Invalid> {
@@ -136,12 +146,16 @@ pub fn state(s: &RobotState, shape: &Shape, assigned: Option<u32>) -> Result<(),
 
 /// A final report, fully: schema version, the goal the robot was assigned, a final status,
 /// path lengths ≥ −1, episodes within what was asked (`max_episodes`, 0 = unknown), finite
-/// non-negative `avg_steps`, acked ≤ sent, and a latency summary that is ordered.
+/// non-negative `avg_steps`, acked ≤ sent, and a latency summary that is ordered; and, when
+/// the coordinator knows the BFS optimum of the robot's task on its own map (`optimum`), an
+/// `optimal_path_len` equal to it and a `final_path_len` not shorter (no path beats BFS: a
+/// shorter one is forged).
 pub fn report(
     r: &FinalReport,
     shape: &Shape,
     assigned: Option<u32>,
     max_episodes: u32,
+    optimum: Option<u32>,
 ) -> Result<RobotStatus, Invalid> {
     if r.schema_version != SCHEMA_VERSION {
         return Err(Invalid::Schema(r.schema_version));
@@ -161,6 +175,22 @@ pub fn report(
     ] {
         if v < -1 || i64::from(v) > cells {
             return Err(Invalid::Value(what));
+        }
+    }
+    if let Some(opt) = optimum.map(i64::from) {
+        if i64::from(r.optimal_path_len) != opt {
+            return Err(Invalid::Optimum {
+                what: "optimal_path_len",
+                got: r.optimal_path_len,
+                optimum: opt,
+            });
+        }
+        if r.final_path_len >= 0 && i64::from(r.final_path_len) < opt {
+            return Err(Invalid::Optimum {
+                what: "final_path_len",
+                got: r.final_path_len,
+                optimum: opt,
+            });
         }
     }
     if r.first_optimal_episode < -1 {
@@ -216,7 +246,7 @@ mod tests {
     #[test]
     fn a_plausible_report_is_accepted_with_its_status() {
         assert_eq!(
-            report(&good_report(), &SHAPE, Some(1), 100),
+            report(&good_report(), &SHAPE, Some(1), 100, None),
             Ok(RobotStatus::Finished)
         );
         let failed = FinalReport {
@@ -225,7 +255,10 @@ mod tests {
             first_optimal_episode: -1,
             ..good_report()
         };
-        assert_eq!(report(&failed, &SHAPE, Some(1), 0), Ok(RobotStatus::Failed));
+        assert_eq!(
+            report(&failed, &SHAPE, Some(1), 0, None),
+            Ok(RobotStatus::Failed)
+        );
     }
 
     #[test]
@@ -324,7 +357,7 @@ mod tests {
             ),
         ];
         for (r, what) in cases {
-            let e = report(&r, &SHAPE, Some(1), 100).expect_err(what);
+            let e = report(&r, &SHAPE, Some(1), 100, None).expect_err(what);
             assert!(e.to_string().contains(what), "{what}: {e}");
         }
     }
@@ -335,12 +368,12 @@ mod tests {
             goal_id: 0,
             ..good_report()
         };
-        assert!(report(&r, &SHAPE, None, 100).is_ok());
+        assert!(report(&r, &SHAPE, None, 100, None).is_ok());
         let r = FinalReport {
             goal_id: 2,
             ..good_report()
         };
-        assert!(report(&r, &SHAPE, None, 100).is_err());
+        assert!(report(&r, &SHAPE, None, 100, None).is_err());
     }
 
     #[test]
@@ -407,5 +440,41 @@ mod tests {
             state(&RobotState { status: 9, ..s }, &SHAPE, Some(0)),
             Err(Invalid::Status(9))
         );
+    }
+
+    #[test]
+    fn a_path_shorter_than_the_bfs_optimum_or_another_optimum_is_rejected() {
+        // the forged report of issue 27: 18 steps where the map's optimum is 19
+        let mut r = good_report();
+        r.optimal_path_len = 19;
+        r.final_path_len = 18;
+        let e = report(&r, &SHAPE, Some(1), 100, Some(19)).unwrap_err();
+        assert!(matches!(
+            e,
+            Invalid::Optimum {
+                what: "final_path_len",
+                got: 18,
+                optimum: 19
+            }
+        ));
+        assert!(e.to_string().contains("BFS optimum 19"), "{e}");
+        // claiming the optimum is 18 does not help: the coordinator's own optimum counts
+        r.optimal_path_len = 18;
+        assert!(matches!(
+            report(&r, &SHAPE, Some(1), 100, Some(19)),
+            Err(Invalid::Optimum {
+                what: "optimal_path_len",
+                ..
+            })
+        ));
+        // an optimal or longer path, or none at all (-1), is fine
+        for len in [19, 25, -1] {
+            r.optimal_path_len = 19;
+            r.final_path_len = len;
+            assert!(report(&r, &SHAPE, Some(1), 100, Some(19)).is_ok(), "{len}");
+        }
+        // no optimum known: the old checks only
+        r.final_path_len = 3;
+        assert!(report(&r, &SHAPE, Some(1), 100, None).is_ok());
     }
 }

@@ -83,6 +83,11 @@ pub struct HostLink {
     pub rejected: u64,
     /// Latest-wins messages that could not be delivered here (dropped).
     pub dropped: u64,
+    /// What the peer sent past a cap and was not kept: lossless frames beyond the pending
+    /// queue (not acknowledged, so sent again later), gone reports naming robots that are not
+    /// the host's or were reported already.
+    #[serde(default)]
+    pub capped: u64,
 }
 
 /// One host of a run: its name, the robot ids it ran, and (for a joined host) the link to it.

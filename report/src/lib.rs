@@ -14,6 +14,7 @@
 //! - [`hosts`]: which host each robot ran on and the link to each joined host ([`HostEntry`],
 //!   [`HostLink`]), the `hosts` of a result across machines;
 //! - [`checkpoint`]: what a restarted coordinator resumes from ([`CoordinatorCheckpoint`]);
+//! - [`text`]: text from outside escaped before it reaches a terminal ([`escape`]);
 //! - [`log`]: the processes' log lines ([`log_line!`]: `eprintln!` that never panics on a
 //!   full disk);
 //! - [`atomic`]: the one writer ([`write_atomic`]: temp file, `fsync`, rename), whose errors
@@ -31,6 +32,7 @@ pub mod log;
 pub mod outdir;
 pub mod robot;
 pub mod run;
+pub mod text;
 
 pub use atomic::{
     Durability, WriteError, WriteStep, write_atomic, write_atomic_with, write_json_atomic,
@@ -46,3 +48,4 @@ pub use run::{
     ExperimentResult, GoalPhase, LivenessEvent, LivenessKind, LivenessReport, MergeRule,
     PhaseResult, RobotEntry, RobotOutcome, RobotPhase, RunResult, Throughput, WaitStrategy,
 };
+pub use text::escape;

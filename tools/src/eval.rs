@@ -5,7 +5,7 @@
 //! MovingAI maps of `--movingai DIR` when that directory exists. `--split tuning` is where
 //! defaults are chosen, `--split heldout` where figures are reported.
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use clap::Args;
 use crossbeam::channel;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -382,6 +382,13 @@ impl EvalCmd {
                     self.movingai.display()
                 );
                 tasks.extend(m);
+            } else if self.movingai.exists() {
+                // a device or a file where a directory of maps was asked for is bad input
+                return Err(anyhow::anyhow!(
+                    "--movingai {} is not a directory of MovingAI maps",
+                    self.movingai.display()
+                ))
+                .context(launcher::Exit::BadInput);
             } else {
                 report::log_line!(
                     "eval: no MovingAI maps at {} (generated maps only)",
@@ -395,7 +402,8 @@ impl EvalCmd {
             SplitArg::Heldout => t.split == Split::Heldout,
         });
         if tasks.is_empty() {
-            bail!("no maps match the filters");
+            return Err(anyhow::anyhow!("no maps match the filters"))
+                .context(launcher::Exit::BadInput);
         }
         let threads = self
             .threads

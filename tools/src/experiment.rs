@@ -322,7 +322,7 @@ pub fn run_once(
     // the bridge to other hosts: remote robots get the options a local robot of their id would
     let hub = match remote {
         Some(r) => r
-            .start_hub(run_id, local, bus::merged_buffer_for(m.robots), &robot)
+            .start_hub(run_id, local, bus::merged_buffer_for(m.robots), &robot, out)
             .context(Exit::BadInput)?,
         None => None,
     };

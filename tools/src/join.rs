@@ -36,6 +36,15 @@ pub struct RemoteArgs {
     /// is counted when it is heard again).
     #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(100..))]
     pub link_down_ms: u64,
+    /// Seconds a joined host has to start its robots (each registered with the coordinator)
+    /// before its slots are open again for another host.
+    #[arg(long, default_value_t = 10.0)]
+    pub start_within: f64,
+    /// Seconds after the start during which hosts may join; robots no host runs then are
+    /// given up and the run goes on without them (before the coordinator's 30 s registration
+    /// timeout, so the run still completes).
+    #[arg(long, default_value_t = 15.0)]
+    pub join_within: f64,
 }
 
 /// How long after a host's deadline its silent robots may first count as hung: the hub's
@@ -79,6 +88,7 @@ impl RemoteArgs {
         local: u32,
         merged_buffer: usize,
         robot: &dyn Fn(u32) -> Command,
+        out: &Path,
     ) -> Result<Option<Hub>> {
         let (Some(listen), true) = (&self.listen, self.remote_robots > 0) else {
             return Ok(None);
@@ -89,6 +99,12 @@ impl RemoteArgs {
                 self.host_deadline
             )
         })?;
+        let secs = |name: &str, v: f64| {
+            Duration::try_from_secs_f64(v)
+                .map_err(|_| anyhow!("--{name} must be seconds >= 0, got {v}"))
+        };
+        let start_within = secs("start-within", self.start_within)?;
+        let join_within = secs("join-within", self.join_within)?;
         let total = self.total(local)?;
         let mut files = BTreeMap::new();
         let mut robot_args = vec![Vec::new(); local as usize];
@@ -110,6 +126,9 @@ impl RemoteArgs {
             down_after: Duration::from_millis(self.link_down_ms),
             deadline,
             tuning: Tuning::default(),
+            start_within,
+            join_within,
+            out: Some(out.to_path_buf()),
         })
         .with_context(|| format!("listening for other hosts on {listen}"))?;
         Ok(Some(hub))
@@ -180,8 +199,15 @@ pub fn finish_hub(hub: Option<Hub>, out: &Path) -> Result<Option<HubReport>> {
     let report = hub.finish().context("the bridge to other hosts")?;
     if report.joined_robots < report.remote_robots {
         crate::term::warn(&format!(
-            "only {} of {} remote robots joined on {} (start `qfleet join {} --robots N` on the other hosts before the coordinator's 30 s registration timeout)",
+            "only {} of {} remote robots joined on {} (start `qfleet join {} --robots N` on the other hosts within --join-within of the start)",
             report.joined_robots, report.remote_robots, report.listen, report.listen
+        ));
+    }
+    if report.refused_total > report.refused.len() as u64 {
+        crate::term::warn(&format!(
+            "{} joins refused in all; the first {} reasons are in bridge.json",
+            report.refused_total,
+            report.refused.len()
         ));
     }
     let json = serde_json::to_string_pretty(&report)?;
@@ -211,6 +237,9 @@ pub struct JoinCmd {
     /// directory, removed afterwards).
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Write into a non-empty `--out` directory, replacing files of the same names.
+    #[arg(long)]
+    force: bool,
     /// Seconds to wait for the coordinator's host to answer.
     #[arg(long, default_value_t = 30.0)]
     timeout: f64,
@@ -244,6 +273,13 @@ impl JoinCmd {
             .map_err(|_| anyhow!("--grace must be seconds >= 0, got {}", self.grace))
             .context(Exit::BadInput)?;
         bridge::link::check_endpoint(&self.endpoint).context(Exit::BadInput)?;
+        // this host's directory, chosen here: never a path named after what the network sends
+        let out_dir = launcher::out::OutDir::prepare(self.out.as_deref(), self.force, "join")
+            .map_err(|e| match e {
+                launcher::out::OutError::Io { .. } => anyhow!(e),
+                e => anyhow!(e).context(Exit::BadInput),
+            })?;
+        let out = out_dir.path().to_path_buf();
         let robot_bin = launcher::spawn::sibling("robot-agent")?;
         let host = self.name.clone().unwrap_or_else(hostname);
         let mut req = JoinRequest::new(host.clone(), self.robots, 0);
@@ -257,6 +293,11 @@ impl JoinCmd {
         );
         let (session, plan, clock) =
             bridge::request(&self.endpoint, &req, timeout, Tuning::default())?;
+        // everything from the network is checked before it names a file, a prefix or a process
+        plan.check(self.robots)
+            .map_err(|e| anyhow!(e))
+            .with_context(|| format!("refusing the plan of {}", self.endpoint))
+            .context(Exit::BadInput)?;
         let ids = plan.robot_ids.clone();
         report::log_line!(
             "qfleet join: joined run {} as host {} with robots {:?}",
@@ -270,22 +311,8 @@ impl JoinCmd {
         {
             bail!("run {} is already live on this host", plan.run_id);
         }
-        let (out, temp_out) = match &self.out {
-            Some(d) => (d.clone(), false),
-            None => (
-                std::env::temp_dir().join(format!(
-                    "qfleet-join-{}-{}",
-                    plan.run_id,
-                    std::process::id()
-                )),
-                true,
-            ),
-        };
-        std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
         for (name, text) in &plan.files {
-            let clean = Path::new(name)
-                .file_name()
-                .ok_or_else(|| anyhow!("the coordinator's host sent a file without a name"))?;
+            let clean = bridge::join::plain_file_name(name).context(Exit::BadInput)?;
             std::fs::write(out.join(clean), text)
                 .with_context(|| format!("writing {}", out.join(clean).display()))?;
         }
@@ -300,16 +327,7 @@ impl JoinCmd {
         let mut children: Vec<(u32, Child)> = Vec::new();
         let spawned = (|| -> Result<()> {
             for (i, id) in plan.robot_ids.iter().enumerate() {
-                let args = plan.robot_args.get(i).cloned().unwrap_or_default();
-                let args = args.into_iter().map(|a| {
-                    match a
-                        .strip_prefix(bridge::join::FILE_PLACEHOLDER)
-                        .and_then(|s| s.strip_suffix('}'))
-                    {
-                        Some(name) => out.join(name).display().to_string(),
-                        None => a,
-                    }
-                });
+                let args = plan.robot_command_line(i, &out).context(Exit::BadInput)?;
                 let log = std::fs::File::create(out.join(format!("robot-{id}.log")))
                     .with_context(|| format!("creating the log of robot {id}"))?;
                 let child = Command::new(&robot_bin)
@@ -358,9 +376,8 @@ impl JoinCmd {
             report.link.clock_offset_ns,
             report.link.best_rtt_ns / 2
         );
-        if temp_out {
-            let _ = std::fs::remove_dir_all(&out);
-        }
+        // a temporary directory is removed here (when `out_dir` is dropped)
+        drop(out_dir);
         match ending? {
             Ending::Lost => bail!(
                 "lost the coordinator's host {} (silent past the deadline); robots stopped",
@@ -429,8 +446,8 @@ pub fn print_hosts(hub: &Option<HubReport>, local: u32) -> Result<()> {
             .map(|s| serde_json::to_string(&s).unwrap_or_default())
             .unwrap_or_default();
         crate::term::out!(
-            "  host {:13} robots {:?}  link {}  reconnects {}  down {} ms  round trip p50 {:.1} µs p99.9 {:.1} µs  one-way in p50 {:.1} µs  resent {}",
-            h.host,
+            "  host {:13} robots {:?}  link {}  reconnects {}  down {} ms  round trip p50 {:.1} µs p99.9 {:.1} µs  one-way in p50 {:.1} µs  resent {}  rejected {}  capped {}",
+            report::escape(&h.host),
             h.robots,
             state.trim_matches('"'),
             h.link.reconnects,
@@ -438,11 +455,28 @@ pub fn print_hosts(hub: &Option<HubReport>, local: u32) -> Result<()> {
             h.link.rtt_ns.p50 as f64 / 1e3,
             h.link.rtt_ns.p999 as f64 / 1e3,
             h.link.one_way_in_ns.p50 as f64 / 1e3,
-            h.link.resent
+            h.link.resent,
+            h.link.rejected,
+            h.link.capped
         )?;
     }
     for r in &hub.refused {
-        crate::term::out!("  refused join       {r}")?;
+        crate::term::out!("  refused join       {}", report::escape(r))?;
+    }
+    if hub.refused_total > hub.refused.len() as u64 {
+        crate::term::out!(
+            "  refused joins      {} in all ({} not kept)",
+            hub.refused_total,
+            hub.refused_total - hub.refused.len() as u64
+        )?;
+    }
+    if !hub.given_up.is_empty() || hub.foreign_frames > 0 || hub.expired_hosts > 0 {
+        crate::term::out!(
+            "  not joined         robots {:?} given up; {} host(s) did not start in time; {} frame(s) from no joined host",
+            hub.given_up,
+            hub.expired_hosts,
+            hub.foreign_frames
+        )?;
     }
     Ok(())
 }
@@ -457,6 +491,8 @@ mod tests {
             listen: Some("tcp/127.0.0.1:7447".into()),
             host_deadline: deadline_s,
             link_down_ms: 500,
+            start_within: 10.0,
+            join_within: 15.0,
         }
     }
 

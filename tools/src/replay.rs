@@ -56,17 +56,31 @@ impl ReplayCmd {
         }
         // a recording whose records or messages do not decode is bad input too
         let s = rec.summary().context(launcher::Exit::BadInput)?;
+        if let (Some(c), 0) = (rec.cut_short, s.messages) {
+            // damaged before its first message: nothing to replay is an error, not "0 messages"
+            return Err(anyhow::anyhow!(
+                "{} is damaged at byte offset {} of {}: no message before that point",
+                self.file.display(),
+                c.read_bytes,
+                c.file_bytes
+            ))
+            .context(launcher::Exit::BadInput);
+        }
         if self.json {
             crate::term::out!("{}", serde_json::to_string(&s)?)?;
             return Ok(());
         }
+        // text from the file is escaped; one message (or none) spans no time worth printing
+        let span = match s.messages {
+            0 => "no messages".to_string(),
+            1 => "1 message".to_string(),
+            n => format!("{n} messages over {:.3} s", s.duration_s),
+        };
         crate::term::out!(
-            "recording {}: run {} on {}, {} messages over {:.3} s",
+            "recording {}: run {} on {}, {span}",
             self.file.display(),
-            s.run_id,
-            s.map,
-            s.messages,
-            s.duration_s
+            report::escape(&s.run_id),
+            report::escape(&s.map),
         )?;
         let mut t = TextTable::new(&["topic", ">messages", ">first s", ">last s", ">rate /s"]);
         let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.3}"));

@@ -157,7 +157,13 @@ impl RunCmd {
         let robot = self.robot_command(&run_id, &out, &robot_bin, fleet);
         let hub = self
             .remote
-            .start_hub(&run_id, self.robots, bus::merged_buffer_for(fleet), &robot)
+            .start_hub(
+                &run_id,
+                self.robots,
+                bus::merged_buffer_for(fleet),
+                &robot,
+                &out,
+            )
             .context(Exit::BadInput)?;
         let watch = crate::live::start(
             &run_id,

@@ -239,6 +239,9 @@ pub fn bridged_coordinator(
         down_after: bridge::DEFAULT_DOWN_AFTER,
         deadline: bridge::DEFAULT_DEADLINE,
         tuning,
+        start_within: bridge::DEFAULT_START_WITHIN,
+        join_within: bridge::DEFAULT_JOIN_WITHIN,
+        out: None,
     })
     .map_err(|e| BenchError::Input(e.to_string()))?;
     let r = super::fleet::coordinator(inner);
