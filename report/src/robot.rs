@@ -103,6 +103,10 @@ pub struct Counters {
     pub warm_start_entries: u64,
     /// Losing and re-joining the coordinator.
     pub link: LinkCounters,
+    /// Moves other robots tried on the way to other goals, added to this robot's model (a
+    /// shared grid: the grid's moves are shared, values only between robots of one goal).
+    #[serde(default)]
+    pub moves_learned_from_others: u64,
 }
 
 /// What a robot writes to `robot-<id>.json`: its learning metrics as in `qfleet learn --json`

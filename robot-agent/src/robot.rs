@@ -942,6 +942,26 @@ impl Robot<'_> {
             if m.send_time_ns != 0 && m.send_time_ns <= now {
                 record(&mut self.merged_hist, now - m.send_time_ns);
             }
+            if share
+                && let Some(p) = phase.as_deref_mut()
+                && p.shared_model
+                && m.goal_id != p.a.goal_id
+            {
+                // another goal's values say nothing of ours, but the moves behind them are the
+                // grid's: they join this learner's model, so it never explores a wall another
+                // robot found (robots with different goals on one grid)
+                let n = (m.count as usize).min(m.entries.len());
+                let mut known = 0;
+                for (h, &origin) in m.entries[..n].iter().zip(&m.origin_robot[..n]) {
+                    if origin != self.args.robot_id
+                        && p.learner.add_known_move(h.cell, usize::from(h.action))
+                    {
+                        known += 1;
+                    }
+                }
+                self.c.moves_learned_from_others += known;
+                continue;
+            }
             if share && let Some(p) = phase.as_deref_mut() {
                 let before = self.applier.counters().entries_applied;
                 self.applier
