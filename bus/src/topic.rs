@@ -259,7 +259,9 @@ fn pubsub_open_error(
             align: t.2,
             schema_version: SCHEMA_VERSION,
         },
-        E::DoesNotExist => BusError::ServiceMissing {
+        // the coordinator is creating it right now (a robot of a large fleet opens while the
+        // coordinator still creates the last services): not there yet, retried like a missing one
+        E::DoesNotExist | E::HangsInCreation => BusError::ServiceMissing {
             service: service.to_string(),
         },
         E::IncompatibleMessagingPattern
@@ -285,7 +287,7 @@ fn pubsub_open_error(
 fn event_open_error(service: &str, e: EventOpenError) -> BusError {
     use EventOpenError as E;
     match e {
-        E::DoesNotExist => BusError::ServiceMissing {
+        E::DoesNotExist | E::HangsInCreation => BusError::ServiceMissing {
             service: service.to_string(),
         },
         E::IncompatibleMessagingPattern
