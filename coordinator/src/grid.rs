@@ -238,6 +238,7 @@ pub(crate) fn execute(
     let mut round = Round::new(n);
     let mut tick_hist = new_hist();
     let mut intent_hist = new_hist();
+    let mut resolve_hist = new_hist();
     let mut rejected = 0u64;
     let t0 = Instant::now();
     let ended = loop {
@@ -303,9 +304,11 @@ pub(crate) fn execute(
             publish(bus, &world, tick, GridState::Ended)?;
             break GridEnd::Stopped;
         }
+        let resolving = Instant::now();
         let step = world
             .step(round.intents())
             .map_err(|e| CoordError::Grid(e.to_string()))?;
+        record(&mut resolve_hist, resolving.elapsed().as_nanos() as u64);
         record(&mut tick_hist, start.elapsed().as_nanos() as u64);
         if let Some(rest) = plan.tick_min.checked_sub(start.elapsed()) {
             std::thread::sleep(rest);
@@ -338,6 +341,7 @@ pub(crate) fn execute(
             rejected,
             tick: &tick_hist,
             intent: &intent_hist,
+            resolve: &resolve_hist,
             paths_file,
         },
     ))
@@ -426,6 +430,7 @@ struct Figures<'a> {
     rejected: u64,
     tick: &'a Histogram<u64>,
     intent: &'a Histogram<u64>,
+    resolve: &'a Histogram<u64>,
     paths_file: Option<String>,
 }
 
@@ -508,6 +513,7 @@ fn summarize(
         },
         tick_latency_ns: LatencyStats::of(f.tick),
         intent_latency_ns: LatencyStats::of(f.intent),
+        resolve_latency_ns: LatencyStats::of(f.resolve),
         paths_file: f.paths_file,
         robots,
     }

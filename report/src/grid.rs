@@ -86,6 +86,10 @@ pub struct GridResult {
     /// Per robot and tick: grant published → that robot's intent received (the robot woke,
     /// moved to its granted cell, ranked its moves and answered).
     pub intent_latency_ns: LatencyStats,
+    /// Per tick: the resolver's part of it (`mapf::World::step`: PIBT on the intents, the
+    /// look-ahead plan, a complete search when it stalls).
+    #[serde(default)]
+    pub resolve_latency_ns: LatencyStats,
     /// The paths file in the out directory (mapf-visualizer format), if written.
     pub paths_file: Option<String>,
     /// Per robot.

@@ -572,6 +572,7 @@ fn print_grid(g: &report::GridResult) -> Result<()> {
     for (k, s) in [
         ("tick", &g.tick_latency_ns),
         ("grant→intent", &g.intent_latency_ns),
+        ("resolve", &g.resolve_latency_ns),
     ] {
         out!(
             "  {k:18} {:>6}  {:>10} {:>10} {:>10} {:>10} {:>10}",
