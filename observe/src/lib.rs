@@ -18,6 +18,7 @@
 
 pub mod attach;
 pub mod decode;
+pub mod foxglove;
 pub mod record;
 pub mod replay;
 pub mod salvage;
