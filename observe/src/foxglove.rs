@@ -165,7 +165,13 @@ struct Hub {
 }
 
 impl Hub {
-    fn add_channel(&mut self, topic: String, schema_name: &str, schema: &Value, latched: bool) -> u32 {
+    fn add_channel(
+        &mut self,
+        topic: String,
+        schema_name: &str,
+        schema: &Value,
+        latched: bool,
+    ) -> u32 {
         self.next_channel += 1;
         let id = self.next_channel;
         self.channels.push(ChannelInfo {
@@ -204,8 +210,12 @@ impl Hub {
         self.channels.retain(|c| !old.contains(&c.id));
         self.raw_ids.clear();
         for t in Topic::ALL {
-            let id =
-                self.add_channel(t.service_name(run_id), t.type_name(), &json_schema(t), false);
+            let id = self.add_channel(
+                t.service_name(run_id),
+                t.type_name(),
+                &json_schema(t),
+                false,
+            );
             self.raw_ids.insert(t, id);
             added.push(id);
         }
@@ -234,11 +244,22 @@ impl Hub {
         self.clients.iter().any(|c| c.subs.contains_key(&channel))
     }
 
-    fn publish(&mut self, channel: u32, key: Option<&str>, ts: u64, data: Arc<[u8]>, shared: &Shared) {
+    fn publish(
+        &mut self,
+        channel: u32,
+        key: Option<&str>,
+        ts: u64,
+        data: Arc<[u8]>,
+        shared: &Shared,
+    ) {
         let latched = self.channels.iter().any(|c| c.id == channel && c.latched);
         for c in &self.clients {
             if let Some(&sub) = c.subs.get(&channel) {
-                match c.tx.try_send(Frame::Data { sub, ts, data: Arc::clone(&data) }) {
+                match c.tx.try_send(Frame::Data {
+                    sub,
+                    ts,
+                    data: Arc::clone(&data),
+                }) {
                     Ok(()) => {}
                     Err(TrySendError::Full(_)) => {
                         shared.dropped_slow.fetch_add(1, Ordering::Relaxed);
@@ -258,8 +279,11 @@ impl Server {
     /// A port in use or an address that is not this host's is an error here, before anything
     /// of a run starts.
     pub fn bind(addr: SocketAddr) -> Result<Arc<Self>, ServeError> {
-        let listener = TcpListener::bind(addr).map_err(|source| ServeError::Bind { addr, source })?;
-        let addr = listener.local_addr().map_err(|source| ServeError::Bind { addr, source })?;
+        let listener =
+            TcpListener::bind(addr).map_err(|source| ServeError::Bind { addr, source })?;
+        let addr = listener
+            .local_addr()
+            .map_err(|source| ServeError::Bind { addr, source })?;
         listener
             .set_nonblocking(true)
             .map_err(|source| ServeError::Bind { addr, source })?;
@@ -276,12 +300,18 @@ impl Server {
         let scene = std::thread::Builder::new()
             .name("qfleet-foxglove".into())
             .spawn(move || scene_thread(&rx, &s))
-            .map_err(|source| ServeError::Thread { what: "scene", source })?;
+            .map_err(|source| ServeError::Thread {
+                what: "scene",
+                source,
+            })?;
         let s = Arc::clone(&shared);
         let accept = std::thread::Builder::new()
             .name("qfleet-foxglove-accept".into())
             .spawn(move || accept_thread(&listener, &s))
-            .map_err(|source| ServeError::Thread { what: "accept", source })?;
+            .map_err(|source| ServeError::Thread {
+                what: "accept",
+                source,
+            })?;
         Ok(Arc::new(Self {
             addr,
             input: Mutex::new(Some(tx)),
@@ -407,7 +437,10 @@ fn scene_thread(rx: &Receiver<Input>, shared: &Shared) {
                 sc.apply(t_ns, recv_ns, msg, &mut out);
                 let raw = {
                     let hub = shared.hub();
-                    hub.raw_ids.get(&msg.topic()).copied().filter(|&id| hub.subscribed(id))
+                    hub.raw_ids
+                        .get(&msg.topic())
+                        .copied()
+                        .filter(|&id| hub.subscribed(id))
                 };
                 if let Some(id) = raw
                     && let Ok(bytes) = serde_json::to_vec(&msg.to_json())
@@ -422,9 +455,13 @@ fn scene_thread(rx: &Receiver<Input>, shared: &Shared) {
 
 fn publish_scene(out: &mut Vec<SceneMsg>, t_ns: u64, shared: &Shared) {
     for m in out.drain(..) {
-        let Ok(bytes) = serde_json::to_vec(&m.json) else { continue };
+        let Ok(bytes) = serde_json::to_vec(&m.json) else {
+            continue;
+        };
         let mut hub = shared.hub();
-        let Some(&id) = hub.scene_ids.get(&m.channel) else { continue };
+        let Some(&id) = hub.scene_ids.get(&m.channel) else {
+            continue;
+        };
         hub.publish(id, Some(&m.key), t_ns, bytes.into(), shared);
     }
 }
@@ -437,7 +474,9 @@ fn accept_thread(listener: &TcpListener, shared: &Arc<Shared>) {
             Ok((stream, _peer)) => {
                 next += 1;
                 let id = next;
-                let Ok(clone) = stream.try_clone() else { continue };
+                let Ok(clone) = stream.try_clone() else {
+                    continue;
+                };
                 shared.hub().streams.push((id, clone));
                 let s = Arc::clone(shared);
                 match std::thread::Builder::new()
@@ -453,7 +492,9 @@ fn accept_thread(listener: &TcpListener, shared: &Arc<Shared>) {
                 }
                 clients.retain(|h| !h.is_finished());
             }
-            Err(e) if e.kind() == ErrorKind::WouldBlock => std::thread::sleep(Duration::from_millis(20)),
+            Err(e) if e.kind() == ErrorKind::WouldBlock => {
+                std::thread::sleep(Duration::from_millis(20))
+            }
             Err(_) => std::thread::sleep(Duration::from_millis(20)),
         }
     }
@@ -502,7 +543,11 @@ fn client_thread(id: u64, stream: TcpStream, shared: &Shared) {
     });
     let advertise = {
         let mut hub = shared.hub();
-        hub.clients.push(ClientSlot { id, tx, subs: HashMap::new() });
+        hub.clients.push(ClientSlot {
+            id,
+            tx,
+            subs: HashMap::new(),
+        });
         let all: Vec<&ChannelInfo> = hub.channels.iter().collect();
         (!all.is_empty()).then(|| Hub::advertise_json(&all))
     };
@@ -519,14 +564,20 @@ fn client_thread(id: u64, stream: TcpStream, shared: &Shared) {
     let _ = ws.flush();
 }
 
-fn serve(id: u64, ws: &mut WebSocket<TcpStream>, rx: &Receiver<Frame>, shared: &Shared) -> Result<(), tungstenite::Error> {
+fn serve(
+    id: u64,
+    ws: &mut WebSocket<TcpStream>,
+    rx: &Receiver<Frame>,
+    shared: &Shared,
+) -> Result<(), tungstenite::Error> {
     let mut frame = Vec::with_capacity(4096);
     while !shared.stop.load(Ordering::SeqCst) {
         match ws.read() {
             Ok(Message::Text(t)) => handle_client(id, t.as_str(), shared),
             Ok(Message::Close(_)) => return Ok(()),
             Ok(_) => {}
-            Err(tungstenite::Error::Io(e)) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {}
+            Err(tungstenite::Error::Io(e))
+                if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {}
             Err(e) => return Err(e),
         }
         let mut n = 0;
@@ -557,16 +608,29 @@ fn serve(id: u64, ws: &mut WebSocket<TcpStream>, rx: &Receiver<Frame>, shared: &
 /// A client's JSON request: `subscribe` (answered with the channel's latched messages at
 /// once) and `unsubscribe`; anything else is ignored.
 fn handle_client(id: u64, text: &str, shared: &Shared) {
-    let Ok(v) = serde_json::from_str::<Value>(text) else { return };
+    let Ok(v) = serde_json::from_str::<Value>(text) else {
+        return;
+    };
     let mut hub = shared.hub();
     let hub = &mut *hub;
-    let Some(slot) = hub.clients.iter_mut().find(|c| c.id == id) else { return };
+    let Some(slot) = hub.clients.iter_mut().find(|c| c.id == id) else {
+        return;
+    };
     match v.get("op").and_then(Value::as_str) {
         Some("subscribe") => {
-            for s in v.get("subscriptions").and_then(Value::as_array).into_iter().flatten() {
+            for s in v
+                .get("subscriptions")
+                .and_then(Value::as_array)
+                .into_iter()
+                .flatten()
+            {
                 let (Some(sub), Some(ch)) = (
-                    s.get("id").and_then(Value::as_u64).and_then(|x| u32::try_from(x).ok()),
-                    s.get("channelId").and_then(Value::as_u64).and_then(|x| u32::try_from(x).ok()),
+                    s.get("id")
+                        .and_then(Value::as_u64)
+                        .and_then(|x| u32::try_from(x).ok()),
+                    s.get("channelId")
+                        .and_then(Value::as_u64)
+                        .and_then(|x| u32::try_from(x).ok()),
                 ) else {
                     continue;
                 };
@@ -578,7 +642,11 @@ fn handle_client(id: u64, text: &str, shared: &Shared) {
                     if *c != ch {
                         break;
                     }
-                    let f = Frame::Data { sub, ts: *ts, data: Arc::clone(data) };
+                    let f = Frame::Data {
+                        sub,
+                        ts: *ts,
+                        data: Arc::clone(data),
+                    };
                     if slot.tx.try_send(f).is_err() {
                         shared.dropped_slow.fetch_add(1, Ordering::Relaxed);
                     }
@@ -680,7 +748,11 @@ mod tests {
         assert_eq!(map["schemaEncoding"], "jsonschema");
         let schema: Value = serde_json::from_str(map["schema"].as_str().unwrap()).unwrap();
         assert_eq!(schema["title"], "foxglove.Grid");
-        assert!(channels.iter().any(|c| c["topic"] == "qfleet/fox-test/robot/state"));
+        assert!(
+            channels
+                .iter()
+                .any(|c| c["topic"] == "qfleet/fox-test/robot/state")
+        );
         let sub = json!({"op": "subscribe", "subscriptions": [
             {"id": 7, "channelId": id_of("/map")}, {"id": 8, "channelId": id_of("/robots")},
         ]});
@@ -703,7 +775,10 @@ mod tests {
         let (sub, ts, robots) = data(&mut ws);
         assert_eq!((sub, ts), (8, 5_000));
         assert_eq!(robots["entities"][0]["id"], "robot-0");
-        assert_eq!(robots["entities"][0]["cubes"][0]["pose"]["position"]["x"], 2.5);
+        assert_eq!(
+            robots["entities"][0]["cubes"][0]["pose"]["position"]["x"],
+            2.5
+        );
         let r = s.shutdown();
         assert_eq!(r.clients, 1);
         assert!(r.sent >= 2, "{r:?}");

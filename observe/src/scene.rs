@@ -246,10 +246,7 @@ impl Scene {
                         2
                     },
                     &format!("robot-{id}"),
-                    &format!(
-                        "robot {id} {name} after {} episodes, {path}",
-                        m.episodes
-                    ),
+                    &format!("robot {id} {name} after {} episodes, {path}", m.episodes),
                 ));
             }
             Msg::Control(m) => {
@@ -267,10 +264,7 @@ impl Scene {
                     Ok(Command::Phase) => format!("phase {} ({} episodes)", m.phase, m.episodes),
                     Ok(Command::Refuse) => {
                         let n = (m.reason_len as usize).min(m.reason.len());
-                        format!(
-                            "refuse {who}: {}",
-                            String::from_utf8_lossy(&m.reason[..n])
-                        )
+                        format!("refuse {who}: {}", String::from_utf8_lossy(&m.reason[..n]))
                     }
                     _ => format!("{cmd} {who}"),
                 };
@@ -375,9 +369,7 @@ impl Scene {
             "hint_latency_ms": s.hint_latency_ns.map(ms),
         });
         if let Some(m) = report {
-            v["final_path_len"] = (m.final_path_len >= 0)
-                .then_some(m.final_path_len)
-                .into();
+            v["final_path_len"] = (m.final_path_len >= 0).then_some(m.final_path_len).into();
             v["loop_latency_p50_ms"] = (m.merged_latency.count > 0)
                 .then(|| ms(m.merged_latency.p50_ns))
                 .into();
@@ -453,7 +445,13 @@ impl Scene {
         starts.sort_by_key(|c| (c.y, c.x));
         starts.dedup();
         if starts.is_empty() {
-            starts = self.vm.robots.first().and_then(|r| r.start).into_iter().collect();
+            starts = self
+                .vm
+                .robots
+                .first()
+                .and_then(|r| r.start)
+                .into_iter()
+                .collect();
         }
         if starts != self.starts_sent && !starts.is_empty() {
             self.starts_sent = starts.clone();
@@ -484,7 +482,14 @@ impl Scene {
                     &id,
                     t_ns,
                     vec![cube(x, y, 0.02, 0.9, 0.9, 0.04, [0.1, 0.9, 0.2], 0.9)],
-                    vec![text(x, y, 0.6, &format!("goal {gid}"), [0.1, 0.9, 0.2], 1.0)],
+                    vec![text(
+                        x,
+                        y,
+                        0.6,
+                        &format!("goal {gid}"),
+                        [0.1, 0.9, 0.2],
+                        1.0,
+                    )],
                 ),
             ));
         }
@@ -530,10 +535,7 @@ fn cell_in(grid: &Grid, x: u16, y: u16) -> Option<Cell> {
 
 /// The centre of cell `c` in the `map` frame of a map `height` cells high.
 pub fn centre(height: usize, c: Cell) -> (f64, f64) {
-    (
-        f64::from(c.x) + 0.5,
-        height as f64 - f64::from(c.y) - 0.5,
-    )
+    (f64::from(c.x) + 0.5, height as f64 - f64::from(c.y) - 0.5)
 }
 
 /// The colour of robot `id` (r, g, b in 0..1): a fixed palette, repeated.
@@ -765,7 +767,9 @@ fn scene_update_schema() -> Value {
     );
     let deletion = titled(
         "foxglove.SceneEntityDeletion",
-        obj(json!({"timestamp": time_schema(), "type": {"type": "integer", "description": "0 MATCHING_ID, 1 ALL"}, "id": {"type": "string"}})),
+        obj(
+            json!({"timestamp": time_schema(), "type": {"type": "integer", "description": "0 MATCHING_ID, 1 ALL"}, "id": {"type": "string"}}),
+        ),
     );
     obj(json!({"deletions": array_of(deletion), "entities": array_of(entity)}))
 }
@@ -893,7 +897,10 @@ mod tests {
         let markers = on(&out, Channel::Markers);
         let goal = markers.iter().find(|m| m.key == "goal-0").unwrap();
         let cube = &goal.json["entities"][0]["cubes"][0]["pose"]["position"];
-        assert_eq!((cube["x"].as_f64(), cube["y"].as_f64()), (Some(3.5), Some(0.5)));
+        assert_eq!(
+            (cube["x"].as_f64(), cube["y"].as_f64()),
+            (Some(3.5), Some(0.5))
+        );
     }
 
     #[test]
@@ -918,7 +925,11 @@ mod tests {
         out.clear();
         s.apply(20, 20, Msg::State(&state(1, 3, 0, 0, 0)), &mut out);
         s.apply(30, 30, Msg::State(&state(1, 3, 0, 0, 0)), &mut out);
-        assert_eq!(on(&out, Channel::Robots).len(), 1, "the same cell again is not sent");
+        assert_eq!(
+            on(&out, Channel::Robots).len(),
+            1,
+            "the same cell again is not sent"
+        );
         out.clear();
         s.apply(40, 40, Msg::State(&state(1, 99, 0, 0, 0)), &mut out);
         s.apply(41, 41, Msg::State(&state(u32::MAX, 1, 1, 0, 0)), &mut out);
@@ -1022,10 +1033,12 @@ mod tests {
         };
         s.apply(1, 1, Msg::Control(&assign), &mut out);
         assert!(on(&out, Channel::Markers).iter().any(|m| m.key == "goal-2"));
-        assert!(on(&out, Channel::Log)[0].json["message"]
-            .as_str()
-            .unwrap()
-            .contains("assign goal 2 at (3, 0)"));
+        assert!(
+            on(&out, Channel::Log)[0].json["message"]
+                .as_str()
+                .unwrap()
+                .contains("assign goal 2 at (3, 0)")
+        );
         out.clear();
         let relay = DiscoveryRelay {
             goal_id: 0,
@@ -1046,7 +1059,12 @@ mod tests {
         let mut out = Vec::new();
         s.start(0, &mut out);
         s.apply(1, 1, Msg::State(&state(0, 0, 0, 0, 0)), &mut out);
-        s.apply(PATH_EVERY_NS, 2, Msg::State(&state(0, 0, 1, 1, 4)), &mut out);
+        s.apply(
+            PATH_EVERY_NS,
+            2,
+            Msg::State(&state(0, 0, 1, 1, 4)),
+            &mut out,
+        );
         let rep = FinalReport {
             status: RobotStatus::Failed.as_u8(),
             ..FinalReport::ZEROED
@@ -1059,7 +1077,11 @@ mod tests {
             assert_eq!(schema["title"], m.channel.schema_name());
             let props = schema["properties"].as_object().unwrap();
             for k in m.json.as_object().unwrap().keys() {
-                assert!(props.contains_key(k), "{:?}: {k} not in its schema", m.channel);
+                assert!(
+                    props.contains_key(k),
+                    "{:?}: {k} not in its schema",
+                    m.channel
+                );
             }
         }
         for c in Channel::ALL {

@@ -242,7 +242,11 @@ fn watch_thread(
                 r.record(t, m);
             }
             if let Some(f) = &opts.foxglove {
-                f.offer(wall0.saturating_add(t.saturating_sub(mono0)), t, Owned::of(m));
+                f.offer(
+                    wall0.saturating_add(t.saturating_sub(mono0)),
+                    t,
+                    Owned::of(m),
+                );
             }
         };
         let mut n = 0;
