@@ -153,13 +153,16 @@ struct ClientSlot {
     subs: HashMap<u32, u32>,
 }
 
+/// A latched message: its timestamp and bytes.
+type Latched = (u64, Arc<[u8]>);
+
 #[derive(Default)]
 struct Hub {
     channels: Vec<ChannelInfo>,
     scene_ids: BTreeMap<Channel, u32>,
     raw_ids: HashMap<Topic, u32>,
     next_channel: u32,
-    latched: BTreeMap<(u32, String), (u64, Arc<[u8]>)>,
+    latched: BTreeMap<(u32, String), Latched>,
     clients: Vec<ClientSlot>,
     streams: Vec<(u64, TcpStream)>,
 }
@@ -515,6 +518,8 @@ fn client_thread(id: u64, stream: TcpStream, shared: &Shared) {
     let _ = stream.set_nodelay(true);
     let _ = stream.set_nonblocking(false);
     let _ = stream.set_read_timeout(Some(HANDSHAKE_TIMEOUT));
+    // the signature tungstenite's handshake callback has: its error is an HTTP response
+    #[allow(clippy::result_large_err)]
     let callback = |req: &Request, mut resp: Response| -> Result<Response, ErrorResponse> {
         let offered = req
             .headers()
