@@ -189,3 +189,66 @@ fn a_foxglove_port_in_use_or_a_bad_address_is_bad_input() {
         assert!(leftovers(&id).is_empty());
     }
 }
+
+/// `qfleet replay FILE --foxglove ADDR:PORT`: the recording of a paced run, served at its
+/// pace (sped up) once the client connects, shows the same map and both robots on free cells.
+#[test]
+fn a_recording_replays_to_a_foxglove_client() {
+    let test = "a_recording_replays_to_a_foxglove_client";
+    let Some(py) = python_with(test, &["websockets"]) else {
+        return;
+    };
+    let id = run_id("foxrep");
+    let dir = scratch(&id);
+    let map = dir.join("paper-10.txt");
+    std::fs::write(&map, planner::map::PAPER_10).unwrap();
+    let file = dir.join("run.mcap");
+    let run = run_bounded(
+        Command::new(bin("qfleet"))
+            .args([
+                "run",
+                "--robots",
+                "2",
+                "--map",
+                "builtin:paper-10",
+                "--episodes",
+                "100",
+                "--pace",
+                "3000",
+                "--json",
+                "--run-id",
+                &id,
+                "--record",
+            ])
+            .arg(&file),
+    );
+    assert!(run.status.success(), "{}", describe(&run));
+    let port = free_port().to_string();
+    let replay = spawn(Command::new(bin("qfleet")).arg("replay").arg(&file).args([
+        "--speed",
+        "2",
+        "--foxglove",
+        &format!("127.0.0.1:{port}"),
+    ]));
+    let client = run_bounded(
+        Command::new(&py)
+            .arg(checker())
+            .args([
+                "live",
+                "--port",
+                &port,
+                "--robots",
+                "2",
+                "--timeout",
+                "60",
+                "--map",
+            ])
+            .arg(&map),
+    );
+    let replay = wait_bounded(replay, qfleet_suite::PROCESS_TIMEOUT);
+    assert!(client.status.success(), "{}", describe(&client));
+    assert!(replay.status.success(), "{}", describe(&replay));
+    let seen: serde_json::Value = serde_json::from_slice(&client.stdout).unwrap();
+    assert_eq!(seen["grid"]["width"], 10, "{seen}");
+    assert!(seen["robot_updates"]["1"].as_u64() >= Some(1), "{seen}");
+}
