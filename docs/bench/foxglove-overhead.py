@@ -86,7 +86,7 @@ def recv_frame(s):
 
 
 def client(port, read, deadline, stats):
-    """Connects, reads until every channel of the run is advertised (7 scene + 9 raw), subscribes
+    """Connects, reads until the channels are advertised (scene and raw, in one message), subscribes
     to all of them, then reads everything (read=True) or never reads again (read=False)."""
     s = handshake(port, deadline)
     if s is None:
@@ -94,7 +94,7 @@ def client(port, read, deadline, stats):
     ids = []
     s.settimeout(10)
     try:
-        while len(ids) < 16:
+        while not ids:
             op, payload = recv_frame(s)
             if op == 1:
                 m = json.loads(payload)
