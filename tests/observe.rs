@@ -52,7 +52,11 @@ fn a_recorded_run_reads_back_with_the_runs_own_counts() {
     );
     let s: serde_json::Value = serde_json::from_slice(&replay.stdout).unwrap();
     let topics = s["topics"].as_array().unwrap();
-    assert_eq!(topics.len(), 9, "one channel per topic");
+    assert_eq!(
+        topics.len(),
+        bus_schema::names::Topic::ALL.len(),
+        "one channel per topic"
+    );
     let count = |path: &str| {
         topics
             .iter()
@@ -153,7 +157,11 @@ fn topic_tools_read_a_live_run_without_changing_it() {
         listed[0]["live"] == true
     });
     assert!(live, "topic list never saw the run live: {listed}");
-    assert_eq!(listed.as_array().map(Vec::len), Some(9), "{listed}");
+    assert_eq!(
+        listed.as_array().map(Vec::len),
+        Some(bus_schema::names::Topic::ALL.len()),
+        "{listed}"
+    );
     assert_eq!(
         listed[0]["topic"].as_str().map(|t| t.contains(&id)),
         Some(true),

@@ -5,8 +5,10 @@
 //! ([`decode`]), counts messages and rates ([`stats`]), records everything into an MCAP file
 //! that Foxglove opens ([`record`]), reads recordings back ([`replay`]; one whose recorder was
 //! killed through [`salvage`]), and keeps an IO-free model of the run ([`view::ViewModel`])
-//! that the terminal live view ([`tui`]) draws.
-//! [`watch`] ties them together for `qfleet run/experiment --live/--record`.
+//! that the terminal live view ([`tui`]) draws. [`scene`] turns a run into Foxglove's
+//! well-known schemas (map, robots, paths, markers), which recordings carry and a Foxglove
+//! WebSocket server ([`foxglove`]) serves live. [`watch`] ties them together for `qfleet
+//! run/experiment --live/--record/--foxglove`.
 //!
 //! Not here: starting or stopping a run's processes (the launcher in `tools/`; the live view
 //! only calls the stop callback it is given), publishing anything on a run's topics (an
@@ -16,9 +18,11 @@
 
 pub mod attach;
 pub mod decode;
+pub mod foxglove;
 pub mod record;
 pub mod replay;
 pub mod salvage;
+pub mod scene;
 pub mod stats;
 pub mod tui;
 pub mod view;

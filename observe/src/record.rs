@@ -1,6 +1,9 @@
 //! MCAP recording of a run: one channel per topic (the service name as the MCAP topic), JSON
 //! messages with a JSON schema per type (what Foxglove decodes without plug-ins), the run's
-//! configuration as metadata and the map as an attachment.
+//! configuration as metadata and the map as an attachment; besides them the scene of the run
+//! in Foxglove's well-known schemas ([`crate::scene`]: `/map` as a `foxglove.Grid` at the
+//! start, `/robots`, `/paths` and `/markers` as `foxglove.SceneUpdate`s, `/tf`,
+//! `/robot_stats`, `/log`), so the 3D panel draws the map and the robots moving.
 //!
 //! Times: a message's MCAP `log_time` (and `publish_time`) is its receive time in the observer
 //! as wall-clock ns since the Unix epoch; the metadata record `qfleet.run` holds the pair
@@ -20,6 +23,7 @@ use mcap::{Attachment, WriteOptions, Writer};
 
 use crate::ObserveError;
 use crate::decode::{Msg, Owned, json_schema};
+use crate::scene::{Channel, Scene, SceneMsg};
 use crate::stats::topic_index;
 
 /// Name of the metadata record with the run's configuration.
@@ -55,6 +59,15 @@ pub struct Recorder<W: Write + Seek> {
     mono0: u64,
     buf: Vec<u8>,
     written: u64,
+    scene: Option<RecordedScene>,
+}
+
+/// The scene channels of a recording and the scene that feeds them.
+struct RecordedScene {
+    scene: Scene,
+    channels: [u16; Channel::ALL.len()],
+    seq: [u32; Channel::ALL.len()],
+    out: Vec<SceneMsg>,
 }
 
 /// Wall-clock ns since the Unix epoch (0 if the clock is before it).
@@ -95,6 +108,25 @@ impl<W: Write + Seek> Recorder<W> {
             channels[topic_index(t)] =
                 writer.add_channel(sid, &t.service_name(&info.run_id), "json", &meta)?;
         }
+        // the scene needs the map: a recording without one (a bare `RunInfo`) has raw topics only
+        let scene = match planner::map::parse_movingai_map("map.map", info.map_text.as_bytes()) {
+            Ok(map) => {
+                let mut ch = [0u16; Channel::ALL.len()];
+                for (i, c) in Channel::ALL.into_iter().enumerate() {
+                    let schema = serde_json::to_vec(&c.schema())?;
+                    let sid = writer.add_schema(c.schema_name(), "jsonschema", &schema)?;
+                    ch[i] = writer.add_channel(sid, c.topic(), "json", &BTreeMap::new())?;
+                }
+                let cell = |(x, y): (u16, u16)| planner::grid::Cell::new(x, y);
+                Some(RecordedScene {
+                    scene: Scene::new(&info.map_name, map.grid, cell(info.start), cell(info.goal)),
+                    channels: ch,
+                    seq: [0; Channel::ALL.len()],
+                    out: Vec::new(),
+                })
+            }
+            Err(_) => None,
+        };
         let wall0 = wall_ns();
         let mono0 = bus::monotonic_ns();
         let mut meta = info.config.clone();
@@ -126,7 +158,7 @@ impl<W: Write + Seek> Recorder<W> {
             media_type: "application/json".into(),
             data: serde_json::to_vec_pretty(&meta)?.into(),
         })?;
-        Ok(Self {
+        let mut rec = Self {
             writer,
             channels,
             seq: [0; Topic::ALL.len()],
@@ -134,7 +166,39 @@ impl<W: Write + Seek> Recorder<W> {
             mono0,
             buf: Vec::with_capacity(16 * 1024),
             written: 0,
-        })
+            scene,
+        };
+        if let Some(s) = rec.scene.as_mut() {
+            s.scene.start(wall0, &mut s.out);
+        }
+        rec.write_scene(wall0)?;
+        Ok(rec)
+    }
+
+    /// Writes what the scene built, logged at `t` (wall ns).
+    fn write_scene(&mut self, t: u64) -> Result<(), ObserveError> {
+        let Some(s) = self.scene.as_mut() else {
+            return Ok(());
+        };
+        for m in s.out.drain(..) {
+            let i = Channel::ALL
+                .iter()
+                .position(|c| *c == m.channel)
+                .unwrap_or(0);
+            self.buf.clear();
+            serde_json::to_writer(&mut self.buf, &m.json)?;
+            self.writer.write_to_known_channel(
+                &MessageHeader {
+                    channel_id: s.channels[i],
+                    sequence: s.seq[i],
+                    log_time: t,
+                    publish_time: t,
+                },
+                &self.buf,
+            )?;
+            s.seq[i] = s.seq[i].wrapping_add(1);
+        }
+        Ok(())
     }
 
     /// Writes one message received at monotonic time `recv_ns`.
@@ -156,10 +220,14 @@ impl<W: Write + Seek> Recorder<W> {
         )?;
         self.seq[i] = self.seq[i].wrapping_add(1);
         self.written += 1;
+        if let Some(s) = self.scene.as_mut() {
+            s.scene.apply(t, recv_ns, msg, &mut s.out);
+            self.write_scene(t)?;
+        }
         Ok(())
     }
 
-    /// Messages written so far.
+    /// Messages of the run's topics written so far (the scene's are not counted).
     pub fn written(&self) -> u64 {
         self.written
     }

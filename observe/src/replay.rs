@@ -594,13 +594,17 @@ mod tests {
         assert_eq!(rec.written(), 11);
         let bytes = rec.finish().unwrap().into_inner();
         let summary_idx = mcap::Summary::read(&bytes).unwrap().unwrap();
-        assert_eq!(summary_idx.channels.len(), Topic::ALL.len());
-        assert_eq!(summary_idx.schemas.len(), Topic::ALL.len());
+        // the run's raw topics, and the scene's channels in Foxglove's well-known schemas
+        let scene = crate::scene::Channel::ALL;
+        assert_eq!(summary_idx.channels.len(), Topic::ALL.len() + scene.len());
         for ch in summary_idx.channels.values() {
             let s = ch.schema.as_ref().unwrap();
             assert_eq!(s.encoding, "jsonschema");
             assert_eq!(ch.message_encoding, "json");
-            assert!(ch.topic.starts_with("qfleet/rec-1/"));
+            match scene.iter().find(|c| c.topic() == ch.topic) {
+                Some(c) => assert_eq!(s.name, c.schema_name()),
+                None => assert!(ch.topic.starts_with("qfleet/rec-1/"), "{}", ch.topic),
+            }
             let schema: Value = serde_json::from_slice(&s.data).unwrap();
             assert_eq!(schema["title"], s.name);
         }

@@ -37,12 +37,14 @@ pub struct WatchOptions {
     pub live: bool,
     /// Record every message into this MCAP file.
     pub record: Option<PathBuf>,
+    /// Serve the run to Foxglove clients on this (already bound) server.
+    pub foxglove: Option<Arc<crate::foxglove::Server>>,
 }
 
 impl WatchOptions {
     /// Whether anything is asked for at all.
     pub fn any(&self) -> bool {
-        self.live || self.record.is_some()
+        self.live || self.record.is_some() || self.foxglove.is_some()
     }
 }
 
@@ -152,6 +154,20 @@ pub fn start(
         Some(p) => Some(BackgroundRecorder::start(Recorder::create(p, &info)?)?),
         None => None,
     };
+    // the Foxglove server's scene of this run starts now: the map is there before any robot
+    let clock = (crate::record::wall_ns(), bus::monotonic_ns());
+    if let Some(f) = &opts.foxglove {
+        f.begin_run(
+            crate::foxglove::RunStart {
+                run_id: run_id.to_string(),
+                map_name: task.map_name.clone(),
+                grid: task.grid.clone(),
+                start: task.start,
+                goal: task.goal,
+            },
+            clock.0,
+        );
+    }
     let done = Arc::new(AtomicBool::new(false));
     let d = Arc::clone(&done);
     let joined = Arc::new(AtomicU8::new(PENDING));
@@ -167,7 +183,7 @@ pub fn start(
         .name("qfleet-watch".into())
         .spawn(move || {
             let vm = ViewModel::new(&name, grid, start, goal);
-            let r = watch_thread(&run_id, vm, rec, &opts, &d, &j, &*on_quit);
+            let r = watch_thread(&run_id, vm, rec, &opts, clock, &d, &j, &*on_quit);
             // an attach that never happened (an error, the run over first) is final
             let _ = j.compare_exchange(PENDING, GAVE_UP, Ordering::SeqCst, Ordering::SeqCst);
             r
@@ -183,11 +199,13 @@ pub fn start(
     })
 }
 
+#[allow(clippy::too_many_arguments)]
 fn watch_thread(
     run_id: &str,
     mut vm: ViewModel,
     mut rec: Option<BackgroundRecorder>,
     opts: &WatchOptions,
+    (wall0, mono0): (u64, u64),
     done: &AtomicBool,
     joined: &AtomicU8,
     on_quit: &dyn Fn(),
@@ -222,6 +240,13 @@ fn watch_thread(
             vm.apply(t, m);
             if let Some(r) = rec.as_mut() {
                 r.record(t, m);
+            }
+            if let Some(f) = &opts.foxglove {
+                f.offer(
+                    wall0.saturating_add(t.saturating_sub(mono0)),
+                    t,
+                    Owned::of(m),
+                );
             }
         };
         let mut n = 0;

@@ -63,16 +63,10 @@ pub struct ExperimentCmd {
     /// How robots apply merged hints and how the coordinator merges them.
     #[command(flatten)]
     rules: Rules,
-    /// Show the live terminal view (`q` stops like Ctrl-C, `space` pauses the view).
-    #[arg(long)]
-    live: bool,
-    /// Record every message into this MCAP file (`NAME-seed-S.mcap` with several seeds).
-    #[arg(long, value_name = "FILE.mcap")]
-    record: Option<PathBuf>,
-    /// Slow every robot to this many environment steps per second (1 to 10 000 000), so that
-    /// a person can follow them with `--live`.
-    #[arg(long, value_name = "STEPS_PER_S", value_parser = qfleet_args::parse_pace)]
-    pace: Option<f64>,
+    /// `--live`, `--record`, `--pace`, `--foxglove` (in an experiment `q` in the live view
+    /// stops like Ctrl-C).
+    #[command(flatten)]
+    watch: crate::live::WatchArgs,
     /// Robots on other hosts: the last `--remote-robots` of the manifest's robots join with
     /// `qfleet join ENDPOINT --robots N` there (every seed's run waits for them again).
     #[command(flatten)]
@@ -408,7 +402,7 @@ impl ExperimentCmd {
             policy: self.restart,
             max_restarts: self.max_restarts,
             grace,
-            pace: self.pace,
+            pace: self.watch.pace,
         };
         let out_dir =
             LaunchDir::prepare(self.out.as_deref(), self.force, "exp").map_err(|e| match e {
@@ -427,11 +421,14 @@ impl ExperimentCmd {
                 self.rules.resolve(&cfg)
             )?;
         }
+        // a Foxglove port in use is bad input, found before any seed starts; one server for all
+        let foxglove = self.watch.serve()?;
         let mut results = Vec::new();
         for &seed in &plan.manifest.seeds.clone() {
             let id = make_run_id(self.run_id.as_deref(), &format!("s{seed}"));
             let dir = out.join(format!("seed-{seed}"));
             let rec = self
+                .watch
                 .record
                 .as_ref()
                 .map(|p| match plan.manifest.seeds.len() {
@@ -441,14 +438,18 @@ impl ExperimentCmd {
             let cfg = vec![
                 ("manifest".into(), self.file.display().to_string()),
                 ("seed".into(), seed.to_string()),
-                ("pace".into(), qfleet_args::pace_cli(self.pace).join(" ")),
+                (
+                    "pace".into(),
+                    qfleet_args::pace_cli(self.watch.pace).join(" "),
+                ),
             ];
             let watch = crate::live::start(
                 &id,
                 &crate::live::experiment_task(&plan),
                 cfg,
-                self.live,
+                &self.watch,
                 rec,
+                foxglove.clone(),
                 Box::new(crate::request_stop),
             )?;
             let r = run_once(
@@ -464,6 +465,7 @@ impl ExperimentCmd {
             let r = match r {
                 Ok(r) => r,
                 Err(e) => {
+                    crate::live::stop_foxglove(foxglove);
                     let kept = out_dir.keep();
                     return Err(e.context(format!(
                         "seed {seed} (kept in {}: {})",
@@ -477,6 +479,7 @@ impl ExperimentCmd {
             }
             results.push(r);
         }
+        crate::live::stop_foxglove(foxglove);
         if self.json {
             out!("{}", serde_json::to_string(&results)?)?;
         } else if !out_dir.is_temp() {

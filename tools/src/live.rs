@@ -1,33 +1,117 @@
-//! The launcher side of `--live` and `--record FILE.mcap` (`qfleet run`, `qfleet experiment`):
-//! start an `observe::watch` thread before the run's processes, finish it after they exited
-//! and before the run's files are removed. Everything else lives in the `observe` crate.
+//! The launcher side of `--live`, `--record FILE.mcap`, `--pace` and `--foxglove` (`qfleet
+//! run`, `qfleet experiment`: one [`WatchArgs`] flattened into both): start an
+//! `observe::watch` thread before the run's processes, finish it after they exited and before
+//! the run's files are removed. Everything else lives in the `observe` crate.
 
+use std::net::{SocketAddr, ToSocketAddrs};
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use anyhow::{Context, Result};
+use clap::Args;
+use observe::foxglove::Server;
 use observe::watch::{Watch, WatchOptions, run_info, start as start_watch};
 use planner::task::Task;
 
-/// A watch thread, if `--live` or `--record` asked for one.
+/// How a run is watched: the options `qfleet run` and `qfleet experiment` share.
+#[derive(Debug, Clone, Args)]
+pub struct WatchArgs {
+    /// Show the live terminal view (`q` stops the run gracefully, `space` pauses the view).
+    #[arg(long)]
+    pub live: bool,
+    /// Record every message of every topic into this MCAP file, with the map, robots and paths
+    /// in Foxglove's schemas (an experiment with several seeds writes `FILE.seed-S.mcap`).
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<PathBuf>,
+    /// Slow every robot to this many environment steps per second (1 to 10 000 000), so that
+    /// a person can follow them with `--live` or `--foxglove`; a paced robot also shows its
+    /// cell at every pause.
+    #[arg(long, value_name = "STEPS_PER_S", value_parser = qfleet_args::parse_pace)]
+    pub pace: Option<f64>,
+    /// Serve the run to Foxglove (WebSocket, `foxglove.websocket.v1`) on ADDR:PORT while it
+    /// goes on [default: 127.0.0.1:8765]; an address other than loopback lets any machine
+    /// that reaches it watch (no TLS, no authentication).
+    #[arg(long, value_name = "ADDR:PORT", num_args = 0..=1,
+          default_missing_value = observe::foxglove::DEFAULT_ADDR, value_parser = parse_addr)]
+    pub foxglove: Option<SocketAddr>,
+}
+
+/// `ADDR:PORT` (a name such as `localhost:8765` is resolved to its first address).
+pub fn parse_addr(s: &str) -> Result<SocketAddr, String> {
+    if let Ok(a) = s.parse::<SocketAddr>() {
+        return Ok(a);
+    }
+    s.to_socket_addrs()
+        .map_err(|e| format!("{s:?} is not ADDR:PORT ({e})"))?
+        .next()
+        .ok_or_else(|| format!("{s:?} resolves to no address"))
+}
+
+impl WatchArgs {
+    /// Starts the Foxglove server if `--foxglove` asked for one: a port in use or an address
+    /// not of this host is bad input (exit 2), before anything of the run starts. Says where
+    /// it listens, and warns when that is not loopback.
+    pub fn serve(&self) -> Result<Option<Arc<Server>>> {
+        let Some(addr) = self.foxglove else {
+            return Ok(None);
+        };
+        serve_at(addr).map(Some)
+    }
+}
+
+/// Binds a Foxglove server on `addr` (see [`WatchArgs::serve`]).
+pub fn serve_at(addr: SocketAddr) -> Result<Arc<Server>> {
+    let server = Server::bind(addr)
+        .context("--foxglove")
+        .context(launcher::Exit::BadInput)?;
+    let at = server.local_addr();
+    if !observe::foxglove::is_loopback(&at) {
+        crate::term::warn(&format!(
+            "warning: --foxglove {at} is not a loopback address: anyone who can reach this \
+             machine on that port can watch the run (no TLS, no authentication)"
+        ));
+    }
+    crate::term::warn(&format!(
+        "foxglove: serving on ws://{at} (Foxglove: Open connection, Foxglove WebSocket)"
+    ));
+    Ok(server)
+}
+
+/// Stops a Foxglove server and says what it did.
+pub fn stop_foxglove(server: Option<Arc<Server>>) {
+    let Some(s) = server else {
+        return;
+    };
+    let r = s.shutdown();
+    crate::term::warn(&format!(
+        "foxglove: {} client(s), {} messages sent, {} dropped for slow clients, {} dropped by the server",
+        r.clients, r.sent, r.dropped_slow, r.dropped_input
+    ));
+}
+
+/// A watch thread, if `--live`, `--record` or `--foxglove` asked for one.
 pub struct Hook {
     watch: Option<Watch>,
     record: Option<PathBuf>,
 }
 
-/// Starts watching run `run_id` on `task` when `live` or `record` is set; `config` goes into
-/// the recording's metadata; `on_quit` is the launcher's graceful stop (what Ctrl-C does). A
-/// recording file that cannot be created is bad input: nothing of the run has started yet.
+/// Starts watching run `run_id` on `task` as `watch` asks (recording into `record`, serving
+/// on `foxglove`); `config` goes into the recording's metadata; `on_quit` is the launcher's
+/// graceful stop (what Ctrl-C does). A recording file that cannot be created is bad input:
+/// nothing of the run has started yet.
 pub fn start(
     run_id: &str,
     task: &Task,
     config: Vec<(String, String)>,
-    live: bool,
+    watch: &WatchArgs,
     record: Option<PathBuf>,
+    foxglove: Option<Arc<Server>>,
     on_quit: Box<dyn Fn() + Send>,
 ) -> Result<Hook> {
     let opts = WatchOptions {
-        live,
+        live: watch.live,
         record: record.clone(),
+        foxglove,
     };
     let watch = match opts.any() {
         true => Some(

@@ -1,7 +1,9 @@
-//! `qfleet replay FILE.mcap [--live] [--json]`: a recording read back — per-topic counts,
-//! rates and first/last times as a table or JSON, or the live view driven by the recording at
-//! its own pace (`--speed` to go faster or slower).
+//! `qfleet replay FILE.mcap [--live] [--json] [--foxglove [ADDR:PORT]]`: a recording read back —
+//! per-topic counts, rates and first/last times as a table or JSON, the live view driven by the
+//! recording at its own pace (`--speed` to go faster or slower), or the recording served to
+//! Foxglove over WebSocket at its own pace.
 
+use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -24,9 +26,15 @@ pub struct ReplayCmd {
     /// Print the summary as JSON.
     #[arg(long, conflicts_with = "live")]
     json: bool,
-    /// Playback speed of `--live` (2 = twice as fast as recorded).
+    /// Playback speed of `--live` and `--foxglove` (2 = twice as fast as recorded).
     #[arg(long, default_value_t = 1.0)]
     speed: f64,
+    /// Serve the recording to Foxglove (WebSocket, `foxglove.websocket.v1`) on ADDR:PORT at
+    /// its own pace [default: 127.0.0.1:8765]: plays once a client has connected, then exits.
+    #[arg(long, value_name = "ADDR:PORT", num_args = 0..=1,
+          default_missing_value = observe::foxglove::DEFAULT_ADDR,
+          value_parser = crate::live::parse_addr, conflicts_with_all = ["live", "json"])]
+    foxglove: Option<SocketAddr>,
 }
 
 impl ReplayCmd {
@@ -53,6 +61,9 @@ impl ReplayCmd {
         }
         if self.live {
             return self.live(&rec);
+        }
+        if let Some(addr) = self.foxglove {
+            return self.serve(&rec, addr);
         }
         // a recording whose records or messages do not decode is bad input too
         let s = rec.summary().context(launcher::Exit::BadInput)?;
@@ -94,6 +105,56 @@ impl ReplayCmd {
             ]);
         }
         crate::term::write_out(format_args!("{}", t.render("  ")))?;
+        Ok(())
+    }
+
+    /// `--foxglove`: the recording's messages into a Foxglove server at their recorded pace
+    /// (over `--speed`), once a first client has connected.
+    fn serve(&self, rec: &Recording, addr: SocketAddr) -> Result<()> {
+        let vm = view_of_recording(rec).context(launcher::Exit::BadInput)?;
+        let mut msgs = Vec::new();
+        rec.for_each(|t, topic, v| {
+            msgs.push((t, from_json(topic, v)));
+            Ok(())
+        })
+        .context(launcher::Exit::BadInput)?;
+        let server = crate::live::serve_at(addr)?;
+        crate::catch_interrupts()?;
+        let t0 = msgs.first().map_or_else(observe::record::wall_ns, |m| m.0);
+        let cell = |k: &str| rec.cell(k).map(|(x, y)| planner::grid::Cell::new(x, y));
+        let start = cell("start").unwrap_or(planner::grid::Cell::new(0, 0));
+        server.begin_run(
+            observe::foxglove::RunStart {
+                run_id: rec.meta.get("run_id").cloned().unwrap_or_default(),
+                map_name: vm.map_name.clone(),
+                grid: vm.grid.clone(),
+                start,
+                goal: cell("goal").unwrap_or(start),
+            },
+            t0,
+        );
+        crate::term::warn("foxglove: playing once a client connects (Ctrl-C stops)");
+        let stopped = || crate::STOP.load(std::sync::atomic::Ordering::SeqCst);
+        while server.clients() == 0 && !stopped() {
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        // the client subscribes after it read the advertisement
+        std::thread::sleep(Duration::from_millis(500));
+        let begin = Instant::now();
+        for (t, m) in msgs {
+            if stopped() {
+                break;
+            }
+            let due = Duration::from_secs_f64(t.saturating_sub(t0) as f64 / 1e9 / self.speed);
+            if let Some(wait) = due.checked_sub(begin.elapsed()) {
+                std::thread::sleep(wait);
+            }
+            server.offer_wait(t, rec.mono_of(t), m);
+        }
+        crate::live::stop_foxglove(Some(server));
+        if stopped() {
+            return Err(anyhow!("interrupted").context(launcher::Exit::Interrupted));
+        }
         Ok(())
     }
 

@@ -89,16 +89,8 @@ pub struct RunCmd {
     /// A running robot silent this many ms is reported hung (and restarted with the policy).
     #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..))]
     hang_ms: u64,
-    /// Show the live terminal view (`q` stops the run gracefully, `space` pauses the view).
-    #[arg(long)]
-    live: bool,
-    /// Record every message of every topic into this MCAP file (Foxglove opens it).
-    #[arg(long, value_name = "FILE.mcap")]
-    record: Option<PathBuf>,
-    /// Slow every robot to this many environment steps per second (1 to 10 000 000), so that
-    /// a person can follow them with `--live`; a paced robot also shows its cell at every pause.
-    #[arg(long, value_name = "STEPS_PER_S", value_parser = qfleet_args::parse_pace)]
-    pace: Option<f64>,
+    #[command(flatten)]
+    watch: crate::live::WatchArgs,
     #[command(flatten)]
     remote: crate::join::RemoteArgs,
 }
@@ -109,6 +101,8 @@ impl RunCmd {
         self.robots = self.fleet_size().context(Exit::BadInput)?;
         // check everything before starting any process: bad input is exit code 2
         let (task, cfg, grace, time_limit, run_id) = self.check().context(Exit::BadInput)?;
+        // a Foxglove port in use is bad input too, found before anything starts
+        let foxglove = self.watch.serve()?;
         // the sharing rules: those given, the ones that fit the learner for the others
         let rules = crate::experiment::Rules {
             apply: self.share.apply,
@@ -150,7 +144,10 @@ impl RunCmd {
             ("share_args".into(), self.share.to_cli().join(" ")),
             ("merge".into(), rules.merge.to_string()),
             ("wait".into(), self.wait.to_string()),
-            ("pace".into(), qfleet_args::pace_cli(self.pace).join(" ")),
+            (
+                "pace".into(),
+                qfleet_args::pace_cli(self.watch.pace).join(" "),
+            ),
         ];
         // the bridge to other hosts starts before the run's processes (the coordinator's
         // registration wait is the joining hosts' window) and stops after they all ended
@@ -169,8 +166,9 @@ impl RunCmd {
             &run_id,
             &task,
             config,
-            self.live,
-            self.record.clone(),
+            &self.watch,
+            self.watch.record.clone(),
+            foxglove.clone(),
             Box::new(crate::request_stop),
         )?;
 
@@ -187,6 +185,7 @@ impl RunCmd {
             &watch,
         );
         let quit = crate::live::finish(watch);
+        crate::live::stop_foxglove(foxglove);
         // the hub's proxies are nodes of this run: gone before its files are removed
         let hosts = crate::join::finish_hub(hub, &out).unwrap_or_else(|e| {
             term::warn(&format!("warning: {e:#}"));
@@ -374,7 +373,7 @@ impl RunCmd {
                     &launcher::seed::run_robot(self.learner.seed, id).to_string(),
                 ])
                 .args(self.share.to_cli())
-                .args(qfleet_args::pace_cli(self.pace))
+                .args(qfleet_args::pace_cli(self.watch.pace))
                 .args(["--timeout", &timeout.to_string()])
                 .arg("--out")
                 .arg(out);
@@ -434,7 +433,7 @@ impl RunCmd {
         };
         let total = u64::from(fleet_size) * u64::from(episodes);
         let bar = ProgressBar::new(total);
-        if self.live {
+        if self.watch.live {
             bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
         }
         bar.set_style(

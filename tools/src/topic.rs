@@ -171,7 +171,9 @@ fn watch_loop(
 ) -> Result<()> {
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     let mut counts = TopicCounts::default();
-    let mut rates: Vec<Rate> = (0..9).map(|_| Rate::new(1_000_000_000)).collect();
+    let mut rates: Vec<Rate> = (0..Topic::ALL.len())
+        .map(|_| Rate::new(1_000_000_000))
+        .collect();
     let mut printed = 0u64;
     let mut open = true;
     let mut last_check = Instant::now();
