@@ -39,6 +39,9 @@ use crate::admission::Sender;
 use crate::engine::{Engine, tolerate};
 use crate::options::CoordError;
 
+/// The coordinator's nap between two looks at the intent inbox while it collects a tick.
+const POLL_NAP: Duration = Duration::from_micros(50);
+
 /// A shared-grid execution to drive: the instance and its limits.
 #[derive(Debug, Clone)]
 pub struct GridPlan {
@@ -294,8 +297,10 @@ pub(crate) fn execute(
                 }
                 break;
             }
+            // robots do not wake the coordinator (see `robot_agent::execute`): after the spin
+            // it polls with short naps, leaving the CPUs to the robots answering
             if last.elapsed() >= spin {
-                bus.intent.wait(Duration::from_millis(5))?;
+                std::thread::sleep(POLL_NAP);
             } else {
                 std::hint::spin_loop();
             }

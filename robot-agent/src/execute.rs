@@ -6,8 +6,10 @@
 //! 2. The coordinator publishes a `Grant` on `coord/grant` for tick 0 (the starts), then one per
 //!    tick. For each grant newer than the last it answered, the robot takes its own cell from
 //!    it and sends one `Intent` on `robot/intent`: its five moves ranked by its own learned
-//!    values at that cell ([`Ranker`]), and wakes the coordinator. It also publishes its
-//!    `robot/state` with that cell (no wakeup), so observers see the ticks.
+//!    values at that cell ([`Ranker`]). It wakes nobody: the coordinator polls while it
+//!    collects a tick (a wakeup per robot per tick cost every robot a syscall and the
+//!    coordinator one wakeup per robot). It also publishes its `robot/state` with that cell,
+//!    so observers see the ticks.
 //! 3. A grant whose state is not `Moving`, a grant where it is no longer present, or `Stop`
 //!    ends the execution; the robot goes back to waiting for `Stop` and reports as usual.
 //!
