@@ -307,6 +307,9 @@ pub struct StepInfo {
     pub done: bool,
 }
 
+/// Rounds of sweeps [`Learner::settle`] runs at most (each round is up to `sweeps` sweeps).
+pub const SETTLE_SWEEPS: u32 = 64;
+
 /// A Q-learner on one task, with its table, policy, random source and episode counters.
 #[derive(Debug, Clone)]
 pub struct Learner {
@@ -729,6 +732,22 @@ impl Learner {
                 self.model_dirty = false;
                 break;
             }
+        }
+        any
+    }
+
+    /// Sweeps until the values are consistent with every move in the model again (at most
+    /// [`SETTLE_SWEEPS`] rounds of sweeps); returns whether a value changed. For values set from
+    /// outside after the last episode (a fleet's merged hints arriving while the robot waits for
+    /// the end of the run): without it those values stay unpropagated, and a greedy path read
+    /// then can loop through a cell whose bound fell while its neighbours' did not.
+    pub fn settle(&mut self) -> bool {
+        let mut any = false;
+        for _ in 0..SETTLE_SWEEPS {
+            if !self.sweep_now() {
+                break;
+            }
+            any = true;
         }
         any
     }

@@ -198,3 +198,30 @@ fn sweeps_within_episodes_find_the_optimum_in_fewer_steps_and_stop_once_the_mode
     );
     assert!(!l.take_swept_within(), "so it swept nothing");
 }
+
+#[test]
+fn values_set_from_outside_after_the_last_episode_are_settled_before_a_path_is_read() {
+    // a fleet robot: two episodes of its own, then half of another robot's tighter bounds (the
+    // min rule's merged hints) arrive after its last episode, their moves joining its model
+    let task = serpentine(21, 15);
+    let mut own = Learner::new(&task, LearnerConfig::planning(2, 0)).expect("config");
+    own.keep_values_falling();
+    own.run(|_| {});
+    let mut other = Learner::new(&task, LearnerConfig::planning(200, 7)).expect("config");
+    let (_, s) = other.run(|_| {});
+    assert_eq!(s.final_path_len, Some(task.optimal_len));
+    for &sa in other.tried_pairs().iter().step_by(2) {
+        let (cell, a) = ((sa >> 2) as usize, (sa & 3) as usize);
+        let v = other.q().row(cell)[a];
+        let row = own.q_mut().row_mut(cell);
+        row[a] = row[a].min(v);
+        own.add_known_move(cell as u32, a);
+    }
+    own.table_changed();
+    // read before the values reached their neighbours, the greedy path loops
+    assert_eq!(own.clone().greedy_path_len(), None);
+    assert!(own.settle());
+    assert_eq!(own.greedy_path_len(), Some(task.optimal_len));
+    // settled: a second call changes nothing
+    assert!(!own.settle());
+}

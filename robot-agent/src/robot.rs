@@ -340,6 +340,8 @@ impl Robot<'_> {
     /// ends (a grant that is not `Moving`, this robot no longer on the grid, `Stop`, a signal);
     /// see [`crate::execute`] for the protocol and the ranking.
     fn execute(&mut self, p: &mut Phase) -> Result<(), AgentError> {
+        // the values it ranks by, consistent with every merged hint applied so far
+        p.learner.settle();
         let ranker = Ranker::new(&p.task, p.learner.tried_pairs(), p.learner.config().gamma);
         let me = self.args.robot_id as usize;
         let mut answered: Option<u32> = None;
@@ -644,6 +646,9 @@ impl Robot<'_> {
     }
 
     fn summary(p: &mut Phase) -> Summary {
+        // merged hints applied since the last episode reach the values they bound first (a
+        // path read from unpropagated bounds could loop)
+        p.learner.settle();
         let final_len = p.learner.greedy_path_len();
         Summary::from_records(&p.records, p.learner.optimal_len(), final_len)
     }
