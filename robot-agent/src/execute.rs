@@ -145,23 +145,19 @@ impl Ranker {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use planner::map::load_map;
+    use planner::Grid;
+    use planner::map::GridMap;
     use planner::task::resolve_task;
-
-    fn task(map: &str, start: Cell, goal: Cell) -> Task {
-        let m = load_map(map).unwrap();
-        resolve_task(&m, Some(start), Some(goal)).unwrap()
-    }
 
     fn corridor() -> Task {
         // a 5x1 corridor: start at 0, goal at 4
-        let dir = std::env::temp_dir().join(format!("qfleet-rank-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let f = dir.join("c.txt");
-        std::fs::write(&f, ".....\n").unwrap();
-        let t = task(f.to_str().unwrap(), Cell::new(0, 0), Cell::new(4, 0));
-        let _ = std::fs::remove_dir_all(&dir);
-        t
+        let map = GridMap {
+            name: "corridor".into(),
+            grid: Grid::new(5, 1, vec![true; 5]).unwrap(),
+            start: None,
+            goals: Vec::new(),
+        };
+        resolve_task(&map, Some(Cell::new(0, 0)), Some(Cell::new(4, 0))).unwrap()
     }
 
     fn ranked(r: &Ranker, t: &Task, q: &QTable, c: Cell) -> Vec<u8> {
