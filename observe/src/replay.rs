@@ -112,7 +112,8 @@ impl Recording {
     pub fn from_bytes(bytes: Vec<u8>) -> Result<Self, ObserveError> {
         let mut meta = BTreeMap::new();
         let mut map_text = None;
-        for rec in mcap::read::LinearReader::new(&bytes)? {
+        let mut records = mcap::read::LinearReader::new(&bytes)?;
+        while let Some(rec) = undamaged(|| records.next())? {
             match rec? {
                 Record::Metadata(m) if m.name == RUN_METADATA => meta = m.metadata,
                 Record::Attachment { header, data, .. } if header.name == MAP_ATTACHMENT => {
@@ -146,7 +147,8 @@ impl Recording {
         &self,
         mut f: impl FnMut(u64, Topic, &Value) -> Result<(), ObserveError>,
     ) -> Result<(), ObserveError> {
-        for m in mcap::MessageStream::new(&self.bytes)? {
+        let mut messages = mcap::MessageStream::new(&self.bytes)?;
+        while let Some(m) = undamaged(|| messages.next())? {
             let m = m?;
             let Some(topic) = topic_by_name(&m.channel.topic) else {
                 continue;
@@ -213,6 +215,20 @@ impl Recording {
         let (x, y) = self.meta.get(key)?.split_once(',')?;
         Some((x.trim().parse().ok()?, y.trim().parse().ok()?))
     }
+}
+
+/// Runs one step of the `mcap` crate's readers, turning a panic inside it into an error: its
+/// readers trust some lengths of a damaged file and overflow on them (a proptest of ours found
+/// `attempt to subtract with overflow` in mcap 0.26's linear reader), and a damaged recording
+/// is bad input, never a crash. The panic message is kept off the terminal while it runs.
+fn undamaged<T>(step: impl FnOnce() -> T) -> Result<T, ObserveError> {
+    let quiet = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(step));
+    std::panic::set_hook(quiet);
+    r.map_err(|_| {
+        ObserveError::Mcap("the recording is damaged: the MCAP reader gave up on it".into())
+    })
 }
 
 struct J<'a>(&'a Value);
