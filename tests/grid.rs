@@ -128,11 +128,16 @@ fn robots_crossing_a_room_all_arrive_without_a_conflict() {
 #[test]
 fn an_instance_that_cannot_run_is_refused_before_anything_starts() {
     let dir = scratch("grid-bad");
-    let cases: [(&str, Vec<Pair>, &str); 3] = [
+    let cases: [(&str, Vec<Pair>, &str); 4] = [
         ("one start", vec![(0, 0, 5, 0), (0, 0, 7, 0)], "start"),
         ("one goal", vec![(0, 0, 5, 0), (1, 0, 5, 0)], "goal"),
         // (4, 2) is a wall
         ("walled", vec![(0, 0, 4, 2), (1, 0, 5, 0)], "4,2"),
+        (
+            "start on goal",
+            vec![(0, 0, 5, 0), (3, 3, 3, 3)],
+            "starts on its goal",
+        ),
     ];
     for (name, pairs, needle) in cases {
         let (map, scen) = room(&dir, &pairs);

@@ -43,6 +43,18 @@ pub enum ArgsError {
     /// a goal walled in, too few scenario lines, …).
     #[error("the shared grid's instance: {0}")]
     Instance(#[from] mapf::InstanceError),
+    /// A shared grid's agent starts on its goal: its robot would have no path to learn.
+    #[error(
+        "the shared grid's instance: agent {agent} starts on its goal {cell}; a robot learns a \
+         path from its start to its goal, so every agent needs a goal elsewhere (line {agent} of \
+         --scen)"
+    )]
+    StartIsGoal {
+        /// The agent (scenario line).
+        agent: usize,
+        /// Its start and goal.
+        cell: Cell,
+    },
 }
 
 fn cell(s: &str) -> Result<Cell, String> {

@@ -86,7 +86,17 @@ impl MapArgs {
         }
         let map = planner::map::load_map(&self.map)?;
         let scen = planner::map::load_scen(path)?;
-        Ok(Instance::from_scen(&map, &scen, agents as usize)?)
+        let instance = Instance::from_scen(&map, &scen, agents as usize)?;
+        // a robot learns a path from its start to its goal: one already there has none to learn
+        if let Some(i) =
+            (0..instance.agents()).find(|&i| instance.starts()[i] == instance.goals()[i])
+        {
+            return Err(ArgsError::StartIsGoal {
+                agent: i,
+                cell: instance.starts()[i],
+            });
+        }
+        Ok(instance)
     }
 }
 

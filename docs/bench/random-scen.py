@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Writes a MovingAI .scen of N random start/goal pairs on a .map: distinct starts, distinct
-goals, each goal reachable from its start (4-connected), deterministic for a seed.
+goals, no goal on its own start, each goal reachable from its start (4-connected), deterministic for a seed.
 
     python3 docs/bench/random-scen.py MAP N SEED > FILE.scen
 """
@@ -39,6 +39,9 @@ def main():
     part = sorted(best)
     starts = rnd.sample(part, n)
     goals = rnd.sample(part, n)
+    # a robot needs a path to learn: no goal on its own start
+    while any(s == g for s, g in zip(starts, goals)):
+        goals = rnd.sample(part, n)
     name = path.rsplit("/", 1)[-1]
     print("version 1")
     for (sx, sy), (gx, gy) in zip(starts, goals):
