@@ -61,6 +61,29 @@ fn qfleet(args: &[&str]) -> std::process::Output {
     run_bounded(Command::new(bin("qfleet")).args(args))
 }
 
+/// `qfleet run --json --world shared` of run `id` on `map`/`scen` with `agents` robots learning
+/// `episodes` episodes into `out`, plus `extra`.
+fn shared_run(
+    id: &str,
+    map: &Path,
+    scen: &Path,
+    agents: u32,
+    out: &Path,
+    extra: &[&str],
+) -> Command {
+    let mut cmd = Command::new(bin("qfleet"));
+    cmd.args(["run", "--json", "--run-id", id, "--world", "shared"])
+        .arg("--map")
+        .arg(map)
+        .arg("--scen")
+        .arg(scen)
+        .args(["--agents", &agents.to_string(), "--episodes", "300"])
+        .arg("--out")
+        .arg(out)
+        .args(extra);
+    cmd
+}
+
 /// Checks a finished shared-grid run's `paths.txt` independently and against its result.
 fn validate(out: &Path, map: &Path, scen: &Path, agents: usize, grid: &Value) {
     let m = Map::parse(&std::fs::read_to_string(map).unwrap());
@@ -93,24 +116,7 @@ fn robots_crossing_a_room_all_arrive_without_a_conflict() {
     let (map, scen) = room(&dir, &ROOM_PAIRS);
     let out = dir.join("out");
     let id = run_id("grid-room");
-    let o = qfleet(&[
-        "run",
-        "--json",
-        "--run-id",
-        &id,
-        "--world",
-        "shared",
-        "--map",
-        map.to_str().unwrap(),
-        "--scen",
-        scen.to_str().unwrap(),
-        "--agents",
-        "6",
-        "--episodes",
-        "300",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = run_bounded(&mut shared_run(&id, &map, &scen, 6, &out, &[]));
     assert!(o.status.success(), "{}", describe(&o));
     let r: Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(r["robots"].as_array().unwrap().len(), 6);
@@ -186,26 +192,14 @@ fn a_robot_killed_while_the_fleet_moves_leaves_the_grid_and_the_others_arrive() 
     let out = dir.join("out");
     let id = run_id("grid-kill");
     // 60 ms a tick: the execution lasts seconds, time to kill robot 2 in the middle of it
-    let child = spawn(Command::new(bin("qfleet")).args([
-        "run",
-        "--json",
-        "--run-id",
+    let child = spawn(&mut shared_run(
         &id,
-        "--world",
-        "shared",
-        "--map",
-        map.to_str().unwrap(),
-        "--scen",
-        scen.to_str().unwrap(),
-        "--agents",
-        "4",
-        "--episodes",
-        "300",
-        "--tick-ms",
-        "60",
-        "--out",
-        out.to_str().unwrap(),
-    ]));
+        &map,
+        &scen,
+        4,
+        &out,
+        &["--tick-ms", "60"],
+    ));
     let log = out.join("coordinator.log");
     let moving = wait_until(PROCESS_TIMEOUT, || {
         std::fs::read_to_string(&log).is_ok_and(|l| l.contains("shared grid:"))
@@ -256,28 +250,36 @@ fn sixteen_robots_on_a_movingai_instance_arrive_near_the_lower_bound() {
     let dir = scratch("grid-movingai");
     let out = dir.join("out");
     let id = run_id("grid-mai");
-    let o = qfleet(&[
-        "run",
-        "--json",
-        "--run-id",
-        &id,
-        "--world",
-        "shared",
-        "--map",
-        map.to_str().unwrap(),
-        "--scen",
-        scen.to_str().unwrap(),
-        "--agents",
-        "16",
-        "--episodes",
-        "200",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = run_bounded(&mut shared_run(&id, &map, &scen, 16, &out, &[]));
     assert!(o.status.success(), "{}", describe(&o));
     let r: Value = serde_json::from_slice(&o.stdout).unwrap();
     let g = &r["grid"];
     assert_eq!(g["all_arrived"], true, "{g}");
     validate(&out, &map, &scen, 16, g);
     assert!(g["soc_ratio"].as_f64().unwrap() <= 1.10, "{g}");
+}
+
+#[test]
+fn two_robots_that_must_swap_in_a_corridor_end_unsolvable_not_hung() {
+    // a corridor with no pocket: no plan exists, and the run says so within its ticks
+    let dir = scratch("grid-corridor");
+    let map = dir.join("corridor.map");
+    let scen = dir.join("corridor.scen");
+    std::fs::write(&map, "type octile\nheight 1\nwidth 6\nmap\n......\n").unwrap();
+    std::fs::write(
+        &scen,
+        scen_text("corridor.map", 6, 1, &[(0, 0, 5, 0), (5, 0, 0, 0)]),
+    )
+    .unwrap();
+    let out = dir.join("out");
+    let id = run_id("grid-corr");
+    let o = run_bounded(&mut shared_run(&id, &map, &scen, 2, &out, &[]));
+    assert!(o.status.success(), "{}", describe(&o));
+    let r: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let g = &r["grid"];
+    assert_eq!(g["ended"], "unsolvable", "{g}");
+    assert_eq!(g["all_arrived"], false, "{g}");
+    assert_eq!(g["conflicts"], 0, "{g}");
+    assert!(g["ticks"].as_u64().unwrap() < 1000, "{g}");
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
 }

@@ -509,15 +509,7 @@ fn print_human(r: &RunResult, out: &Path, temp_out: bool) -> Result<()> {
     )?;
     out!("  latency            count      p50        p90        p99        p99.9      max")?;
     for (k, s) in &r.latency_ns {
-        out!(
-            "  {k:18} {:>6}  {:>10} {:>10} {:>10} {:>10} {:>10}",
-            s.count,
-            fmt_us(s.p50),
-            fmt_us(s.p90),
-            fmt_us(s.p99),
-            fmt_us(s.p999),
-            fmt_us(s.max)
-        )?;
+        latency_row(k, s)?;
     }
     out!(
         "  throughput         {:.0} messages/s, {:.0} Q-updates merged/s over {:.3} s",
@@ -573,15 +565,21 @@ fn print_grid(g: &report::GridResult) -> Result<()> {
         ("grant→intent", &g.intent_latency_ns),
         ("resolve", &g.resolve_latency_ns),
     ] {
-        out!(
-            "  {k:18} {:>6}  {:>10} {:>10} {:>10} {:>10} {:>10}",
-            s.count,
-            fmt_us(s.p50),
-            fmt_us(s.p90),
-            fmt_us(s.p99),
-            fmt_us(s.p999),
-            fmt_us(s.max)
-        )?;
+        latency_row(k, s)?;
     }
+    Ok(())
+}
+
+/// One row of the human summary's latency table: count, p50, p90, p99, p99.9, max.
+fn latency_row(k: &str, s: &report::LatencyStats) -> Result<()> {
+    out!(
+        "  {k:18} {:>6}  {:>10} {:>10} {:>10} {:>10} {:>10}",
+        s.count,
+        fmt_us(s.p50),
+        fmt_us(s.p90),
+        fmt_us(s.p99),
+        fmt_us(s.p999),
+        fmt_us(s.max)
+    )?;
     Ok(())
 }
