@@ -14,7 +14,13 @@ pub fn movingai(test: &str) -> Option<PathBuf> {
     if dir.join("random-32-32-10.map").is_file() {
         Some(dir)
     } else {
-        eprintln!("SKIPPED: {test}: {} is missing", dir.display());
+        // straight to stderr: the harness captures `eprintln!`, and a skip must show
+        use std::io::Write;
+        let _ = writeln!(
+            std::io::stderr(),
+            "SKIPPED {test}: {} is missing",
+            dir.display()
+        );
         None
     }
 }
