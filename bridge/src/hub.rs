@@ -295,7 +295,7 @@ fn run(
     report::log_line!(
         "qfleet: waiting for {remote} robot(s) from other hosts on {}: run `qfleet join {} --robots N` there",
         opts.listen,
-        opts.listen
+        crate::join::join_hint(&opts.listen)
     );
     let mut pacing = link::Pacing::new(Instant::now(), opts.tuning.spin);
     link::tighten_timer_slack();

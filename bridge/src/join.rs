@@ -510,6 +510,29 @@ impl RefusedLog {
     }
 }
 
+/// The host part of a Zenoh endpoint `proto/host:port` (brackets of an IPv6 address kept).
+pub fn endpoint_host(endpoint: &str) -> &str {
+    let addr = endpoint.split_once('/').map_or(endpoint, |(_, a)| a);
+    addr.rsplit_once(':').map_or(addr, |(h, _)| h)
+}
+
+/// Whether `host` is an unspecified address (every interface).
+pub fn every_interface(host: &str) -> bool {
+    matches!(host, "0.0.0.0" | "[::]" | "::" | "")
+}
+
+/// The endpoint another host joins: `endpoint` itself, or with `<this-host-address>` in place
+/// of an unspecified address (`tcp/0.0.0.0:7447` is not where anyone can connect).
+pub fn join_hint(endpoint: &str) -> String {
+    let host = endpoint_host(endpoint);
+    if !every_interface(host) {
+        return endpoint.to_string();
+    }
+    let (proto, addr) = endpoint.split_once('/').unwrap_or(("tcp", endpoint));
+    let port = addr.rsplit_once(':').map_or("7447", |(_, p)| p);
+    format!("{proto}/<this-host-address>:{port}")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -15,6 +15,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
+use bridge::join::{endpoint_host, every_interface, join_hint};
 use bridge::{Ending, Hub, HubOptions, HubReport, JoinRequest, RemotePlan, Tuning};
 use clap::Args;
 use launcher::Exit;
@@ -120,6 +121,9 @@ impl RemoteArgs {
             hint_buffer: HINT_BUFFER,
             merged_buffer,
         };
+        if let Some(w) = listen_warning(listen) {
+            crate::term::warn(&w);
+        }
         let hub = Hub::start(HubOptions {
             listen: listen.clone(),
             plan,
@@ -189,6 +193,34 @@ fn ship_files(cli: Vec<String>, files: &mut BTreeMap<String, String>) -> Result<
     Ok(out)
 }
 
+/// What to say before listening on `endpoint`: every interface or an address that is neither
+/// loopback nor private is reachable by strangers, and joins are not authenticated yet.
+pub fn listen_warning(endpoint: &str) -> Option<String> {
+    let host = endpoint_host(endpoint);
+    let ip: Option<std::net::IpAddr> = host.trim_matches(['[', ']']).parse().ok();
+    let private = |ip: &std::net::IpAddr| match ip {
+        std::net::IpAddr::V4(v4) => v4.is_loopback() || v4.is_private() || v4.is_link_local(),
+        std::net::IpAddr::V6(v6) => v6.is_loopback() || (v6.segments()[0] & 0xfe00) == 0xfc00,
+    };
+    if every_interface(host) {
+        return Some(format!(
+            "warning: listening on every interface ({}): anyone who reaches this host can ask to \
+             join while slots are open (joins are not authenticated yet: README \"Threat \
+             model\"); the other hosts join with this host's own address, e.g. `qfleet join {}`",
+            report::escape(endpoint),
+            join_hint(endpoint)
+        ));
+    }
+    match ip {
+        Some(ip) if !private(&ip) => Some(format!(
+            "warning: listening on {}, an address that is neither loopback nor private: joins \
+             are not authenticated yet (README \"Threat model\")",
+            report::escape(endpoint)
+        )),
+        _ => None,
+    }
+}
+
 /// Stops the hub and writes `bridge.json` (the hub's report) into the run's directory; the
 /// caller puts [`HubReport::entries`] into the result as its `hosts` (which robots ran where,
 /// reconnects, lost hosts, link latency).
@@ -200,7 +232,10 @@ pub fn finish_hub(hub: Option<Hub>, out: &Path) -> Result<Option<HubReport>> {
     if report.joined_robots < report.remote_robots {
         crate::term::warn(&format!(
             "only {} of {} remote robots joined on {} (start `qfleet join {} --robots N` on the other hosts within --join-within of the start)",
-            report.joined_robots, report.remote_robots, report.listen, report.listen
+            report.joined_robots,
+            report.remote_robots,
+            report.listen,
+            join_hint(&report.listen)
         ));
     }
     if report.refused_total > report.refused.len() as u64 {
@@ -484,6 +519,29 @@ pub fn print_hosts(hub: &Option<HubReport>, local: u32) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn listening_everywhere_or_in_public_warns_and_the_hint_names_a_reachable_address() {
+        for quiet in [
+            "tcp/127.0.0.1:7447",
+            "tcp/10.0.0.1:7447",
+            "tcp/192.168.1.5:1",
+            "tcp/[::1]:7447",
+        ] {
+            assert_eq!(listen_warning(quiet), None, "{quiet}");
+            assert_eq!(join_hint(quiet), quiet);
+        }
+        let w = listen_warning("tcp/0.0.0.0:7447").expect("a warning");
+        assert!(
+            w.contains("every interface") && w.contains("tcp/<this-host-address>:7447"),
+            "{w}"
+        );
+        assert!(!w.contains("join tcp/0.0.0.0"), "{w}");
+        assert_eq!(join_hint("tcp/[::]:9000"), "tcp/<this-host-address>:9000");
+        assert!(listen_warning("tcp/8.8.8.8:7447").is_some());
+        // a host name is not judged
+        assert_eq!(listen_warning("tcp/hub.lan:7447"), None);
+    }
 
     fn remote(robots: u32, deadline_s: f64) -> RemoteArgs {
         RemoteArgs {
