@@ -477,13 +477,19 @@ fn fmt_us(ns: u64) -> String {
 }
 
 fn print_human(r: &RunResult, out: &Path, temp_out: bool) -> Result<()> {
+    // one task for the fleet, or on a shared grid a start and goal per robot (its grid line)
+    let task = match &r.grid {
+        None => format!("{} → {}", r.start, r.goal),
+        Some(g) => format!(
+            "one shared grid, starts and goals from {}",
+            g.scen.as_deref().unwrap_or("the scenario")
+        ),
+    };
     out!(
-        "run {}: {} robots on {} ({} → {}), wait {}, apply {}, merge {}",
+        "run {}: {} robots on {} ({task}), wait {}, apply {}, merge {}",
         r.run_id,
         r.robots.len(),
         r.map,
-        r.start,
-        r.goal,
         r.wait,
         r.apply.as_deref().unwrap_or("?"),
         r.merge
