@@ -44,8 +44,9 @@ pub struct WorldArgs {
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub max_ticks: Option<u32>,
     /// Shared grid: at least this many milliseconds per tick, so that a person can follow the
-    /// robots with `--live` (0: as fast as the robots answer).
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=60_000))]
+    /// robots with `--live` (0: as fast as the robots answer; at most 10 000, well inside the
+    /// robots' wait for the next grant).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=10_000))]
     pub tick_ms: u64,
 }
 

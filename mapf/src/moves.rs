@@ -5,7 +5,7 @@
 //! first; a move it does not name ranks after every named one (the resolver orders unnamed
 //! moves by the coordinator's own BFS distance to the robot's goal).
 
-use planner::{Cell, Grid};
+use planner::{Action, Cell, Grid};
 
 /// One tick's move of one agent; the discriminant is its wire byte.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -44,6 +44,16 @@ impl Move {
     /// The move's wire byte.
     pub const fn byte(self) -> u8 {
         self as u8
+    }
+
+    /// The move of a planner action (a learner's Q-table column): the same direction.
+    pub const fn of_action(a: Action) -> Move {
+        match a {
+            Action::Up => Move::Up,
+            Action::Right => Move::Right,
+            Action::Down => Move::Down,
+            Action::Left => Move::Left,
+        }
     }
 
     /// The (dx, dy) the move shifts by; (0, 0) for [`Move::Wait`].
@@ -265,6 +275,13 @@ impl Intent {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_planner_action_is_the_move_of_the_same_direction() {
+        for a in Action::ALL {
+            assert_eq!(Move::of_action(a).delta(), a.delta());
+        }
+    }
     use planner::map::parse_ascii;
 
     #[test]

@@ -25,15 +25,16 @@
 //! it explored still knows its way back. On its goal a robot prefers to wait. Walls and the
 //! border are never named.
 
+use mapf::Move;
 use planner::task::Task;
 use planner::{Action, Cell, QTable};
 
-/// Move code of a wait (the wire's `Intent::ranked` codes: 0 wait, 1 up, 2 right, 3 down, 4 left).
-pub const WAIT: u8 = 0;
+/// Wire code of a wait (`mapf::Move`'s codes are the wire's `Intent::ranked` codes).
+pub const WAIT: u8 = Move::Wait.byte();
 
-/// The wire code of a planner action (its Q-table column plus one).
+/// The wire code of a planner action.
 pub const fn move_code(a: Action) -> u8 {
-    a as u8 + 1
+    Move::of_action(a).byte()
 }
 
 /// A robot's ranking of its moves from its learned values (see the module docs); IO-free.

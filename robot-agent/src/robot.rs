@@ -363,6 +363,11 @@ impl Robot<'_> {
             {
                 heard = Instant::now();
                 answered = Some(tick);
+                if !p.task.grid.contains(cell.x.into(), cell.y.into()) {
+                    // no grant of this run's coordinator puts a robot off the map
+                    self.c.rejected += 1;
+                    continue;
+                }
                 let at = p.task.grid.index(cell) as u32;
                 if state != GridState::Moving.as_u8() || !present {
                     p.episode_step = tick;
