@@ -65,6 +65,14 @@ pub fn run(
     plan: &ExperimentPlan,
     stop: &AtomicBool,
 ) -> Result<ExperimentResult, CoordError> {
+    // a shared grid is a plain run's for now: said, not silently ignored
+    if args.world.shared() {
+        return Err(CoordError::Option {
+            option: "--world",
+            must: "separate with --plan (a shared grid runs with `qfleet run --world shared`)",
+            value: args.world.world.to_string(),
+        });
+    }
     let map = plan.check()?;
     let timeout = secs(plan.timeout_s, "the plan's timeout_s")?;
     let grid = &map.grid;
