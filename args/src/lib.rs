@@ -61,12 +61,25 @@ fn cell(s: &str) -> Result<Cell, String> {
     task::parse_cell(s).map_err(|e| e.to_string())
 }
 
+/// A file name as the value of an option: one that begins with `-` would be read as an option,
+/// so it gets `./` in front (the same file).
+pub fn value_word(name: &str) -> String {
+    if name.starts_with('-') {
+        format!("./{name}")
+    } else {
+        name.to_string()
+    }
+}
+
+/// The map a run uses when none is named (`--map`).
+pub const DEFAULT_MAP: &str = "builtin:paper-20";
+
 /// Which map, and which start and goal on it.
-#[derive(Debug, Clone, Args)]
+#[derive(Debug, Clone, PartialEq, Args)]
 pub struct MapArgs {
     /// Map: `builtin:paper-10|paper-20|paper-30`, `suite:FAMILY-SIZE-INDEX` (a generated map of
     /// `qfleet eval`'s suite, e.g. `suite:rooms-64-3`), an ASCII map file, or a MovingAI `.map`.
-    #[arg(long, default_value = "builtin:paper-20")]
+    #[arg(long, default_value = DEFAULT_MAP)]
     pub map: String,
     /// Start cell `X,Y` (x = column, y = row, from the top-left); overrides the map's `S`.
     #[arg(long, value_parser = cell)]
@@ -106,7 +119,7 @@ impl MapArgs {
 
     /// The options as command-line words, to forward to a child process.
     pub fn to_cli(&self) -> Vec<String> {
-        let mut v = vec!["--map".into(), self.map.clone()];
+        let mut v = vec!["--map".into(), value_word(&self.map)];
         if let Some(c) = self.start {
             v.extend(["--start".into(), c.to_string()]);
         }
@@ -114,7 +127,7 @@ impl MapArgs {
             v.extend(["--goal".into(), c.to_string()]);
         }
         if let Some(p) = &self.scen {
-            v.extend(["--scen".into(), p.display().to_string()]);
+            v.extend(["--scen".into(), value_word(&p.display().to_string())]);
         }
         if let Some(i) = self.scen_index {
             v.extend(["--scen-index".into(), i.to_string()]);
@@ -124,7 +137,7 @@ impl MapArgs {
 }
 
 /// Every learner parameter; unset ones take the chosen learner's defaults.
-#[derive(Debug, Clone, Args)]
+#[derive(Debug, Clone, PartialEq, Args)]
 pub struct LearnerArgs {
     /// Which learner: `planning` (ε-greedy with optimism and Dyna sweeps, chosen on the map
     /// suite; the default everywhere), or the paper's `traditional` ε-greedy or `improved`

@@ -30,7 +30,7 @@ impl std::fmt::Display for World {
 }
 
 /// The options of the world a run's robots live in.
-#[derive(Debug, Clone, Default, Args)]
+#[derive(Debug, Clone, Default, PartialEq, Eq, Args)]
 pub struct WorldArgs {
     /// `separate`: every robot learns on its own copy of the map and robots never meet.
     /// `shared`: one grid; robot i takes its start and goal from line i of `--scen`, learns

@@ -174,8 +174,8 @@ const _: () = assert!(size_of::<MergedHintBatch>() == 6176 && align_of::<MergedH
 const _: () = assert!(size_of::<DiscoveryAck>() == 24 && align_of::<DiscoveryAck>() == 8);
 const _: () = assert!(size_of::<DiscoveryRelay>() == 48 && align_of::<DiscoveryRelay>() == 8);
 
-/// Robots a [`Grant`] has room for (the fleet limit, `bus::MAX_ROBOTS`).
-pub const GRANT_CAP: usize = 256;
+/// Robots a [`Grant`] has room for (the fleet limit, [`crate::MAX_ROBOTS`]).
+pub const GRANT_CAP: usize = crate::MAX_ROBOTS as usize;
 
 /// How a shared-grid execution stands after a [`Grant`], carried as a `u8` in [`Grant::state`].
 #[repr(u8)]

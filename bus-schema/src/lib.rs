@@ -28,6 +28,13 @@ pub use robot_to_coordinator::{
 /// order or size.
 pub const SCHEMA_VERSION: u32 = 1;
 
+/// Largest fleet the bus supports: robot ids are `0..robots` with `robots ≤ 256`.
+///
+/// Bounded so every service can be sized in advance (iceoryx2 allocates all buffers when a
+/// service or port is created): at 256 robots the largest segments, the merged-hints and ack
+/// broadcasts, stay around 10 to 32 MB of shared memory each (`bus::MERGED_SEGMENT_BUDGET`).
+pub const MAX_ROBOTS: u32 = 256;
+
 /// Gives every message an all-zero constant, the natural "empty" value to start from.
 macro_rules! zeroed {
     ($($ty:ty),* $(,)?) => {$(

@@ -11,12 +11,7 @@ use crate::BusError;
 use crate::clock::monotonic_ns;
 use crate::files;
 
-/// Largest fleet the bus supports: robot ids are `0..robots` with `robots ≤ 256`.
-///
-/// Bounded so every service can be sized in advance (iceoryx2 allocates all buffers when a
-/// service or port is created): at 256 robots the largest segments, the merged-hints and ack
-/// broadcasts, stay around 10 to 32 MB of shared memory each ([`MERGED_SEGMENT_BUDGET`]).
-pub const MAX_ROBOTS: u32 = 256;
+pub use bus_schema::MAX_ROBOTS;
 
 /// Shared memory the merged-hints broadcast may reserve (the coordinator's publisher segment:
 /// subscribers × per-robot buffer × one `MergedHintBatch`); [`merged_buffer_for`] sizes the

@@ -16,7 +16,7 @@ use report::{LatencyPath, OutDir, OutFile, PhaseDetail, RobotHist, RobotResult};
 use crate::engine::{Engine, Slot};
 use crate::experiment::merged_path_len;
 use crate::options::CoordArgs;
-use crate::plan::ExperimentPlan;
+use contract::plan::ExperimentPlan;
 
 /// The fleet's loop and merged latency histograms, added up from every robot's `.hdr` files
 /// (read once; a robot that wrote none adds nothing).

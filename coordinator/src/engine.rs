@@ -313,7 +313,11 @@ impl Engine {
         }
         let mut out = std::io::stdout().lock();
         for ev in new {
-            let _ = writeln!(out, "event {} {} {}", ev.kind, ev.robot_id, ev.at_ns);
+            let _ = writeln!(
+                out,
+                "{}",
+                contract::lines::event_line(ev.kind, ev.robot_id, ev.at_ns)
+            );
         }
         let _ = out.flush();
     }

@@ -44,8 +44,8 @@ use crate::engine::{Assignment, Engine, tolerate};
 use crate::liveness::{Life, start_lister};
 use crate::merge::FleetTable;
 use crate::options::{CoordArgs, CoordError, bus_config, secs};
-pub use crate::plan::ExperimentPlan;
 use crate::wait::{Serving, Waiting, serve};
+pub use contract::plan::ExperimentPlan;
 pub use report::run::{ExperimentResult, GoalPhase, PhaseResult, RobotPhase};
 
 /// One goal's merged-path watch during a phase.

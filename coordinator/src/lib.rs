@@ -22,7 +22,6 @@ pub mod liveness;
 pub mod merge;
 pub mod options;
 pub mod output;
-pub mod plan;
 pub mod run;
 pub mod validate;
 mod wait;

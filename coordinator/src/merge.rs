@@ -1,7 +1,7 @@
 //! The fleet table: one merged Q-value per (cell, action) of a goal, and the merge rules.
 //!
 //! # Merge rules (selectable with `--merge`; `qfleet run` and `experiment` default to the one
-//! that fits the learner, [`rule_for`])
+//! that fits the learner, [`contract::share::merge_rule_for`])
 //! - `max` (paper learners): the fleet value is the largest value any robot reported last. A new
 //!   value replaces the fleet value when it is larger, or when it comes from the robot that set
 //!   the current one (so a robot can correct its own value downwards). With the planner's
@@ -19,7 +19,7 @@
 //!   reads its own, looser neighbours), but the smaller report stays a true bound, so there is
 //!   nothing to correct.
 //!
-//! [`rule_for`] picks the rule that fits a learner's bound (`max` for lower bounds, `min` for
+//! [`contract::share::merge_rule_for`] picks the rule that fits a learner's bound (`max` for lower bounds, `min` for
 //! upper ones); [`fits`] says whether a rule suits it.
 //!
 //! An entry that changes is queued for the next `MergedHintBatch` with the origin time and robot
@@ -27,27 +27,7 @@
 
 use bus::bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, ROBOT_ID_ALL};
 
-use qfleet_args::ValueBound;
 pub use report::run::MergeRule;
-
-/// The merge rule that fits a learner whose values keep `bound`: `max` for lower bounds (the
-/// paper's learners), `min` for upper bounds (the planning learner).
-pub fn rule_for(bound: ValueBound) -> MergeRule {
-    match bound {
-        ValueBound::Lower => MergeRule::Max,
-        ValueBound::Upper => MergeRule::Min,
-    }
-}
-
-/// Whether `rule` is sound for values that keep `bound`: `max` raises upper bounds to stale
-/// optimism, `min` lowers lower bounds to whichever robot knows least; `mean` and `latest`
-/// make no use of a bound and fit neither better nor worse.
-pub fn fits(rule: MergeRule, bound: ValueBound) -> bool {
-    !matches!(
-        (rule, bound),
-        (MergeRule::Max, ValueBound::Upper) | (MergeRule::Min, ValueBound::Lower)
-    )
-}
 
 /// `owner` of an entry no robot has reported yet.
 const NO_OWNER: u32 = u32::MAX;
@@ -226,6 +206,7 @@ impl FleetTable {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use contract::share::{ValueBound, merge_fits, merge_rule_for};
 
     fn h(cell: u32, action: u8, q: f32, visits: u16) -> QHint {
         QHint {
@@ -301,14 +282,14 @@ mod tests {
 
     #[test]
     fn the_rule_follows_the_learners_bound() {
-        assert_eq!(rule_for(ValueBound::Lower), MergeRule::Max);
-        assert_eq!(rule_for(ValueBound::Upper), MergeRule::Min);
+        assert_eq!(merge_rule_for(ValueBound::Lower), MergeRule::Max);
+        assert_eq!(merge_rule_for(ValueBound::Upper), MergeRule::Min);
         for b in [ValueBound::Lower, ValueBound::Upper] {
-            assert!(fits(rule_for(b), b));
-            assert!(fits(MergeRule::Mean, b) && fits(MergeRule::Latest, b));
+            assert!(merge_fits(merge_rule_for(b), b));
+            assert!(merge_fits(MergeRule::Mean, b) && merge_fits(MergeRule::Latest, b));
         }
-        assert!(!fits(MergeRule::Max, ValueBound::Upper));
-        assert!(!fits(MergeRule::Min, ValueBound::Lower));
+        assert!(!merge_fits(MergeRule::Max, ValueBound::Upper));
+        assert!(!merge_fits(MergeRule::Min, ValueBound::Lower));
     }
 
     #[test]

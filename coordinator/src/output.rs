@@ -13,7 +13,7 @@ use crate::engine::Engine;
 use crate::options::CoordError;
 
 /// Writes `result.json` into `dir`. When that fails (a full disk), the result also goes to the
-/// launcher on stdout as one `result <json>` line (`launcher::events`), so that the run's
+/// launcher on stdout as one `result <json>` line (`contract::lines`), so that the run's
 /// result is not lost with the file; the error is returned all the same.
 fn write_result(dir: &OutDir, result: &impl Serialize) -> Result<(), CoordError> {
     let Err(e) = dir.write_json(OutFile::Result, result) else {
@@ -22,7 +22,7 @@ fn write_result(dir: &OutDir, result: &impl Serialize) -> Result<(), CoordError>
     if let Ok(json) = serde_json::to_string(result) {
         use std::io::Write as _;
         let mut out = std::io::stdout().lock();
-        let _ = writeln!(out, "result {json}");
+        let _ = writeln!(out, "{}", contract::lines::result_line(&json));
         let _ = out.flush();
     }
     Err(e.into())

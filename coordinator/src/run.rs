@@ -323,7 +323,11 @@ fn print_progress(e: &Engine) {
         (age.value_at_quantile(0.5), age.value_at_quantile(0.99))
     };
     let mut out = std::io::stdout().lock();
-    let _ = writeln!(out, "progress {done} {total} {p50} {p99}");
+    let _ = writeln!(
+        out,
+        "{}",
+        contract::lines::progress_line(done, total, p50, p99)
+    );
     let _ = out.flush();
 }
 

@@ -8,7 +8,8 @@
 //!   deletes only what it created), atomic result writes, and an inventory of what was kept;
 //! - [`spawn`]: starting a child that dies with its launcher (`PR_SET_PDEATHSIG`) in its own
 //!   process group, and finding the sibling binaries;
-//! - [`events`]: the line protocol between the coordinator's stdout and the launcher;
+//! - the line protocol between the coordinator's stdout and the launcher is the process
+//!   contract's (`contract::lines`);
 //! - [`supervise`]: the restart policy, backoff, stopping with a grace period, and the loop
 //!   that applies them to a fleet of processes;
 //! - [`exit`]: the exit codes of every qfleet command and how children's codes map onto them.
@@ -16,7 +17,6 @@
 //! What it is not: it knows nothing of the bus, the learner or the result schema; the commands
 //! build the processes' command lines and read their results.
 
-pub mod events;
 pub mod exit;
 pub mod out;
 pub mod run_id;

@@ -17,7 +17,7 @@
 //!   unsupervised.
 //!
 //! Without a policy (`--restart never`, the default) a dead robot is reported lost (and the
-//! coordinator process is told at once, see [`crate::events`]) and the run goes on without it;
+//! coordinator process is told at once, see `contract::lines`) and the run goes on without it;
 //! a dead coordinator ends the run.
 //!
 //! # Stopping (Ctrl-C/SIGTERM, `--time-limit`, a restart that cannot be made)
@@ -38,9 +38,9 @@ use std::time::{Duration, Instant};
 
 use clap::ValueEnum;
 
-use crate::events::{CoordLine, exited_line, parse_line};
 use crate::exit::Exit;
 use crate::spawn::bind_to_launcher;
+use contract::lines::{CoordLine, exited_line, parse_line};
 
 /// When the launcher starts a failed process again.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -115,7 +115,7 @@ pub struct Supervised {
     /// The class of the outcome (interrupted, a child's bad input, a failure, ok).
     pub exit: Exit,
     /// The result the coordinator sent on stdout because it could not write `result.json`
-    /// (a full disk; see [`crate::events`]), as JSON.
+    /// (a full disk; see `contract::lines`), as JSON.
     pub result: Option<String>,
 }
 

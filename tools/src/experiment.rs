@@ -12,15 +12,16 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, anyhow};
 use clap::{Args, ValueEnum};
-use coordinator::MergeRule;
-use coordinator::experiment::{ExperimentPlan, ExperimentResult};
-use coordinator::output::{OutDir, OutFile};
+use contract::coordinator::MergeRule;
+use contract::plan::ExperimentPlan;
+use contract::share::{merge_fits, merge_rule_for};
+use contract::{AgentArgs, ApplyRule, CoordArgs, ShareArgs};
 use launcher::out::{OutDir as LaunchDir, OutError, inventory};
 use launcher::spawn::sibling;
 use launcher::{Exit, Fleet, RestartPolicy, supervise};
 use planner::LearnerConfig;
 use qfleet_args::{Plan, ShareMode, ValueBound, load_manifest};
-use robot_agent::ApplyRule;
+use report::{ExperimentResult, OutDir, OutFile};
 
 use crate::term::{self, out};
 
@@ -111,7 +112,7 @@ impl Rules {
         let b = ValueBound::of(cfg);
         Resolved {
             apply: self.apply.unwrap_or(ApplyRule::for_bound(b)),
-            merge: self.merge.unwrap_or(coordinator::merge::rule_for(b)),
+            merge: self.merge.unwrap_or(merge_rule_for(b)),
         }
     }
 
@@ -123,7 +124,7 @@ impl Rules {
         if let Some(a) = self.apply.filter(|a| !a.fits(b)) {
             bad.push(format!("--apply {a}"));
         }
-        if let Some(m) = self.merge.filter(|m| !coordinator::merge::fits(*m, b)) {
+        if let Some(m) = self.merge.filter(|m| !merge_fits(*m, b)) {
             bad.push(format!("--merge {m}"));
         }
         if bad.is_empty() {
@@ -261,56 +262,50 @@ pub fn run_once(
         .context(Exit::BadInput)
     })?;
     let hang_ms = remote.map(|r| r.hang_ms(DEFAULT_HANG_MS));
-    let spin_us = coordinator::spin_us_for(None, remote_robots);
+    let spin_us = contract::spin_us_for(None, remote_robots);
     // the coordinator waits for a lost robot while the launcher may still restart it
     let restarts = match sup.policy {
         RestartPolicy::Never => 0,
         RestartPolicy::OnFailure => sup.max_restarts,
     };
     let coordinator = || -> Command {
+        // the plan gives the fleet, map and timeout; these are the rest
+        let mut a = CoordArgs::new(run_id, out);
+        a.plan = Some(plan_file.clone());
+        a.merge = rules.merge;
+        a.spin_us = spin_us;
+        a.restarts = restarts;
+        if let Some(h) = hang_ms {
+            a.hang_ms = h;
+        }
         let mut cmd = Command::new(&coord_bin);
-        cmd.args(["--run-id", run_id])
-            .arg("--plan")
-            .arg(&plan_file)
-            .args(["--merge", &rules.merge.to_string()])
-            .args(["--spin-us", &spin_us.to_string()])
-            .args(["--restarts", &restarts.to_string()])
-            .args(
-                hang_ms
-                    .iter()
-                    .flat_map(|h| ["--hang-ms".to_string(), h.to_string()]),
-            )
-            .arg("--out")
-            .arg(out);
+        cmd.args(a.to_args());
         cmd
     };
     let robot = |r: u32| -> Command {
         let g0 = plan.assignment[0][r as usize];
         let mut learner = m.learner.clone();
         learner.episodes = m.phases[0].episodes;
+        learner.seed = launcher::seed::repetition_robot(seed, r);
+        let share = ShareArgs {
+            share: m.sharing,
+            apply: Some(rules.apply),
+            ..ShareArgs::default()
+        };
+        let mut a = AgentArgs::new(
+            run_id,
+            r,
+            m.robots,
+            plan.map_args(r as usize, g0),
+            learner,
+            share,
+        );
+        a.timeout = m.timeout_s;
+        a.pace = sup.pace;
+        a.stop_at_optimum = m.stop_at_optimum;
+        a.out = Some(out.to_path_buf());
         let mut cmd = Command::new(&robot_bin);
-        cmd.args(["--run-id", run_id])
-            .args([
-                "--robot-id",
-                &r.to_string(),
-                "--robots",
-                &m.robots.to_string(),
-            ])
-            .args(plan.map_args(r as usize, g0).to_cli())
-            .args(learner.to_cli())
-            .args([
-                "--seed",
-                &launcher::seed::repetition_robot(seed, r).to_string(),
-            ])
-            .args(["--share", m.sharing.as_cli()])
-            .args(["--apply", &rules.apply.to_string()])
-            .args(["--timeout", &m.timeout_s.to_string()])
-            .args(qfleet_args::pace_cli(sup.pace))
-            .arg("--out")
-            .arg(out);
-        if m.stop_at_optimum {
-            cmd.arg("--stop-at-optimum");
-        }
+        cmd.args(a.to_args());
         cmd
     };
     // the bridge to other hosts: remote robots get the options a local robot of their id would

@@ -17,13 +17,14 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, anyhow};
 use clap::Args;
-use coordinator::{MergeRule, RunResult, WaitStrategy};
+use contract::coordinator::{MergeRule, WaitStrategy};
+use contract::{AgentArgs, CoordArgs, ShareArgs};
 use indicatif::{ProgressBar, ProgressStyle};
 use launcher::out::{OutDir, OutError, inventory};
 use launcher::spawn::sibling;
 use launcher::{Exit, Fleet, RestartPolicy, supervise};
 use qfleet_args::{LearnerArgs, MapArgs, WorldArgs};
-use robot_agent::ShareArgs;
+use report::RunResult;
 
 use crate::term::{self, out};
 
@@ -213,8 +214,8 @@ impl RunCmd {
         if let Some(r) = &mut result {
             r.apply = Some(rules.apply.to_string());
             r.hosts = crate::join::host_entries(&hosts, self.robots);
-            let dir = coordinator::output::OutDir::new(&out);
-            if let Err(e) = dir.write_json(coordinator::output::OutFile::Result, r) {
+            let dir = report::OutDir::new(&out);
+            if let Err(e) = dir.write_json(report::OutFile::Result, r) {
                 term::warn(&format!(
                     "warning: adding the apply rule and hosts to result.json: {e}"
                 ));
@@ -359,24 +360,24 @@ impl RunCmd {
         // start-up waits that grow with the fleet (both sides wait the same)
         let timeout = launcher::timeouts::startup_timeout_s(fleet);
         move |id: u32| -> Command {
-            let mut cmd = Command::new(robot_bin);
-            cmd.args(["--run-id", run_id, "--robot-id", &id.to_string()])
-                .args(["--robots", &fleet.to_string()])
-                .args(self.map.to_cli());
+            let mut a = AgentArgs::new(
+                run_id,
+                id,
+                fleet,
+                self.map.clone(),
+                self.learner.clone(),
+                self.share.clone(),
+            );
             if self.world.shared() {
                 // robot i learns line i of the scenario: its own start and goal
-                cmd.args(["--scen-index", &id.to_string()]);
+                a.map.scen_index = Some(id as usize);
             }
-            cmd.args(self.learner.to_cli())
-                .args([
-                    "--seed",
-                    &launcher::seed::run_robot(self.learner.seed, id).to_string(),
-                ])
-                .args(self.share.to_cli())
-                .args(qfleet_args::pace_cli(self.watch.pace))
-                .args(["--timeout", &timeout.to_string()])
-                .arg("--out")
-                .arg(out);
+            a.learner.seed = launcher::seed::run_robot(self.learner.seed, id);
+            a.pace = self.watch.pace;
+            a.timeout = timeout;
+            a.out = Some(out.to_path_buf());
+            let mut cmd = Command::new(robot_bin);
+            cmd.args(a.to_args());
             cmd
         }
     }
@@ -402,22 +403,19 @@ impl RunCmd {
         // start-up waits that grow with the fleet (both sides wait the same)
         let timeout = launcher::timeouts::startup_timeout_s(fleet_size);
         let coordinator = || -> Command {
+            let mut a = CoordArgs::new(run_id, out);
+            a.robots = fleet_size;
+            a.map = self.map.clone();
+            a.world = self.world.clone();
+            a.wait = self.wait;
+            a.spin_us = contract::spin_us_for(self.spin_us, self.remote.remote_robots);
+            a.merge = self.merge_rule();
+            a.progress = true;
+            a.hang_ms = self.remote.hang_ms(self.hang_ms);
+            a.restarts = restarts;
+            a.timeout = timeout;
             let mut cmd = Command::new(coord_bin);
-            cmd.args(["--run-id", run_id, "--robots", &fleet_size.to_string()])
-                .args(self.map.to_cli())
-                .args(self.world.to_cli())
-                .args([
-                    "--wait",
-                    &self.wait.to_string(),
-                    "--spin-us",
-                    &coordinator::spin_us_for(self.spin_us, self.remote.remote_robots).to_string(),
-                ])
-                .args(["--merge", &self.merge_rule().to_string(), "--progress"])
-                .args(["--hang-ms", &self.remote.hang_ms(self.hang_ms).to_string()])
-                .args(["--restarts", &restarts.to_string()])
-                .args(["--timeout", &timeout.to_string()])
-                .arg("--out")
-                .arg(out);
+            cmd.args(a.to_args());
             cmd
         };
         let fleet = Fleet {

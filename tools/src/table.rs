@@ -1,7 +1,7 @@
 //! Plain-text tables for people: column-aligned, with a header, no Rust `Debug` values; and the
 //! per-phase, per-goal table `qfleet experiment` prints.
 
-use coordinator::experiment::ExperimentResult;
+use report::ExperimentResult;
 
 /// A table of strings, left-aligned text and right-aligned numbers, two spaces apart.
 pub struct TextTable {

@@ -13,8 +13,6 @@ use planner::map::GridMap;
 use planner::{Cell, Rewards};
 use serde::{Deserialize, Serialize};
 
-use crate::options::CoordError;
-
 /// One goal of a plan.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PlanGoal {
@@ -134,10 +132,14 @@ impl ExperimentPlan {
     /// row of optima per robot, one assignment row per phase naming existing goals.
     pub fn check_shape(&self) -> Result<(), PlanError> {
         let n = self.robots as usize;
-        if n == 0 || self.robots > bus::MAX_ROBOTS {
+        if n == 0 || self.robots > bus_schema::MAX_ROBOTS {
             return Err(bad(
                 "robots",
-                format!("must be 1..={}, got {}", bus::MAX_ROBOTS, self.robots),
+                format!(
+                    "must be 1..={}, got {}",
+                    bus_schema::MAX_ROBOTS,
+                    self.robots
+                ),
             ));
         }
         if !(self.timeout_s.is_finite() && self.timeout_s > 0.0) {
@@ -232,12 +234,6 @@ impl ExperimentPlan {
 impl From<report::ReadError> for PlanError {
     fn from(e: report::ReadError) -> Self {
         PlanError::Read(e)
-    }
-}
-
-impl From<PlanError> for CoordError {
-    fn from(e: PlanError) -> Self {
-        CoordError::Plan(Box::new(e))
     }
 }
 

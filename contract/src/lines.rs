@@ -1,4 +1,6 @@
-//! The line protocol between a run's coordinator and its launcher.
+//! The line protocol between a run's coordinator and its launcher: the coordinator writes
+//! these lines with [`progress_line`], [`event_line`] and [`result_line`], the launcher reads
+//! them with [`parse_line`].
 //!
 //! Coordinator → launcher (its stdout, one line each, space separated; other lines are ignored):
 //! - `progress <episodes done> <episodes total> <p50 ns> <p99 ns>`
@@ -23,6 +25,22 @@ pub enum CoordLine {
     Event(u32),
     /// `result <json>`: the result the coordinator could not write into `result.json`.
     Result(String),
+}
+
+/// The `progress` line: episodes done of `total`, loop latency p50 and p99 in ns.
+pub fn progress_line(done: u64, total: u64, p50_ns: u64, p99_ns: u64) -> String {
+    format!("progress {done} {total} {p50_ns} {p99_ns}")
+}
+
+/// An `event` line: liveness event `kind` (`hung`, `lost`, …) of robot `id` at `at_ns` since
+/// the start.
+pub fn event_line(kind: impl std::fmt::Display, id: u32, at_ns: u64) -> String {
+    format!("event {kind} {id} {at_ns}")
+}
+
+/// The `result` line: the run's result as one line of JSON.
+pub fn result_line(json: &str) -> String {
+    format!("result {json}")
 }
 
 /// Parses one stdout line of the coordinator (`None`: not a line for the launcher).
@@ -65,6 +83,26 @@ pub fn parse_exited(line: &str) -> Option<(u32, i32)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn what_the_coordinator_writes_the_launcher_reads() {
+        assert_eq!(
+            parse_line(&progress_line(1, 2, 3, 4)),
+            Some(CoordLine::Progress(1, 2, 3, 4))
+        );
+        assert_eq!(
+            parse_line(&event_line("hung", 3, 9)),
+            Some(CoordLine::Hung(3))
+        );
+        assert_eq!(
+            parse_line(&event_line("lost", 7, 9)),
+            Some(CoordLine::Event(7))
+        );
+        assert_eq!(
+            parse_line(&result_line("{}")),
+            Some(CoordLine::Result("{}".into()))
+        );
+    }
 
     #[test]
     fn parses_progress_and_events() {
