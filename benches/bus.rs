@@ -8,8 +8,9 @@ use std::time::Duration;
 
 use bus::bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, QHintBatch};
 use bus::{BusConfig, CoordinatorBus, RobotBus, monotonic_ns, unique_run_id};
-use coordinator::{FleetTable, MergeRule};
+use contract::coordinator::MergeRule;
 use criterion::{Criterion, criterion_group, criterion_main};
+use sharing::FleetTable;
 
 fn bench(c: &mut Criterion) {
     let cfg = match BusConfig::new(unique_run_id("bench-bus"), 2) {

@@ -7,10 +7,12 @@
 use std::hint::black_box;
 
 use bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, QHintBatch};
-use coordinator::{FleetTable, MergeRule};
+use contract::ApplyRule;
+use contract::coordinator::MergeRule;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use planner::{Grid, QTable};
-use robot_agent::share::{ApplyCtx, ApplyRule, HintBatcher, MergedApplier};
+use sharing::FleetTable;
+use sharing::{ApplyCtx, HintBatcher, MergedApplier};
 
 const CELLS: usize = 900; // paper-30
 

@@ -162,3 +162,37 @@ impl ShareArgs {
         v
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_rule_follows_the_learners_bound_and_a_flag_wins() {
+        use planner::LearnerConfig;
+        let planning = ValueBound::of(&LearnerConfig::planning(10, 1));
+        let improved = ValueBound::of(&LearnerConfig::improved(10, 1));
+        let s = ShareArgs::default();
+        assert_eq!(s.apply_rule(planning), ApplyRule::Min);
+        assert_eq!(s.apply_rule(improved), ApplyRule::Max);
+        assert!(!s.to_cli().contains(&"--apply".to_string()));
+        let s = ShareArgs {
+            apply: Some(ApplyRule::Latest),
+            ..ShareArgs::default()
+        };
+        assert_eq!(s.apply_rule(planning), ApplyRule::Latest);
+        assert!(s.to_cli().windows(2).any(|w| w == ["--apply", "latest"]));
+        assert!(ApplyRule::Min.fits(planning) && !ApplyRule::Max.fits(planning));
+        assert!(ApplyRule::Max.fits(improved) && !ApplyRule::Min.fits(improved));
+        assert!(ApplyRule::Blend.fits(planning) && ApplyRule::Latest.fits(improved));
+    }
+
+    #[test]
+    fn merge_rules_fit_the_learners_bound() {
+        for b in [ValueBound::Lower, ValueBound::Upper] {
+            assert!(merge_fits(merge_rule_for(b), b));
+        }
+        assert!(!merge_fits(MergeRule::Max, ValueBound::Upper));
+        assert!(!merge_fits(MergeRule::Min, ValueBound::Lower));
+    }
+}

@@ -30,9 +30,10 @@ use report::{CoordinatorCheckpoint, RobotCheckpoint};
 use crate::admission::{Roster, Sender, Verdict};
 use crate::discovery::{Discoveries, Seen};
 use crate::liveness::{Life, alive_in, robot_of_node};
-use crate::merge::{FleetTable, MergeRule};
 use crate::options::CoordError;
 use crate::validate::{self, Shape};
+use contract::coordinator::MergeRule;
+use sharing::FleetTable;
 
 /// Messages taken from one inbox per drain, so periodic work still runs under a flood.
 const DRAIN_MAX: usize = 256;

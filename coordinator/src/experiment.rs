@@ -42,11 +42,11 @@ use crate::assemble::{self, GoalTrack};
 use crate::checkpoint::{Checkpoint, LifeCounts};
 use crate::engine::{Assignment, Engine, tolerate};
 use crate::liveness::{Life, start_lister};
-use crate::merge::FleetTable;
 use crate::options::{CoordArgs, CoordError, bus_config, secs};
 use crate::wait::{Serving, Waiting, serve};
 pub use contract::plan::ExperimentPlan;
 pub use report::run::{ExperimentResult, GoalPhase, PhaseResult, RobotPhase};
+use sharing::FleetTable;
 
 /// One goal's merged-path watch during a phase.
 struct Watch {
@@ -331,8 +331,8 @@ pub fn merged_path_len(table: &FleetTable, env: &Env) -> Option<u32> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::merge::MergeRule;
     use bus::bus_schema::QHint;
+    use contract::coordinator::MergeRule;
 
     #[test]
     fn merged_path_follows_the_table_and_detects_loops() {

@@ -19,15 +19,14 @@ mod engine;
 pub mod experiment;
 pub mod grid;
 pub mod liveness;
-pub mod merge;
 pub mod options;
 pub mod output;
 pub mod run;
 pub mod validate;
 mod wait;
 
+pub use contract::coordinator::MergeRule;
 pub use engine::exited_file;
-pub use merge::{FleetTable, MergeRule};
 pub use options::{
     BRIDGED_SPIN_US, CoordArgs, CoordError, DEFAULT_SPIN_US, WaitStrategy, spin_us_for,
 };

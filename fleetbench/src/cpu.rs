@@ -12,6 +12,18 @@ pub fn self_cpu_ns() -> u64 {
     tv(ru.ru_utime) + tv(ru.ru_stime)
 }
 
+/// User + system CPU time of this process's children that ended and were waited for, ns.
+pub fn children_cpu_ns() -> u64 {
+    // SAFETY: as in `self_cpu_ns`; RUSAGE_CHILDREN always exists.
+    let mut ru: libc::rusage = unsafe { core::mem::zeroed() };
+    // SAFETY: `ru` is a valid, writable rusage.
+    if unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut ru) } != 0 {
+        return 0;
+    }
+    let tv = |t: libc::timeval| t.tv_sec as u64 * 1_000_000_000 + t.tv_usec as u64 * 1_000;
+    tv(ru.ru_utime) + tv(ru.ru_stime)
+}
+
 /// User + system CPU time process `pid` used so far, ns (clock-tick resolution, 10 ms on
 /// Linux); `None` when the process is gone or `/proc` is unreadable.
 pub fn pid_cpu_ns(pid: u32) -> Option<u64> {

@@ -23,7 +23,7 @@ use std::process::Command;
 use std::time::Duration;
 
 use bus::bus_schema::QHintBatch;
-use coordinator::WaitStrategy;
+use contract::coordinator::WaitStrategy;
 
 use crate::BenchError;
 use crate::harness::{Launcher, Options, row_timeout, spawn_on};
@@ -206,7 +206,7 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
                     run_id: bus::unique_run_id("bench-xhost"),
                     robots: 2,
                     wait: WaitStrategy::Hybrid,
-                    spin_us: coordinator::spin_us_for(opts.spin_us, 2),
+                    spin_us: contract::spin_us_for(opts.spin_us, 2),
                     map: opts.map.clone(),
                     out: dir.join("coordinator"),
                     timeout_s: quiet_ms as f64 / 1e3,

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use ::report::hist::{new_hist, read_binary};
 use bus::bus_schema::QHintBatch;
 use bus::bus_schema::names::iceoryx_prefix;
-use coordinator::WaitStrategy;
+use contract::coordinator::WaitStrategy;
 use hdrhistogram::Histogram;
 
 use crate::report::{ProcessCpu, Report, Row, ScaleRow};
@@ -55,7 +55,7 @@ pub struct Options {
     /// Map of the loop rows.
     pub map: String,
     /// Hybrid wait: µs the coordinator spins after the last message; `None`: what a run
-    /// would use ([`coordinator::spin_us_for`]: 200 on one host, 0 beside a bridge hub).
+    /// would use ([`contract::spin_us_for`]: 200 on one host, 0 beside a bridge hub).
     pub spin_us: Option<u64>,
     /// Cross-host rows: µs each bridge keeps looking after a message moved; `None`:
     /// `bridge::SPIN_AFTER`, what a run uses.
@@ -474,7 +474,7 @@ fn run_row(label: &str, opts: &Options, l: &Launcher, tmp: &Path) -> Result<Row,
                     run_id: run_id.clone(),
                     robots: 2,
                     wait,
-                    spin_us: coordinator::spin_us_for(opts.spin_us, 0),
+                    spin_us: contract::spin_us_for(opts.spin_us, 0),
                     map: opts.map.clone(),
                     out: dir.join("coordinator"),
                     timeout_s: quiet_ms as f64 / 1e3,
@@ -590,7 +590,7 @@ fn scale_point_inner(
             run_id: run_id.clone(),
             robots: n,
             wait: WaitStrategy::Hybrid,
-            spin_us: coordinator::spin_us_for(opts.spin_us, 0),
+            spin_us: contract::spin_us_for(opts.spin_us, 0),
             map: opts.scale_map.clone(),
             out: dir.join("coordinator"),
             timeout_s: timeout_ms as f64 / 1e3,

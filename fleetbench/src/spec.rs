@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use coordinator::WaitStrategy;
+use contract::coordinator::WaitStrategy;
 use serde::{Deserialize, Serialize};
 
 /// Prefix of the one stdout line a child writes its [`ChildReport`] on.

@@ -28,23 +28,23 @@ pub enum SpawnError {
     },
 }
 
-/// The path of binary `name` in the launcher's own directory.
+/// The path of binary `name` in the launcher's own directory (or, for a test binary that cargo
+/// put in `target/<profile>/deps`, in `target/<profile>` where cargo puts the binaries).
 pub fn sibling(name: &str) -> Result<PathBuf, SpawnError> {
     let exe = std::env::current_exe().map_err(SpawnError::NoExe)?;
-    let path = exe
-        .parent()
-        .map(|d| d.join(name))
-        .ok_or_else(|| SpawnError::Missing {
-            name: name.into(),
-            exe: exe.clone(),
-        })?;
-    if !path.is_file() {
-        return Err(SpawnError::Missing {
-            name: name.into(),
-            exe,
-        });
+    let missing = || SpawnError::Missing {
+        name: name.into(),
+        exe: exe.clone(),
+    };
+    let dir = exe.parent().ok_or_else(missing)?;
+    let mut dirs = vec![dir];
+    if dir.file_name().is_some_and(|d| d == "deps") {
+        dirs.extend(dir.parent());
     }
-    Ok(path)
+    dirs.into_iter()
+        .map(|d| d.join(name))
+        .find(|p| p.is_file())
+        .ok_or_else(missing)
 }
 
 /// Makes `cmd` start in its own process group and die (SIGKILL) when the launcher dies.

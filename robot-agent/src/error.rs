@@ -11,7 +11,7 @@ pub enum AgentError {
     Timeout(f64),
     /// A sharing option is out of range.
     #[error(transparent)]
-    Share(#[from] crate::share::ShareOptionError),
+    Share(#[from] contract::ShareOptionError),
     /// The map, task or a learner option is bad.
     #[error(transparent)]
     Args(#[from] qfleet_args::ArgsError),

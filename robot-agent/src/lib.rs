@@ -18,9 +18,8 @@ pub mod gate;
 pub mod pace;
 pub mod reconnect;
 pub mod robot;
-pub mod share;
 
 pub use args::AgentArgs;
+pub use contract::{ApplyRule, ShareArgs};
 pub use error::AgentError;
 pub use robot::run;
-pub use share::{ApplyRule, HintBatcher, ShareArgs};

@@ -54,7 +54,7 @@ use crate::experiment::{Assignment, Effect, Plan};
 use crate::gate::{ControlGate, Verdict};
 use crate::pace::Pacer;
 use crate::reconnect::{Link, LinkEvent, handshake};
-use crate::share::{ApplyCtx, HintBatcher, MergedApplier};
+use sharing::{ApplyCtx, HintBatcher, MergedApplier};
 
 /// How often a robot that is not learning tells the coordinator it is alive.
 const HEARTBEAT: Duration = Duration::from_millis(100);
@@ -447,7 +447,7 @@ impl Robot<'_> {
         let bound = qfleet_args::ValueBound::of(&cfg);
         let min_sharing = self.args.share.share.hints()
             && bound == qfleet_args::ValueBound::Upper
-            && self.args.share.apply_rule(bound) == crate::share::ApplyRule::Min;
+            && self.args.share.apply_rule(bound) == contract::ApplyRule::Min;
         if min_sharing {
             learner.keep_values_falling();
         }

@@ -1,26 +1,27 @@
-//! Roles on the real fleet path: the real coordinator (`coordinator::run`, with its own wait
+//! Roles on the real fleet path: the real coordinator process (`qfleet-coordinator`, with its own wait
 //! strategies and merge), the two-robot loop process, and the scale benchmark's robots.
 //!
 //! Robots here are lightweight: no learner. They make Q updates with [`super::Updates`], batch
-//! them with the robot-agent's own `HintBatcher`, send them with the `bus` crate exactly as
+//! them with the robot-agent's own `HintBatcher` (crate `sharing`), send them with the `bus` crate exactly as
 //! `robot-agent` does (`send_batch` + `fill`, then `notify`), and apply merged hints with the
 //! robot-agent's own `MergedApplier::apply` into a `planner::QTable`, which records the end-to-end
 //! latency (origin time of the update → applied) in the histogram this harness reports.
 
-use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
+use std::process::{Command as Process, Stdio};
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::{
     Command, FinalReport, QHintBatch, Register, RobotState, RobotStatus, SCHEMA_VERSION,
 };
 use bus::{BusConfig, RobotBus, monotonic_ns};
-use clap::Parser;
-use coordinator::CoordArgs;
+use contract::ApplyRule;
+use contract::CoordArgs;
+use contract::coordinator::MergeRule;
 use planner::QTable;
 use planner::task::Task;
 use qfleet_args::MapArgs;
-use robot_agent::share::{ApplyCtx, ApplyRule, HintBatcher, MergedApplier};
+use report::{OutDir, OutFile, RunResult};
+use sharing::{ApplyCtx, HintBatcher, MergedApplier};
 
 use super::{Deadline, Updates, Window, idle_peer_cpu, save, window_ns};
 use crate::BenchError;
@@ -43,14 +44,8 @@ pub(crate) fn task(map: &str) -> Result<Task, BenchError> {
         .map_err(|e| BenchError::Input(format!("map {map}: {e}")))
 }
 
-/// The coordinator's options as a command line (to parse them with their defaults).
-#[derive(Debug, Parser)]
-struct CoordCli {
-    #[command(flatten)]
-    args: CoordArgs,
-}
-
-/// Runs the real coordinator until its robots finished; reports its whole-process CPU.
+/// Runs the real coordinator process (`qfleet-coordinator`, found beside this executable and
+/// bound to it like the launcher's children) until its robots finished; reports its CPU.
 pub fn coordinator(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
     let RoleSpec::Coordinator {
         run_id,
@@ -64,46 +59,43 @@ pub fn coordinator(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
     else {
         return Err(BenchError::Spec("not a coordinator spec".into()));
     };
-    // built through the coordinator's own command line, so options added to it later keep
-    // their defaults here
-    let words: Vec<String> = [
-        "coordinator",
-        "--run-id",
-        run_id,
-        "--robots",
-        &robots.to_string(),
-        "--map",
-        map,
-        "--wait",
-        &wait.to_string(),
-        "--spin-us",
-        &spin_us.to_string(),
-        "--merge",
-        "max",
-        "--timeout",
-        &timeout_s.to_string(),
-        "--hint-buffer",
-        "64",
-        // the bench robots send no heartbeat states while they measure
-        "--hang-ms",
-        "600000",
-    ]
-    .iter()
-    .map(|w| w.to_string())
-    .chain(["--out".to_string(), out.display().to_string()])
-    .collect();
-    let args = CoordCli::try_parse_from(words)
-        .map_err(|e| BenchError::Coordinator(format!("coordinator options: {e}")))?
-        .args;
-    let t = Window::start(None);
-    let result = coordinator::run(args, Arc::new(AtomicBool::new(false)))
+    let mut args = CoordArgs::new(run_id.clone(), out.clone());
+    args.robots = *robots;
+    args.map = map_args(map);
+    args.wait = *wait;
+    args.spin_us = *spin_us;
+    args.merge = MergeRule::Max;
+    args.timeout = *timeout_s;
+    // the bench robots send no heartbeat states while they measure
+    args.hang_ms = 600_000;
+    let bin = launcher::spawn::sibling("qfleet-coordinator")
         .map_err(|e| BenchError::Coordinator(e.to_string()))?;
-    let mut r = ChildReport {
-        samples: result.throughput.q_updates_merged,
-        merged_per_s: result.throughput.q_updates_merged_per_s,
-        ..ChildReport::default()
-    };
+    let mut cmd = Process::new(&bin);
+    cmd.args(args.to_args()).stdout(Stdio::null());
+    launcher::spawn::bind_to_launcher(&mut cmd);
+    let t = Window::start(None);
+    let cpu0 = crate::cpu::children_cpu_ns();
+    let status = cmd
+        .spawn()
+        .and_then(|mut c| c.wait())
+        .map_err(|e| BenchError::Coordinator(format!("{}: {e}", bin.display())))?;
+    let mut r = ChildReport::default();
     t.finish(&mut r);
+    // the role process only waited: the coordinator's CPU is its child's
+    r.self_cpu_ns = crate::cpu::children_cpu_ns().saturating_sub(cpu0);
+    // 4: the run completed but a robot sent no valid report — the bench robots send none worth
+    // checking and leave at once; the merge figures are complete all the same
+    if !matches!(status.code(), Some(0 | 4)) {
+        return Err(BenchError::Coordinator(format!(
+            "qfleet-coordinator ended with {status} (its result, if any, is in {})",
+            out.display()
+        )));
+    }
+    let result: RunResult = OutDir::new(out)
+        .read_json(OutFile::Result)
+        .map_err(|e| BenchError::Coordinator(e.to_string()))?;
+    r.samples = result.throughput.q_updates_merged;
+    r.merged_per_s = result.throughput.q_updates_merged_per_s;
     Ok(r)
 }
 

@@ -1,6 +1,6 @@
 //! The update loop over a Unix stream socket, as a user would write it without iceoryx2: the
 //! same `QHintBatch` / `MergedHintBatch` structs sent as their raw bytes (whole structs,
-//! 3112 and 6176 bytes), the same batcher, merge (`coordinator::FleetTable`) and apply code.
+//! 3112 and 6176 bytes), the same batcher, merge (`sharing::FleetTable`) and apply code.
 //! `spin` = nonblocking socket polled in a busy loop; otherwise blocking reads.
 
 use std::io::{ErrorKind, Read, Write};
@@ -10,9 +10,11 @@ use std::time::Duration;
 
 use bus::bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHintBatch};
 use bus::monotonic_ns;
-use coordinator::{FleetTable, MergeRule};
+use contract::ApplyRule;
+use contract::coordinator::MergeRule;
 use planner::{Grid, QTable};
-use robot_agent::share::{ApplyCtx, ApplyRule, HintBatcher, MergedApplier};
+use sharing::FleetTable;
+use sharing::{ApplyCtx, HintBatcher, MergedApplier};
 
 use super::{Deadline, Updates, Window, idle_peer_cpu, save, window_ns};
 use crate::BenchError;

@@ -13,7 +13,7 @@
 //! - `latest`: the newest report wins.
 //! - `min`: the smallest value any robot ever reported; a larger report (the owner's
 //!   included) changes nothing. For learners whose every value is an upper bound of Q*
-//!   ([`ValueBound::Upper`](qfleet_args::ValueBound): the planning learner's optimistic start,
+//!   ([`ValueBound::Upper`](contract::share::ValueBound): the planning learner's optimistic start,
 //!   replay and sweeps): the minimum of upper bounds is still one, and the tightest the fleet
 //!   has. A robot's value can rise again after it took a lower fleet value (its next backup
 //!   reads its own, looser neighbours), but the smaller report stays a true bound, so there is
@@ -25,7 +25,7 @@
 //! An entry that changes is queued for the next `MergedHintBatch` with the origin time and robot
 //! of the update that changed it (the end-to-end latency is measured from there).
 
-use bus::bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, ROBOT_ID_ALL};
+use bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, ROBOT_ID_ALL};
 
 pub use report::run::MergeRule;
 

@@ -1,5 +1,6 @@
-//! What a robot shares and how it takes in what the fleet shares: the options, the Q-hint
-//! batcher of the hot loop, and the rule that applies merged hints to the local Q-table.
+//! A robot's side of sharing: the Q-hint batcher of its hot loop and the rule that applies the
+//! fleet's merged hints to its local Q-table (the options and which rule fits which learner are
+//! the process contract's, `contract::share`).
 //!
 //! # Applying merged hints (the documented rule)
 //!
@@ -44,7 +45,7 @@
 //! and give no sample.
 
 use bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, QHintBatch, ROBOT_ID_ALL};
-pub use contract::share::{ApplyRule, ShareArgs, ShareMode, ShareOptionError, ValueBound};
+pub use contract::share::{ApplyRule, ValueBound};
 use hdrhistogram::Histogram;
 use planner::QTable;
 pub use report::ApplyCounters;
@@ -478,26 +479,6 @@ mod tests {
             (c.entries_applied, c.entries_own, c.entries_rejected),
             (3, 1, 1)
         );
-    }
-
-    #[test]
-    fn the_default_rule_follows_the_learners_bound_and_a_flag_wins() {
-        use planner::LearnerConfig;
-        let planning = ValueBound::of(&LearnerConfig::planning(10, 1));
-        let improved = ValueBound::of(&LearnerConfig::improved(10, 1));
-        let s = ShareArgs::default();
-        assert_eq!(s.apply_rule(planning), ApplyRule::Min);
-        assert_eq!(s.apply_rule(improved), ApplyRule::Max);
-        assert!(!s.to_cli().contains(&"--apply".to_string()));
-        let s = ShareArgs {
-            apply: Some(ApplyRule::Latest),
-            ..ShareArgs::default()
-        };
-        assert_eq!(s.apply_rule(planning), ApplyRule::Latest);
-        assert!(s.to_cli().windows(2).any(|w| w == ["--apply", "latest"]));
-        assert!(ApplyRule::Min.fits(planning) && !ApplyRule::Max.fits(planning));
-        assert!(ApplyRule::Max.fits(improved) && !ApplyRule::Min.fits(improved));
-        assert!(ApplyRule::Blend.fits(planning) && ApplyRule::Latest.fits(improved));
     }
 
     #[test]
