@@ -16,7 +16,8 @@ use bus::bus_schema::{
 };
 use bus::{BusConfig, DIR_MODE, FILE_MODE, Observer, leftover_files};
 use qfleet_suite::{
-    PROCESS_TIMEOUT, bin, describe, leftovers, run_bounded, run_id, scratch, spawn, wait_bounded,
+    PROCESS_TIMEOUT, bin, describe, leftovers, run_bounded, run_id, scratch, skip, spawn,
+    wait_bounded,
 };
 use serde_json::Value;
 
@@ -66,7 +67,10 @@ fn assert_quiet(out: &Output) {
 #[test]
 fn another_user_can_neither_read_nor_overwrite_any_file_of_a_run() {
     if !is_root() {
-        eprintln!("SKIP: needs root to act as another user with setpriv");
+        skip(
+            "hardening_bus::another_user_can_neither_read_nor_overwrite_any_file_of_a_run",
+            "needs root to act as another user with setpriv",
+        );
         return;
     }
     if !works(Command::new("setpriv").args([
@@ -75,7 +79,10 @@ fn another_user_can_neither_read_nor_overwrite_any_file_of_a_run() {
         "--clear-groups",
         "true",
     ])) {
-        eprintln!("SKIP: setpriv --reuid=nobody does not work here");
+        skip(
+            "hardening_bus::another_user_can_neither_read_nor_overwrite_any_file_of_a_run",
+            "setpriv --reuid=nobody does not work here",
+        );
         return;
     }
     let id = run_id("other-user");
@@ -202,7 +209,10 @@ fn namespaces_work() -> bool {
 #[test]
 fn a_root_owned_iceoryx2_dir_is_an_error_before_any_process_starts() {
     if !namespaces_work() {
-        eprintln!("SKIP: needs root and mount namespaces (unshare -m)");
+        skip(
+            "hardening_bus::a_root_owned_iceoryx2_dir_is_an_error_before_any_process_starts",
+            "needs root and mount namespaces (unshare -m)",
+        );
         return;
     }
     let id = run_id("root-dir");
@@ -240,7 +250,10 @@ fn a_root_owned_iceoryx2_dir_is_an_error_before_any_process_starts() {
 #[test]
 fn a_nearly_full_dev_shm_is_a_clear_error_before_starting() {
     if !namespaces_work() {
-        eprintln!("SKIP: needs root and mount namespaces (unshare -m)");
+        skip(
+            "hardening_bus::a_nearly_full_dev_shm_is_a_clear_error_before_starting",
+            "needs root and mount namespaces (unshare -m)",
+        );
         return;
     }
     let id = run_id("no-shm");

@@ -140,6 +140,14 @@ mod tests {
         assert!(!pid_alive(u32::MAX - 1));
     }
 
+    /// Says that a test skipped, and why: a copy of `qfleet_suite::skip` (`tests/support/lib.rs`
+    /// says why it looks so; `tests/skips.rs` keeps every copy identical).
+    fn skip(test: &str, reason: &str) {
+        use std::io::Write;
+        let line = format!("SKIPPED: {test}: {reason}\n");
+        let _ = std::io::stderr().lock().write_all(line.as_bytes());
+    }
+
     #[test]
     fn pin_apart_moves_the_other_threads_and_keeps_this_one() {
         // SAFETY: sched_getaffinity only writes the set it is given
@@ -154,8 +162,9 @@ mod tests {
         let me = unsafe { libc::gettid() };
         let allowed = cpus_of(me);
         if !(allowed.contains(&0) && allowed.contains(&1)) {
-            report::log_line!(
-                "SKIPPED pin_apart test: this process may not use CPUs 0 and 1 ({allowed:?})"
+            skip(
+                "fleetbench cpu::tests::pin_apart_moves_the_other_threads_and_keeps_this_one",
+                &format!("this process may not use CPUs 0 and 1 ({allowed:?})"),
             );
             return;
         }

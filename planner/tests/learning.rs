@@ -255,19 +255,23 @@ proptest! {
     }
 }
 
+/// Says that a test skipped, and why: a copy of `qfleet_suite::skip` (`tests/support/lib.rs`
+/// says why it looks so; `tests/skips.rs` keeps every copy identical).
+fn skip(test: &str, reason: &str) {
+    use std::io::Write;
+    let line = format!("SKIPPED: {test}: {reason}\n");
+    let _ = std::io::stderr().lock().write_all(line.as_bytes());
+}
+
 /// The shared MovingAI maps, when this checkout sits beside `shared/`.
-fn movingai_dir() -> Option<std::path::PathBuf> {
+fn movingai_dir(test: &str) -> Option<std::path::PathBuf> {
     let d = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/movingai");
     if d.is_dir() {
         Some(d)
     } else {
-        // straight to the process's stderr (not `eprintln!`, which the test harness captures),
-        // so that every `cargo test` run shows the skip
-        use std::io::Write;
-        let _ = writeln!(
-            std::io::stderr(),
-            "SKIPPED planner MovingAI tests: {} not found",
-            d.display()
+        skip(
+            &format!("planner learning::{test}"),
+            &format!("{} not found", d.display()),
         );
         None
     }
@@ -275,7 +279,9 @@ fn movingai_dir() -> Option<std::path::PathBuf> {
 
 #[test]
 fn learns_the_optimum_on_movingai_maps() {
-    let Some(dir) = movingai_dir() else { return };
+    let Some(dir) = movingai_dir("learns_the_optimum_on_movingai_maps") else {
+        return;
+    };
     let empty = planner::map::load_map(dir.join("empty-8-8.map").to_str().unwrap()).unwrap();
     let task = resolve_task(&empty, Some(Cell::new(0, 0)), Some(Cell::new(7, 7))).unwrap();
     let (_, s) = Learner::new(&task, LearnerConfig::improved(300, 1))

@@ -7,7 +7,15 @@ use planner::task::resolve_scenario;
 use std::collections::VecDeque;
 use std::path::PathBuf;
 
-fn data_dir() -> Option<PathBuf> {
+/// Says that a test skipped, and why: a copy of `qfleet_suite::skip` (`tests/support/lib.rs`
+/// says why it looks so; `tests/skips.rs` keeps every copy identical).
+fn skip(test: &str, reason: &str) {
+    use std::io::Write;
+    let line = format!("SKIPPED: {test}: {reason}\n");
+    let _ = std::io::stderr().lock().write_all(line.as_bytes());
+}
+
+fn data_dir(test: &str) -> Option<PathBuf> {
     let dir = PathBuf::from(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../../shared/data/movingai"
@@ -15,13 +23,9 @@ fn data_dir() -> Option<PathBuf> {
     if dir.is_dir() {
         Some(dir)
     } else {
-        // straight to the process's stderr (not `eprintln!`, which the test harness captures),
-        // so that every `cargo test` run shows the skip
-        use std::io::Write;
-        let _ = writeln!(
-            std::io::stderr(),
-            "SKIPPED planner movingai_data tests: no MovingAI data at {}",
-            dir.display()
+        skip(
+            &format!("planner movingai_data::{test}"),
+            &format!("no MovingAI data at {}", dir.display()),
         );
         None
     }
@@ -65,7 +69,9 @@ fn reference_moves(
 
 #[test]
 fn every_map_parses_with_its_stated_size() {
-    let Some(dir) = data_dir() else { return };
+    let Some(dir) = data_dir("every_map_parses_with_its_stated_size") else {
+        return;
+    };
     let mut count = 0;
     for entry in std::fs::read_dir(&dir).unwrap() {
         let path = entry.unwrap().path();
@@ -94,7 +100,9 @@ fn every_map_parses_with_its_stated_size() {
 
 #[test]
 fn scenarios_match_a_reference_bfs() {
-    let Some(dir) = data_dir() else { return };
+    let Some(dir) = data_dir("scenarios_match_a_reference_bfs") else {
+        return;
+    };
     let scen = load_scen(&dir.join("random-32-32-10-random-1.scen")).unwrap();
     assert_eq!(scen.len(), 461);
     let map = load_map(dir.join("random-32-32-10.map").to_str().unwrap()).unwrap();

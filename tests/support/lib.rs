@@ -217,11 +217,18 @@ pub fn ok(status: ExitStatus) -> bool {
     status.success()
 }
 
-/// Says on the test's real stderr (not captured by the test harness, so it shows in every
-/// `cargo test` run) that a test skipped, and why.
+/// Says that a test skipped, and why: one line `SKIPPED: <test>: <reason>`, written whole to the
+/// process's real stderr handle (`eprintln!` would be captured by the test harness and shown
+/// only when the test fails), so it shows in every `cargo test` run. Call it once per skipped
+/// test, then return: `.ci/run` counts these lines and prints `N passed, N failed, N skipped`,
+/// with each skipped test taken off the passed count.
+///
+/// This is the one format; crates with tests of their own carry a copy of this function
+/// (they cannot depend on this package), and `tests/skips.rs` keeps every copy identical.
 pub fn skip(test: &str, reason: &str) {
     use std::io::Write;
-    let _ = writeln!(std::io::stderr(), "SKIPPED {test}: {reason}");
+    let line = format!("SKIPPED: {test}: {reason}\n");
+    let _ = std::io::stderr().lock().write_all(line.as_bytes());
 }
 
 /// Pids of every live process whose command line has `--run-id <id>` (the launcher included).
@@ -270,4 +277,56 @@ pub fn wait_until(timeout: Duration, mut cond: impl FnMut() -> bool) -> bool {
         }
         std::thread::sleep(Duration::from_millis(10));
     }
+}
+
+/// Files of the workspace whose names end in `suffix`, relative to its root, sorted: what git
+/// tracks plus what it would track (new, not ignored), or, without git, every such file outside
+/// `target*/`, `results/` and hidden directories.
+pub fn workspace_files(suffix: &str) -> Vec<PathBuf> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let git = Command::new("git")
+        .current_dir(root)
+        .args([
+            "ls-files",
+            "-z",
+            "--cached",
+            "--others",
+            "--exclude-standard",
+        ])
+        .output();
+    let mut files: Vec<PathBuf> = match git {
+        Ok(o) if o.status.success() => o
+            .stdout
+            .split(|b| *b == 0)
+            .filter_map(|f| std::str::from_utf8(f).ok())
+            .filter(|f| f.ends_with(suffix) && root.join(f).is_file())
+            .map(PathBuf::from)
+            .collect(),
+        _ => {
+            fn walk(root: &Path, dir: &Path, suffix: &str, out: &mut Vec<PathBuf>) {
+                let Ok(entries) = std::fs::read_dir(dir) else {
+                    return;
+                };
+                for e in entries.flatten() {
+                    let path = e.path();
+                    let name = e.file_name().to_string_lossy().into_owned();
+                    if path.is_dir() {
+                        if !name.starts_with('.')
+                            && !name.starts_with("target")
+                            && name != "results"
+                        {
+                            walk(root, &path, suffix, out);
+                        }
+                    } else if name.ends_with(suffix) {
+                        out.push(path.strip_prefix(root).unwrap_or(&path).to_path_buf());
+                    }
+                }
+            }
+            let mut out = Vec::new();
+            walk(root, root, suffix, &mut out);
+            out
+        }
+    };
+    files.sort();
+    files
 }

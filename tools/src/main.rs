@@ -82,6 +82,12 @@ fn main() {
     // SAFETY: first thing in main, before this process starts any thread
     unsafe { bridge::prefer_runtime_threads() };
     let cli = Cli::parse();
+    // Hidden parse-only switch for `tests/docs.rs`, which checks that every `qfleet …` command
+    // quoted in the docs still parses: with QFLEET_PARSE_ONLY=1 the arguments are parsed exactly
+    // as usual (a parse error still exits 2, `--help` still prints), then nothing is run.
+    if std::env::var_os("QFLEET_PARSE_ONLY").is_some_and(|v| v == "1") {
+        std::process::exit(Exit::Ok.code());
+    }
     let result = match cli.command {
         Command::Learn(c) => c.run(),
         Command::Replicate(c) => c.run(),

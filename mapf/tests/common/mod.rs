@@ -14,15 +14,20 @@ pub fn movingai(test: &str) -> Option<PathBuf> {
     if dir.join("random-32-32-10.map").is_file() {
         Some(dir)
     } else {
-        // straight to stderr: the harness captures `eprintln!`, and a skip must show
-        use std::io::Write;
-        let _ = writeln!(
-            std::io::stderr(),
-            "SKIPPED {test}: {} is missing",
-            dir.display()
+        skip(
+            &format!("mapf {test}"),
+            &format!("{} is missing", dir.display()),
         );
         None
     }
+}
+
+/// Says that a test skipped, and why: a copy of `qfleet_suite::skip` (`tests/support/lib.rs`
+/// says why it looks so; `tests/skips.rs` keeps every copy identical).
+pub fn skip(test: &str, reason: &str) {
+    use std::io::Write;
+    let line = format!("SKIPPED: {test}: {reason}\n");
+    let _ = std::io::stderr().lock().write_all(line.as_bytes());
 }
 
 /// Intents of robots with converged values: every present agent ranks by BFS distance.
