@@ -1,7 +1,7 @@
 //! The README's layout table is the crate graph `cargo metadata` reports: one row per workspace
 //! package, and each row's "depends on" column names exactly that package's workspace
 //! dependencies (normal and dev). A dependency added or removed without the README following
-//! fails here.
+//! fails here, as does a crate outside the two processes that links one of them.
 
 use serde_json::Value;
 use std::collections::{BTreeMap, BTreeSet};
@@ -130,4 +130,21 @@ fn names_in_a_cell_are_whole_words() {
             .map(String::from)
             .collect()
     );
+}
+
+/// The two processes are leaves of the crate graph: the launcher, `qfleet`, `fleetbench`, the
+/// bridge and the tests reach them only through their command lines (the `contract` crate) and
+/// their results (`report`), never by linking them.
+#[test]
+fn no_crate_outside_the_processes_depends_on_a_process_crate() {
+    let processes = ["coordinator", "robot-agent"];
+    for (name, (_, deps)) in workspace_graph() {
+        for p in processes {
+            assert!(
+                !deps.contains(p),
+                "{name} depends on the process crate {p}: build its command line with the \
+                 contract crate and read its results with report instead"
+            );
+        }
+    }
 }
