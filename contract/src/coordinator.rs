@@ -179,9 +179,7 @@ impl CoordArgs {
         I: IntoIterator<Item = T>,
         T: Into<OsString> + Clone,
     {
-        let argv = std::iter::once(OsString::from("qfleet-coordinator"))
-            .chain(words.into_iter().map(Into::into));
-        CoordLine::try_parse_from(argv).map(|c| c.args)
+        crate::parse::<CoordLine, _, _>(words).map(|c| c.args)
     }
 
     /// The clap command of these options (for help texts and the contract's tests).

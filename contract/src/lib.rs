@@ -75,6 +75,18 @@ impl Words {
     }
 }
 
+/// Parses command-line words (without the program name) with `P`, the program name taken from
+/// `P`'s command.
+pub(crate) fn parse<P, I, T>(words: I) -> Result<P, clap::Error>
+where
+    P: clap::Parser,
+    I: IntoIterator<Item = T>,
+    T: Into<OsString> + Clone,
+{
+    let name = OsString::from(P::command().get_name());
+    P::try_parse_from(std::iter::once(name).chain(words.into_iter().map(Into::into)))
+}
+
 /// The long option names a clap command accepts (`--run-id`, …), for the tests that keep
 /// `to_args` complete.
 #[cfg(test)]

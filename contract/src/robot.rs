@@ -113,9 +113,7 @@ impl AgentArgs {
         I: IntoIterator<Item = T>,
         T: Into<OsString> + Clone,
     {
-        let argv =
-            std::iter::once(OsString::from("robot-agent")).chain(words.into_iter().map(Into::into));
-        AgentLine::try_parse_from(argv).map(|c| c.args)
+        crate::parse::<AgentLine, _, _>(words).map(|c| c.args)
     }
 
     /// The clap command of these options (for help texts and the contract's tests).
