@@ -61,6 +61,18 @@ fn cell(s: &str) -> Result<Cell, String> {
     task::parse_cell(s).map_err(|e| e.to_string())
 }
 
+/// The value parser of a setting written as one word (`--wait hybrid`, `--merge max`,
+/// `--share both`): the words of [`report::Word`], each with its help line.
+pub fn choice<T: report::Word + Send + Sync>() -> impl clap::builder::TypedValueParser<Value = T> {
+    use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
+    PossibleValuesParser::new(
+        T::ALL
+            .iter()
+            .map(|v| PossibleValue::new(v.word()).help(v.help())),
+    )
+    .try_map(|w| T::from_word(&w).ok_or("not one of the words"))
+}
+
 /// A file name as the value of an option: one that begins with `-` would be read as an option,
 /// so it gets `./` in front (the same file).
 pub fn value_word(name: &str) -> String {

@@ -66,7 +66,7 @@ pub struct CoordArgs {
     #[command(flatten)]
     pub world: WorldArgs,
     /// How to wait for messages.
-    #[arg(long, value_enum, default_value_t = WaitStrategy::Hybrid)]
+    #[arg(long, value_parser = qfleet_args::choice::<WaitStrategy>(), default_value_t = WaitStrategy::Hybrid)]
     pub wait: WaitStrategy,
     /// Hybrid: microseconds to keep spinning after the last message before blocking
     /// (`qfleet run` passes 0 when robots join from other hosts, see [`spin_us_for`]).
@@ -75,7 +75,7 @@ pub struct CoordArgs {
     /// How Q hints are merged into the fleet table (`qfleet run` and `experiment` always pass
     /// the rule that fits the learner, `min` for planning; this default is for a coordinator
     /// started by hand with the paper's learners).
-    #[arg(long, value_enum, default_value_t = MergeRule::Max)]
+    #[arg(long, value_parser = qfleet_args::choice::<MergeRule>(), default_value_t = MergeRule::Max)]
     pub merge: MergeRule,
     /// Directory for result.json and the .hgrm latency files.
     #[arg(long)]

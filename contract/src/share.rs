@@ -80,7 +80,7 @@ impl std::fmt::Display for ApplyRule {
 pub struct ShareArgs {
     /// Share Q-values with the fleet (`hints`), use other robots' pseudo-target discoveries
     /// (`discoveries`), both (`both`), or learn alone (`none`).
-    #[arg(long, value_enum, default_value_t = ShareMode::Hints)]
+    #[arg(long, value_parser = qfleet_args::choice::<ShareMode>(), default_value_t = ShareMode::Hints)]
     pub share: ShareMode,
     /// How merged hints are applied to the local Q-table (default: the rule that fits the
     /// learner, `min` for planning and `max` for the paper's learners).

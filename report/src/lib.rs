@@ -33,6 +33,7 @@ pub mod outdir;
 pub mod robot;
 pub mod run;
 pub mod text;
+pub mod words;
 
 pub use atomic::{
     Durability, WriteError, WriteStep, write_atomic, write_atomic_with, write_json_atomic,
@@ -49,3 +50,4 @@ pub use run::{
     PhaseResult, RobotEntry, RobotOutcome, RobotPhase, RunResult, Throughput, WaitStrategy,
 };
 pub use text::escape;
+pub use words::{ShareMode, Word};

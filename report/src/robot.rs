@@ -4,7 +4,7 @@
 //! The robot-agent writes these; the coordinator and the tests read them back as these types
 //! (never as untyped JSON), so a field renamed here is renamed for every reader at once.
 
-use qfleet_args::ShareMode;
+use crate::words::ShareMode;
 use serde::{Deserialize, Serialize};
 
 use crate::hist::LatencyStats;

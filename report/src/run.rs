@@ -6,14 +6,13 @@
 
 use std::collections::BTreeMap;
 
-use clap::ValueEnum;
 use serde::{Deserialize, Serialize};
 
 use crate::hist::LatencyStats;
 use crate::hosts::HostEntry;
 
 /// How the coordinator waits for messages.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum WaitStrategy {
     /// Busy-poll all inboxes.
@@ -24,18 +23,34 @@ pub enum WaitStrategy {
     Hybrid,
 }
 
-impl std::fmt::Display for WaitStrategy {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
+impl crate::Word for WaitStrategy {
+    const ALL: &'static [Self] = &[
+        WaitStrategy::Spin,
+        WaitStrategy::Event,
+        WaitStrategy::Hybrid,
+    ];
+
+    fn word(self) -> &'static str {
+        match self {
             WaitStrategy::Spin => "spin",
             WaitStrategy::Event => "event",
             WaitStrategy::Hybrid => "hybrid",
-        })
+        }
+    }
+
+    fn help(self) -> &'static str {
+        match self {
+            WaitStrategy::Spin => "Busy-poll all inboxes",
+            WaitStrategy::Event => "Block on a WaitSet of the inboxes' wake listeners",
+            WaitStrategy::Hybrid => "Spin `--spin-us` after each message, then block",
+        }
     }
 }
 
+crate::display_word!(WaitStrategy);
+
 /// How the coordinator merges robots' Q-values into the fleet table.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum MergeRule {
     /// Largest last-reported value (the owner may lower its own).
@@ -48,16 +63,36 @@ pub enum MergeRule {
     Min,
 }
 
-impl std::fmt::Display for MergeRule {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
+impl crate::Word for MergeRule {
+    const ALL: &'static [Self] = &[
+        MergeRule::Max,
+        MergeRule::Mean,
+        MergeRule::Latest,
+        MergeRule::Min,
+    ];
+
+    fn word(self) -> &'static str {
+        match self {
             MergeRule::Max => "max",
             MergeRule::Mean => "mean",
             MergeRule::Latest => "latest",
             MergeRule::Min => "min",
-        })
+        }
+    }
+
+    fn help(self) -> &'static str {
+        match self {
+            MergeRule::Max => "Largest last-reported value (the owner may lower its own)",
+            MergeRule::Mean => "Visit-weighted mean",
+            MergeRule::Latest => "Newest value wins",
+            MergeRule::Min => {
+                "Smallest value ever reported (for learners whose values are upper bounds of Q*)"
+            }
+        }
     }
 }
+
+crate::display_word!(MergeRule);
 
 /// How a robot ended a run or a phase (as written in JSON: lower case).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -86,7 +86,7 @@ pub struct Rules {
     pub apply: Option<ApplyRule>,
     /// How the coordinator merges hints into the fleet table (default: min for planning, max
     /// for the paper's learners).
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = qfleet_args::choice::<MergeRule>())]
     pub merge: Option<MergeRule>,
 }
 
@@ -171,7 +171,8 @@ impl std::str::FromStr for Rules {
             merge: match m {
                 "auto" => None,
                 _ => Some(
-                    MergeRule::from_str(m, true).map_err(|e| format!("merge rule {m:?}: {e}"))?,
+                    <MergeRule as report::Word>::from_word(&m.to_ascii_lowercase())
+                        .ok_or_else(|| format!("merge rule {m:?}: not max, mean, latest or min"))?,
                 ),
             },
         })

@@ -50,7 +50,7 @@ pub struct RunCmd {
     #[command(flatten)]
     share: ShareArgs,
     /// How the coordinator waits for messages.
-    #[arg(long, value_enum, default_value_t = WaitStrategy::Hybrid)]
+    #[arg(long, value_parser = qfleet_args::choice::<WaitStrategy>(), default_value_t = WaitStrategy::Hybrid)]
     wait: WaitStrategy,
     /// Hybrid wait: microseconds of spinning after the last message before blocking [default:
     /// 200, or 0 when robots join from other hosts (`--remote-robots`): a spinning coordinator
@@ -59,7 +59,7 @@ pub struct RunCmd {
     spin_us: Option<u64>,
     /// How the coordinator merges Q hints (default: the rule that fits the learner, `min` for
     /// planning, `max` for the paper's learners; see `--apply`).
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = qfleet_args::choice::<MergeRule>())]
     merge: Option<MergeRule>,
     /// Run id (default: derived from the process id and the time).
     #[arg(long)]
