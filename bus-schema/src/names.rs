@@ -7,7 +7,7 @@
 
 use crate::coordinator_to_robot::{Control, DiscoveryAck, DiscoveryRelay, Grant, MergedHintBatch};
 use crate::robot_to_coordinator::{
-    FinalReport, Intent, PseudoTargetDiscovery, QHintBatch, Register, RobotState,
+    FinalReport, Intent, IntentHorizon, PseudoTargetDiscovery, QHintBatch, Register, RobotState,
 };
 
 /// First element of every qfleet service name.
@@ -42,7 +42,7 @@ pub enum Delivery {
     LatestWins,
 }
 
-/// The eleven publish-subscribe topics of a run.
+/// The twelve publish-subscribe topics of a run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Topic {
     /// `robot/register`: [`Register`].
@@ -67,17 +67,20 @@ pub enum Topic {
     Intent,
     /// `coord/grant`: [`Grant`] (shared grid).
     Grant,
+    /// `robot/horizon`: [`IntentHorizon`] (shared grid).
+    Horizon,
 }
 
 impl Topic {
     /// Every topic, robot→coordinator first.
-    pub const ALL: [Topic; 11] = [
+    pub const ALL: [Topic; 12] = [
         Topic::Register,
         Topic::RobotState,
         Topic::Discovery,
         Topic::Hints,
         Topic::Report,
         Topic::Intent,
+        Topic::Horizon,
         Topic::Control,
         Topic::Merged,
         Topic::Ack,
@@ -99,6 +102,7 @@ impl Topic {
             Topic::Relay => "coord/discovery",
             Topic::Intent => "robot/intent",
             Topic::Grant => "coord/grant",
+            Topic::Horizon => "robot/horizon",
         }
     }
 
@@ -116,6 +120,7 @@ impl Topic {
             Topic::Relay => "qfleet::v1::DiscoveryRelay",
             Topic::Intent => "qfleet::v1::Intent",
             Topic::Grant => "qfleet::v1::Grant",
+            Topic::Horizon => "qfleet::v1::IntentHorizon",
         }
     }
 
@@ -133,6 +138,7 @@ impl Topic {
             Topic::Relay => size_of::<DiscoveryRelay>(),
             Topic::Intent => size_of::<Intent>(),
             Topic::Grant => size_of::<Grant>(),
+            Topic::Horizon => size_of::<IntentHorizon>(),
         }
     }
 
@@ -150,6 +156,7 @@ impl Topic {
             Topic::Relay => align_of::<DiscoveryRelay>(),
             Topic::Intent => align_of::<Intent>(),
             Topic::Grant => align_of::<Grant>(),
+            Topic::Horizon => align_of::<IntentHorizon>(),
         }
     }
 
@@ -161,7 +168,8 @@ impl Topic {
             | Topic::Discovery
             | Topic::Hints
             | Topic::Report
-            | Topic::Intent => Direction::RobotToCoordinator,
+            | Topic::Intent
+            | Topic::Horizon => Direction::RobotToCoordinator,
             Topic::Control | Topic::Merged | Topic::Ack | Topic::Relay | Topic::Grant => {
                 Direction::CoordinatorToRobot
             }
@@ -179,6 +187,7 @@ impl Topic {
             | Topic::Merged
             | Topic::Ack
             | Topic::Intent
+            | Topic::Horizon
             | Topic::Grant => Delivery::LatestWins,
         }
     }
@@ -257,6 +266,11 @@ pub fn coord_discovery(run_id: &str) -> String {
 /// `qfleet/<run-id>/robot/intent` ([`Intent`], latest-wins).
 pub fn robot_intent(run_id: &str) -> String {
     Topic::Intent.service_name(run_id)
+}
+
+/// `qfleet/<run-id>/robot/horizon` ([`IntentHorizon`], latest-wins).
+pub fn robot_horizon(run_id: &str) -> String {
+    Topic::Horizon.service_name(run_id)
 }
 
 /// `qfleet/<run-id>/coord/grant` ([`Grant`], latest-wins, broadcast).
