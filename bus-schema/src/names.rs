@@ -72,7 +72,9 @@ pub enum Topic {
 }
 
 impl Topic {
-    /// Every topic, robot→coordinator first.
+    /// Every topic: the first eleven robot→coordinator first, then `Horizon`, added later and
+    /// kept last so that every older topic keeps its position (the bridge's frames and
+    /// recordings number topics by it).
     pub const ALL: [Topic; 12] = [
         Topic::Register,
         Topic::RobotState,
@@ -80,12 +82,12 @@ impl Topic {
         Topic::Hints,
         Topic::Report,
         Topic::Intent,
-        Topic::Horizon,
         Topic::Control,
         Topic::Merged,
         Topic::Ack,
         Topic::Relay,
         Topic::Grant,
+        Topic::Horizon,
     ];
 
     /// The part of the service name after `qfleet/<run-id>/`.
