@@ -132,6 +132,47 @@ fn robots_crossing_a_room_all_arrive_without_a_conflict() {
 }
 
 #[test]
+fn with_and_without_the_intent_horizon_every_robot_arrives() {
+    // horizon 0: every robot answers every grant; horizon 8: robots answer for their next
+    // ticks at once and are woken once per 9 ticks
+    let dir = scratch("grid-horizon");
+    let (map, scen) = room(&dir, &ROOM_PAIRS);
+    for h in ["0", "8"] {
+        let out = dir.join(format!("out-{h}"));
+        let id = run_id("grid-horizon");
+        let o = run_bounded(&mut shared_run(
+            &id,
+            &map,
+            &scen,
+            6,
+            &out,
+            &["--intent-horizon", h],
+        ));
+        assert!(o.status.success(), "{}", describe(&o));
+        let r: Value = serde_json::from_slice(&o.stdout).unwrap();
+        let g = &r["grid"];
+        assert_eq!(g["all_arrived"], true, "horizon {h}: {g}");
+        assert_eq!(g["intents_rejected"], 0, "horizon {h}: {g}");
+        validate(&out, &map, &scen, 6, g);
+        let log = std::fs::read_to_string(out.join("coordinator.log")).unwrap_or_default();
+        let woken = log
+            .lines()
+            .find_map(|l| l.split("woken on ").nth(1))
+            .and_then(|w| w.split(' ').next())
+            .and_then(|w| w.parse::<u64>().ok());
+        let ticks = g["ticks"].as_u64().unwrap();
+        match h {
+            "0" => assert_eq!(woken, Some(ticks), "horizon 0 wakes every tick: {log}"),
+            _ => assert!(
+                woken.is_some_and(|w| w <= ticks.div_ceil(9) + 1),
+                "horizon 8 wakes once per 9 ticks: {woken:?} of {ticks}"
+            ),
+        }
+        assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+    }
+}
+
+#[test]
 fn an_instance_that_cannot_run_is_refused_before_anything_starts() {
     let dir = scratch("grid-bad");
     let cases: [(&str, Vec<Pair>, &str); 4] = [

@@ -30,7 +30,7 @@ impl std::fmt::Display for World {
 }
 
 /// The options of the world a run's robots live in.
-#[derive(Debug, Clone, Default, PartialEq, Eq, Args)]
+#[derive(Debug, Clone, PartialEq, Eq, Args)]
 pub struct WorldArgs {
     /// `separate`: every robot learns on its own copy of the map and robots never meet.
     /// `shared`: one grid; robot i takes its start and goal from line i of `--scen`, learns
@@ -48,6 +48,26 @@ pub struct WorldArgs {
     /// robots' wait for the next grant).
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u64).range(0..=10_000))]
     pub tick_ms: u64,
+    /// Shared grid: robots answer with their rankings for every cell they may reach within
+    /// this many ticks, and are woken once per N + 1 ticks instead of every tick (0: one
+    /// intent per robot per tick; at most 8, the wire's capacity).
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_HORIZON, value_parser = clap::value_parser!(u8).range(0..=8))]
+    pub intent_horizon: u8,
+}
+
+/// The intent horizon of a shared grid unless `--intent-horizon` says otherwise.
+pub const DEFAULT_HORIZON: u8 = 8;
+
+impl Default for WorldArgs {
+    /// What the command line gives when no world option is named.
+    fn default() -> Self {
+        WorldArgs {
+            world: World::Separate,
+            max_ticks: None,
+            tick_ms: 0,
+            intent_horizon: DEFAULT_HORIZON,
+        }
+    }
 }
 
 impl WorldArgs {
@@ -59,6 +79,9 @@ impl WorldArgs {
         }
         if self.tick_ms > 0 {
             v.extend(["--tick-ms".into(), self.tick_ms.to_string()]);
+        }
+        if self.intent_horizon != DEFAULT_HORIZON {
+            v.extend(["--intent-horizon".into(), self.intent_horizon.to_string()]);
         }
         v
     }
@@ -140,14 +163,20 @@ mod tests {
                 world: World::Shared,
                 max_ticks: Some(77),
                 tick_ms: 5,
+                intent_horizon: 0,
             },
         ] {
             let mut argv = vec!["x".to_string()];
             argv.extend(w.to_cli());
             let back = Cli::try_parse_from(argv).unwrap().w;
             assert_eq!(
-                (back.world, back.max_ticks, back.tick_ms),
-                (w.world, w.max_ticks, w.tick_ms)
+                (
+                    back.world,
+                    back.max_ticks,
+                    back.tick_ms,
+                    back.intent_horizon
+                ),
+                (w.world, w.max_ticks, w.tick_ms, w.intent_horizon)
             );
         }
     }

@@ -192,6 +192,17 @@ fn layouts() -> Vec<Layout> {
             _pad0,
             send_time_ns,
         }),
+        layout!(IntentHorizon {
+            robot_id,
+            tick,
+            cell_x,
+            cell_y,
+            radius,
+            _pad0,
+            send_time_ns,
+            ranked,
+            _pad1,
+        }),
         layout!(Grant {
             tick,
             robots,

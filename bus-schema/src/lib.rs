@@ -17,8 +17,8 @@ pub use names::{
     parse_robot_node_name, robot_node_name,
 };
 pub use robot_to_coordinator::{
-    FinalReport, HINT_BATCH_CAP, Intent, LatencySummary, PseudoTargetDiscovery, QHint, QHintBatch,
-    Register, RobotState, RobotStatus,
+    FinalReport, HINT_BATCH_CAP, HORIZON_CELLS, HORIZON_RADIUS_CAP, Intent, IntentHorizon,
+    LatencySummary, PseudoTargetDiscovery, QHint, QHintBatch, Register, RobotState, RobotStatus,
 };
 
 /// Version of this wire contract; sent in `Register`, `Control` and `FinalReport` and checked at
@@ -67,5 +67,6 @@ zeroed!(
     DiscoveryAck,
     DiscoveryRelay,
     Intent,
+    IntentHorizon,
     Grant,
 );

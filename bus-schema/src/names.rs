@@ -7,7 +7,7 @@
 
 use crate::coordinator_to_robot::{Control, DiscoveryAck, DiscoveryRelay, Grant, MergedHintBatch};
 use crate::robot_to_coordinator::{
-    FinalReport, Intent, PseudoTargetDiscovery, QHintBatch, Register, RobotState,
+    FinalReport, Intent, IntentHorizon, PseudoTargetDiscovery, QHintBatch, Register, RobotState,
 };
 
 /// First element of every qfleet service name.
@@ -42,7 +42,7 @@ pub enum Delivery {
     LatestWins,
 }
 
-/// The eleven publish-subscribe topics of a run.
+/// The twelve publish-subscribe topics of a run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Topic {
     /// `robot/register`: [`Register`].
@@ -67,11 +67,15 @@ pub enum Topic {
     Intent,
     /// `coord/grant`: [`Grant`] (shared grid).
     Grant,
+    /// `robot/horizon`: [`IntentHorizon`] (shared grid).
+    Horizon,
 }
 
 impl Topic {
-    /// Every topic, robot→coordinator first.
-    pub const ALL: [Topic; 11] = [
+    /// Every topic: the first eleven robot→coordinator first, then `Horizon`, added later and
+    /// kept last so that every older topic keeps its position (the bridge's frames and
+    /// recordings number topics by it).
+    pub const ALL: [Topic; 12] = [
         Topic::Register,
         Topic::RobotState,
         Topic::Discovery,
@@ -83,6 +87,7 @@ impl Topic {
         Topic::Ack,
         Topic::Relay,
         Topic::Grant,
+        Topic::Horizon,
     ];
 
     /// The part of the service name after `qfleet/<run-id>/`.
@@ -99,6 +104,7 @@ impl Topic {
             Topic::Relay => "coord/discovery",
             Topic::Intent => "robot/intent",
             Topic::Grant => "coord/grant",
+            Topic::Horizon => "robot/horizon",
         }
     }
 
@@ -116,6 +122,7 @@ impl Topic {
             Topic::Relay => "qfleet::v1::DiscoveryRelay",
             Topic::Intent => "qfleet::v1::Intent",
             Topic::Grant => "qfleet::v1::Grant",
+            Topic::Horizon => "qfleet::v1::IntentHorizon",
         }
     }
 
@@ -133,6 +140,7 @@ impl Topic {
             Topic::Relay => size_of::<DiscoveryRelay>(),
             Topic::Intent => size_of::<Intent>(),
             Topic::Grant => size_of::<Grant>(),
+            Topic::Horizon => size_of::<IntentHorizon>(),
         }
     }
 
@@ -150,6 +158,7 @@ impl Topic {
             Topic::Relay => align_of::<DiscoveryRelay>(),
             Topic::Intent => align_of::<Intent>(),
             Topic::Grant => align_of::<Grant>(),
+            Topic::Horizon => align_of::<IntentHorizon>(),
         }
     }
 
@@ -161,7 +170,8 @@ impl Topic {
             | Topic::Discovery
             | Topic::Hints
             | Topic::Report
-            | Topic::Intent => Direction::RobotToCoordinator,
+            | Topic::Intent
+            | Topic::Horizon => Direction::RobotToCoordinator,
             Topic::Control | Topic::Merged | Topic::Ack | Topic::Relay | Topic::Grant => {
                 Direction::CoordinatorToRobot
             }
@@ -179,6 +189,7 @@ impl Topic {
             | Topic::Merged
             | Topic::Ack
             | Topic::Intent
+            | Topic::Horizon
             | Topic::Grant => Delivery::LatestWins,
         }
     }
@@ -257,6 +268,11 @@ pub fn coord_discovery(run_id: &str) -> String {
 /// `qfleet/<run-id>/robot/intent` ([`Intent`], latest-wins).
 pub fn robot_intent(run_id: &str) -> String {
     Topic::Intent.service_name(run_id)
+}
+
+/// `qfleet/<run-id>/robot/horizon` ([`IntentHorizon`], latest-wins).
+pub fn robot_horizon(run_id: &str) -> String {
+    Topic::Horizon.service_name(run_id)
 }
 
 /// `qfleet/<run-id>/coord/grant` ([`Grant`], latest-wins, broadcast).

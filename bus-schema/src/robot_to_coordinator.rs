@@ -299,3 +299,52 @@ pub struct Intent {
 }
 
 const _: () = assert!(size_of::<Intent>() == 32 && align_of::<Intent>() == 8);
+
+/// Largest radius an [`IntentHorizon`] carries (cells within 8 moves of the robot).
+pub const HORIZON_RADIUS_CAP: u8 = 8;
+
+/// Cells of the largest horizon: the diamond of radius [`HORIZON_RADIUS_CAP`], `2r² + 2r + 1`.
+pub const HORIZON_CELLS: usize = 145;
+
+/// A robot's rankings for every cell it may stand on within the next `radius` ticks, so the
+/// coordinator can resolve `radius + 1` ticks before it needs this robot again (latest-wins).
+///
+/// The answer to the grant of tick `tick`, sent instead of an [`Intent`] when the coordinator's
+/// `Execute` asked for a horizon. `ranked[i]` is the robot's ranking (the same as an
+/// [`Intent`]'s, from its own learned values) at the `i`-th cell of the diamond of radius
+/// `radius` around (`cell_x`, `cell_y`): rows from `dy = −radius` to `radius`, each from
+/// `dx = −(radius − |dy|)` to `radius − |dy|`. A ranking is packed into 16 bits: per rank, best
+/// first from the low bits, the move code + 1 in three bits; a zero group ends it (0: no
+/// preference). Only the first `2·radius² + 2·radius + 1` entries are meaningful, the rest are
+/// zero. It answers ticks `tick ..= tick + radius` while the robot stands inside the diamond.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("qfleet::v1::IntentHorizon")]
+pub struct IntentHorizon {
+    /// Sending robot.
+    pub robot_id: u32,
+    /// The grant's tick this horizon answers first.
+    pub tick: u32,
+    /// The robot's cell column at `tick` (the diamond's center).
+    pub cell_x: u16,
+    /// The robot's cell row at `tick`.
+    pub cell_y: u16,
+    /// The diamond's radius, 0 to [`HORIZON_RADIUS_CAP`].
+    pub radius: u8,
+    /// Explicit padding, always zero.
+    pub _pad0: [u8; 3],
+    /// Monotonic time the message was written.
+    pub send_time_ns: u64,
+    /// Packed rankings, one per diamond cell (see the type's docs).
+    pub ranked: [u16; HORIZON_CELLS],
+    /// Explicit padding, always zero.
+    pub _pad1: [u8; 6],
+}
+
+const _: () = assert!(size_of::<IntentHorizon>() == 320 && align_of::<IntentHorizon>() == 8);
+const _: () = assert!(
+    HORIZON_CELLS
+        == 2 * (HORIZON_RADIUS_CAP as usize) * (HORIZON_RADIUS_CAP as usize)
+            + 2 * (HORIZON_RADIUS_CAP as usize)
+            + 1
+);

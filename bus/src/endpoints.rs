@@ -7,8 +7,9 @@ use std::time::{Duration, Instant};
 
 use bus_schema::names::Topic;
 use bus_schema::{
-    Command, Control, DiscoveryAck, DiscoveryRelay, FinalReport, Grant, Intent, MergedHintBatch,
-    PseudoTargetDiscovery, QHintBatch, ROBOT_ID_ALL, Register, RobotState, SCHEMA_VERSION,
+    Command, Control, DiscoveryAck, DiscoveryRelay, FinalReport, Grant, Intent, IntentHorizon,
+    MergedHintBatch, PseudoTargetDiscovery, QHintBatch, ROBOT_ID_ALL, Register, RobotState,
+    SCHEMA_VERSION,
 };
 use iceoryx2::identifiers::UniquePublisherId;
 use iceoryx2::port::listener::Listener;
@@ -46,6 +47,8 @@ pub struct CoordinatorBus {
     pub report: Inbox<FinalReport>,
     /// Shared grid: the robots' ranked moves, one per tick (latest-wins).
     pub intent: Inbox<Intent>,
+    /// Shared grid: the robots' rankings for their next few ticks (latest-wins).
+    pub horizon: Inbox<IntentHorizon>,
     /// Commands to robots (lossless); prefer [`CoordinatorBus::send_control`].
     pub control: Outbox<Control>,
     /// Merged hints to all robots (latest-wins).
@@ -93,6 +96,7 @@ impl CoordinatorBus {
             hints: Inbox::create(&node, config, r)?,
             report: Inbox::create(&node, config, r)?,
             intent: Inbox::create(&node, config, r)?,
+            horizon: Inbox::create(&node, config, r)?,
             control: Outbox::create(&node, config, r)?,
             merged: Outbox::create(&node, config, r)?,
             ack: Outbox::create(&node, config, r)?,
@@ -124,6 +128,7 @@ impl CoordinatorBus {
         self.hints.connect()?;
         self.report.connect()?;
         self.intent.connect()?;
+        self.horizon.connect()?;
         self.control.connect()?;
         self.merged.connect()?;
         self.ack.connect()?;
@@ -337,6 +342,8 @@ pub struct RobotBus {
     pub report: Outbox<FinalReport>,
     /// Shared grid: this robot's ranked moves, one per tick (latest-wins).
     pub intent: Outbox<Intent>,
+    /// Shared grid: this robot's rankings for the cells of its next few ticks (latest-wins).
+    pub horizon: Outbox<IntentHorizon>,
     /// Commands (lossless, broadcast); prefer [`RobotBus::recv_control`], which filters.
     pub control: Inbox<Control>,
     /// Merged hints (latest-wins, broadcast).
@@ -349,9 +356,9 @@ pub struct RobotBus {
     pub grant: Inbox<Grant>,
     robot_id: u32,
     /// Controls read during `register` before its answer, with their publisher.
-    pending: RefCell<VecDeque<(Control, UniquePublisherId)>>,
+    pending: RefCell<VecDeque<(Control, Origin)>>,
     /// The publisher whose `Ack` answered the last `register` (the coordinator's control port).
-    accepted_by: Cell<Option<UniquePublisherId>>,
+    accepted_by: Cell<Option<Origin>>,
     config: BusConfig,
     // Declared last so it is dropped after every port.
     node: Node<ipc::Service>,
@@ -423,6 +430,7 @@ impl RobotBus {
             hints: Outbox::create(node, config, r)?,
             report: Outbox::create(node, config, r)?,
             intent: Outbox::create(node, config, r)?,
+            horizon: Outbox::create(node, config, r)?,
             control,
             merged,
             ack,
@@ -523,7 +531,7 @@ impl RobotBus {
     /// [`recv_control`](Self::recv_control) with the id of the publisher that sent the
     /// control, so a robot can obey only its coordinator (compare with
     /// [`accepted_by`](Self::accepted_by)).
-    pub fn recv_control_from(&self) -> Result<Option<(Control, UniquePublisherId)>, BusError> {
+    pub fn recv_control_from(&self) -> Result<Option<(Control, Origin)>, BusError> {
         if let Some(c) = self.pending.borrow_mut().pop_front() {
             return Ok(Some(c));
         }
@@ -532,15 +540,20 @@ impl RobotBus {
 
     /// The publisher whose `Ack` answered the last [`register`](Self::register): the control
     /// port of the coordinator that accepted this robot (`None` before).
-    pub fn accepted_by(&self) -> Option<UniquePublisherId> {
+    pub fn accepted_by(&self) -> Option<Origin> {
         self.accepted_by.get()
     }
 
-    fn next_control_from_bus(&self) -> Result<Option<(Control, UniquePublisherId)>, BusError> {
+    fn next_control_from_bus(&self) -> Result<Option<(Control, Origin)>, BusError> {
         while let Some(sample) = self.control.receive_sample()? {
             let ctl = *sample.payload();
             if ctl.robot_id == self.robot_id || ctl.robot_id == ROBOT_ID_ALL {
-                return Ok(Some((ctl, sample.header().publisher_id())));
+                let h = sample.header();
+                let from = Origin {
+                    publisher: h.publisher_id(),
+                    node: h.node_id().value(),
+                };
+                return Ok(Some((ctl, from)));
             }
         }
         Ok(None)
@@ -607,6 +620,17 @@ impl RobotBus {
     }
 }
 
+/// Who sent a control: the publisher port and its node. The control gate compares both; the
+/// node is also the coordinator's identity on its other topics (a grant from another node is
+/// not the coordinator's).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Origin {
+    /// The publisher port that sent the sample.
+    pub publisher: UniquePublisherId,
+    /// The id (`NodeId::value`) of the node that port belongs to.
+    pub node: u128,
+}
+
 /// A `RobotBus` without its node, so opening can be retried on one node.
 struct RobotPorts {
     register: Outbox<Register>,
@@ -615,6 +639,7 @@ struct RobotPorts {
     hints: Outbox<QHintBatch>,
     report: Outbox<FinalReport>,
     intent: Outbox<Intent>,
+    horizon: Outbox<IntentHorizon>,
     control: Inbox<Control>,
     merged: Inbox<MergedHintBatch>,
     ack: Inbox<DiscoveryAck>,
@@ -633,6 +658,7 @@ impl RobotPorts {
             hints: self.hints,
             report: self.report,
             intent: self.intent,
+            horizon: self.horizon,
             control: self.control,
             merged: self.merged,
             ack: self.ack,

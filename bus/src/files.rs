@@ -29,8 +29,8 @@ use std::path::Path;
 
 use bus_schema::names::Topic;
 use bus_schema::{
-    Control, DiscoveryAck, DiscoveryRelay, FinalReport, Grant, Intent, MergedHintBatch,
-    PseudoTargetDiscovery, QHintBatch, Register, RobotState,
+    Control, DiscoveryAck, DiscoveryRelay, FinalReport, Grant, Intent, IntentHorizon,
+    MergedHintBatch, PseudoTargetDiscovery, QHintBatch, Register, RobotState,
 };
 
 use crate::liveness::{SHM_DIR, iceoryx_root, leftover_files};
@@ -201,7 +201,8 @@ pub fn shm_estimate(cfg: &BusConfig) -> u64 {
         + segment(cfg, Topic::Discovery, size_of::<PseudoTargetDiscovery>())
         + segment(cfg, Topic::Hints, size_of::<QHintBatch>())
         + segment(cfg, Topic::Report, size_of::<FinalReport>())
-        + segment(cfg, Topic::Intent, size_of::<Intent>());
+        + segment(cfg, Topic::Intent, size_of::<Intent>())
+        + segment(cfg, Topic::Horizon, size_of::<IntentHorizon>());
     let data = coordinator + robots * robot;
     data + data / 4 + (robots + 1) * 64 * 1024
 }

@@ -180,7 +180,7 @@ pub use config::{
     iceoryx_config_for_prefix, merged_buffer_for, quiet_library_logs, unique_run_id,
     validate_run_id,
 };
-pub use endpoints::{CoordinatorBus, RobotBus};
+pub use endpoints::{CoordinatorBus, Origin, RobotBus};
 pub use error::BusError;
 pub use files::{
     DIR_MODE, FILE_MODE, check_iceoryx_root, check_run_files, check_shm_space, free_bytes,

@@ -11,7 +11,7 @@ use std::time::Duration;
 use bus_schema::names::{Delivery, Direction, Topic};
 use bus_schema::{
     Control, DiscoveryAck, DiscoveryRelay, FinalReport, Grant, HINT_BATCH_CAP, Intent,
-    MergedHintBatch, PseudoTargetDiscovery, QHint, QHintBatch, Register, RobotState,
+    IntentHorizon, MergedHintBatch, PseudoTargetDiscovery, QHint, QHintBatch, Register, RobotState,
     SCHEMA_VERSION,
 };
 use iceoryx2::port::listener::{Listener, ListenerWaitError};
@@ -84,6 +84,9 @@ unsafe impl Message for DiscoveryRelay {
 }
 unsafe impl Message for Intent {
     const TOPIC: Topic = Topic::Intent;
+}
+unsafe impl Message for IntentHorizon {
+    const TOPIC: Topic = Topic::Horizon;
 }
 unsafe impl Message for Grant {
     const TOPIC: Topic = Topic::Grant;
@@ -209,6 +212,8 @@ pub fn limits(cfg: &BusConfig, topic: Topic) -> TopicLimits {
         // newest matters (an older one is for a tick already resolved), and a robot that
         // connects late reads the current configuration from the history
         Topic::Intent => (4, 0),
+        // one horizon per robot per wake of the fleet (every few ticks); only the newest matters
+        Topic::Horizon => (4, 0),
         Topic::Grant => (2, 1),
     };
     TopicLimits {

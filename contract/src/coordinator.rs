@@ -219,6 +219,7 @@ mod tests {
         a.map.goal = Some(planner::Cell::new(1, 1));
         a.world.max_ticks = Some(9);
         a.world.tick_ms = 5;
+        a.world.intent_horizon = 3;
         a.progress = true;
         a.plan = Some("plan.json".into());
         let words: Vec<String> = a
@@ -250,11 +251,13 @@ mod tests {
             prop_oneof![Just(World::Separate), Just(World::Shared)],
             proptest::option::of(1u32..100_000),
             0u64..=10_000,
+            0u8..=8,
         )
-            .prop_map(|(world, max_ticks, tick_ms)| WorldArgs {
+            .prop_map(|(world, max_ticks, tick_ms, intent_horizon)| WorldArgs {
                 world,
                 max_ticks,
                 tick_ms,
+                intent_horizon,
             })
     }
 

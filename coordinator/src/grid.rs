@@ -8,6 +8,13 @@
 //! 2. Collect one `Intent` per robot on the grid ([`Round`]): its moves ranked by its own
 //!    learned values. Each is checked ([`accept`]): the sender is the robot's own node, the tick
 //!    is `t`, the cell is where the coordinator put the robot, the move codes are valid.
+//!
+//!    With an intent horizon (`--intent-horizon H`, carried in `Execute`'s `episodes`), a robot
+//!    answers with an `IntentHorizon` instead: its rankings for every cell it may reach within
+//!    `r` ticks ([`accept_horizon`], kept in [`Horizons`]). Every tick the horizon still
+//!    answers, at the cell the robot stands on, is taken from there without asking; the grant
+//!    wakes the robots only when some robot on the grid has to answer anew (robots align their
+//!    horizons, so that is once per `H + 1` ticks) and at the end.
 //! 3. When every robot on the grid answered, or the rest are past the heartbeat deadline
 //!    (`--hang-ms`; they are *hung*: obstacles that wait and are never pushed, not waited for
 //!    again until they answer), resolve the tick with [`mapf::World`] (PIBT on the intents, a
@@ -26,11 +33,15 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use bus::bus_schema::{self, Command, GRANT_CAP, Grant, GridState, ROBOT_ID_ALL};
+use bus::bus_schema::{
+    self, Command, GRANT_CAP, Grant, GridState, HORIZON_CELLS, HORIZON_RADIUS_CAP, IntentHorizon,
+    ROBOT_ID_ALL,
+};
 use bus::iceoryx2::prelude::*;
 use bus::{BusError, CoordinatorBus, Lister, monotonic_ns};
 use hdrhistogram::Histogram;
-use mapf::{Instance, Status, World, WorldConfig};
+use mapf::horizon::{diamond_len, unpack};
+use mapf::{Coverage, Instance, Status, World, WorldConfig};
 use planner::Cell;
 use report::hist::{new_hist, record};
 use report::{GridEnd, GridResult, GridRobot, LatencyStats, OutDir, OutFile};
@@ -53,6 +64,8 @@ pub struct GridPlan {
     pub scen: Option<String>,
     /// Shortest time per tick (`--tick-ms`: a pace a person can follow; zero: none).
     pub tick_min: Duration,
+    /// The intent horizon asked of the robots (`--intent-horizon`; 0: one intent per tick).
+    pub horizon: u8,
 }
 
 impl GridPlan {
@@ -94,6 +107,10 @@ pub enum Reject {
     Absent(u32),
     /// Bad move codes.
     Moves(mapf::IntentError),
+    /// A horizon past the wire's capacity.
+    Radius(u8),
+    /// A horizon with rankings past its diamond (they must be zero).
+    Tail(usize),
 }
 
 /// Checks one intent against the tick being collected and the coordinator's positions; the
@@ -123,6 +140,108 @@ pub fn accept(
     let n = usize::from(m.count).min(m.ranked.len());
     let intent = mapf::Intent::from_bytes(&m.ranked[..n]).map_err(Reject::Moves)?;
     Ok((id, intent))
+}
+
+/// Checks one horizon against the tick being collected and the coordinator's positions; its
+/// robot and coverage if it holds, with its rankings unpacked into `out` (the first
+/// `diamond_len(radius)` entries).
+///
+/// A horizon answers the tick being collected if it was made for it (its center must then be
+/// the robot's cell), or for an earlier tick it still covers with the robot inside its
+/// diamond (a robot that answered late); one that no longer covers it is late
+/// (`Reject::Tick` with `got < want`), one for a tick not granted yet is refused.
+pub fn accept_horizon(
+    m: &IntentHorizon,
+    tick: u32,
+    positions: &[Option<Cell>],
+    out: &mut [mapf::Intent; HORIZON_CELLS],
+) -> Result<(usize, Coverage), Reject> {
+    let id = m.robot_id as usize;
+    let Some(at) = positions.get(id) else {
+        return Err(Reject::Robot(m.robot_id));
+    };
+    let Some(at) = *at else {
+        return Err(Reject::Absent(m.robot_id));
+    };
+    if m.radius > HORIZON_RADIUS_CAP {
+        return Err(Reject::Radius(m.radius));
+    }
+    let center = Cell::new(m.cell_x, m.cell_y);
+    let cov = Coverage {
+        from: m.tick,
+        center,
+        radius: m.radius,
+    };
+    if m.tick > tick {
+        return Err(Reject::Tick {
+            want: tick,
+            got: m.tick,
+        });
+    }
+    if m.tick == tick && center != at {
+        return Err(Reject::Cell {
+            want: at,
+            got: center,
+        });
+    }
+    if !cov.covers(tick, at) {
+        // made for an earlier tick it no longer answers: late, not wrong
+        return Err(Reject::Tick {
+            want: tick,
+            got: m.tick,
+        });
+    }
+    let n = diamond_len(m.radius);
+    if let Some(i) = m.ranked[n..].iter().position(|&b| b != 0) {
+        return Err(Reject::Tail(n + i));
+    }
+    for (slot, &bits) in out.iter_mut().zip(&m.ranked[..n]) {
+        *slot = unpack(bits).map_err(Reject::Moves)?;
+    }
+    Ok((id, cov))
+}
+
+/// Every robot's last horizon: its coverage and its rankings per diamond cell (IO-free; sized
+/// once, a tick allocates nothing).
+#[derive(Debug, Clone)]
+pub struct Horizons {
+    cover: Vec<Option<Coverage>>,
+    ranks: Vec<[mapf::Intent; HORIZON_CELLS]>,
+    /// Where [`accept_horizon`] unpacks before the horizon is kept.
+    pub scratch: [mapf::Intent; HORIZON_CELLS],
+}
+
+impl Horizons {
+    /// Room for `robots` robots, none with a horizon.
+    pub fn new(robots: usize) -> Self {
+        Horizons {
+            cover: vec![None; robots],
+            ranks: vec![[mapf::Intent::NONE; HORIZON_CELLS]; robots],
+            scratch: [mapf::Intent::NONE; HORIZON_CELLS],
+        }
+    }
+
+    /// Keeps robot `id`'s horizon `cov` with the rankings in [`scratch`](Self::scratch).
+    pub fn keep(&mut self, id: usize, cov: Coverage) {
+        if let (Some(c), Some(r)) = (self.cover.get_mut(id), self.ranks.get_mut(id)) {
+            *c = Some(cov);
+            r.copy_from_slice(&self.scratch);
+        }
+    }
+
+    /// Forgets robot `id`'s horizon (it left the grid).
+    pub fn forget(&mut self, id: usize) {
+        if let Some(c) = self.cover.get_mut(id) {
+            *c = None;
+        }
+    }
+
+    /// Robot `id`'s ranking for `tick` standing on `cell`, if its horizon answers it.
+    pub fn intent_at(&self, id: usize, tick: u32, cell: Cell) -> Option<mapf::Intent> {
+        let cov = (*self.cover.get(id)?)?;
+        let i = cov.index(tick, cell)?;
+        Some(self.ranks[id][i])
+    }
 }
 
 /// The intents of one tick as they come in: who answered, who is waited for, who is hung.
@@ -237,8 +356,13 @@ pub(crate) fn execute(
         n,
         plan.max_ticks
     );
-    tolerate(bus.send_control(bus::control(Command::Execute, ROBOT_ID_ALL)))?;
+    // `episodes` carries the horizon asked for (a robot that knows none answers every tick)
+    let mut go = bus::control(Command::Execute, ROBOT_ID_ALL);
+    go.episodes = u32::from(plan.horizon.min(HORIZON_RADIUS_CAP));
+    tolerate(bus.send_control(go))?;
     let mut round = Round::new(n);
+    let mut horizons = Horizons::new(n);
+    let mut wakes = 0u64;
     let mut tick_hist = new_hist();
     let mut intent_hist = new_hist();
     let mut resolve_hist = new_hist();
@@ -252,23 +376,41 @@ pub(crate) fn execute(
             GridState::Moving
         };
         let start = Instant::now();
-        let sent_ns = publish(bus, &world, tick, state)?;
         if state == GridState::Arrived {
+            publish(bus, &world, tick, state, true)?;
             break GridEnd::Arrived;
         }
         round.begin(|i| world.positions()[i].is_some());
+        // what the robots' horizons already answer is not asked again
+        for (i, p) in world.positions().iter().enumerate() {
+            if let Some(at) = *p
+                && let Some(intent) = horizons.intent_at(i, tick, at)
+            {
+                round.take(i, intent);
+            }
+        }
+        let wake = !round.complete();
+        wakes += u64::from(wake);
+        let sent_ns = publish(bus, &world, tick, state, wake)?;
+        let mut first = true;
         let mut last = Instant::now();
-        while !round.complete() {
+        // at least one look at the inbox a tick: a robot that was slow may answer any time
+        while first || !round.complete() {
+            first = false;
             let took = collect(
                 engine,
                 bus,
                 &world,
                 &mut round,
+                &mut horizons,
                 tick,
                 sent_ns,
                 &mut intent_hist,
                 &mut rejected,
             )?;
+            if round.complete() {
+                break;
+            }
             if took > 0 {
                 last = Instant::now();
                 continue;
@@ -278,6 +420,7 @@ pub(crate) fn execute(
                 for (id, slot) in engine.robots.iter().enumerate() {
                     if slot.lost && world.remove(id) {
                         round.left(id);
+                        horizons.forget(id);
                         report::log_line!(
                             "qfleet-coordinator: robot {id} left the shared grid at tick {tick} \
                              (its process is gone)"
@@ -306,7 +449,7 @@ pub(crate) fn execute(
             }
         }
         if stop.load(Ordering::Relaxed) {
-            publish(bus, &world, tick, GridState::Ended)?;
+            publish(bus, &world, tick, GridState::Ended, true)?;
             break GridEnd::Stopped;
         }
         let resolving = Instant::now();
@@ -319,15 +462,21 @@ pub(crate) fn execute(
             std::thread::sleep(rest);
         }
         if step.status == Status::Unsolvable {
-            publish(bus, &world, step.tick, GridState::Ended)?;
+            publish(bus, &world, step.tick, GridState::Ended, true)?;
             break GridEnd::Unsolvable;
         }
         if step.tick >= plan.max_ticks && !world.all_arrived() {
-            publish(bus, &world, step.tick, GridState::Ended)?;
+            publish(bus, &world, step.tick, GridState::Ended, true)?;
             break GridEnd::TickLimit;
         }
     };
     let exec_s = t0.elapsed().as_secs_f64();
+    report::log_line!(
+        "qfleet-coordinator: shared grid: {} ticks, the robots were woken on {wakes} of them \
+         (horizon {})",
+        world.tick(),
+        plan.horizon
+    );
     let paths = world.paths();
     let paths_file = match out.write(OutFile::Paths, mapf::write_paths(&paths).as_bytes()) {
         Ok(_) => Some(OutFile::Paths.name()),
@@ -359,12 +508,41 @@ fn collect(
     bus: &CoordinatorBus,
     world: &World,
     round: &mut Round,
+    horizons: &mut Horizons,
     tick: u32,
     sent_ns: u64,
     hist: &mut Histogram<u64>,
     rejected: &mut u64,
 ) -> Result<usize, CoordError> {
     let mut n = 0;
+    while let Some(s) = bus.horizon.receive_sample()? {
+        n += 1;
+        let from: Sender = s.header().node_id().value();
+        let m = s.payload();
+        if engine.trusted(m.robot_id, from).is_none() {
+            *rejected += 1;
+            continue;
+        }
+        match accept_horizon(m, tick, world.positions(), &mut horizons.scratch) {
+            Ok((id, cov)) => {
+                horizons.keep(id, cov);
+                if let Some(at) = world.positions()[id]
+                    && let Some(intent) = horizons.intent_at(id, tick, at)
+                    && round.take(id, intent)
+                {
+                    record(hist, monotonic_ns().saturating_sub(sent_ns));
+                }
+            }
+            Err(Reject::Tick { got, want }) if got < want => {}
+            Err(why) => {
+                *rejected += 1;
+                report::log_line!(
+                    "qfleet-coordinator: dropped a horizon of robot {}: {why:?}",
+                    m.robot_id
+                );
+            }
+        }
+    }
     while let Some(s) = bus.intent.receive_sample()? {
         n += 1;
         let from: Sender = s.header().node_id().value();
@@ -395,13 +573,14 @@ fn collect(
     Ok(n)
 }
 
-/// Publishes the configuration of `tick` with `state` and wakes the robots; returns the send
-/// time.
+/// Publishes the configuration of `tick` with `state` and, if `wake`, wakes the robots;
+/// returns the send time.
 fn publish(
     bus: &CoordinatorBus,
     world: &World,
     tick: u32,
     state: GridState,
+    wake: bool,
 ) -> Result<u64, CoordError> {
     let pos = world.positions();
     let mut sent_ns = 0;
@@ -425,7 +604,9 @@ fn publish(
         Ok(_) | Err(BusError::NoSubscriber { .. }) => {}
         Err(e) => return Err(e.into()),
     }
-    bus.grant.notify()?;
+    if wake {
+        bus.grant.notify()?;
+    }
     Ok(sent_ns)
 }
 
@@ -610,6 +791,92 @@ mod tests {
         assert!(!r.complete());
         r.left(1);
         assert!(r.complete(), "a robot that left the grid is not waited for");
+    }
+
+    fn horizon(robot_id: u32, tick: u32, at: Cell, radius: u8, each: &[Move]) -> IntentHorizon {
+        let mut m = IntentHorizon {
+            robot_id,
+            tick,
+            cell_x: at.x,
+            cell_y: at.y,
+            radius,
+            ..IntentHorizon::ZEROED
+        };
+        let bits = mapf::horizon::pack(&mapf::Intent::new(each).unwrap());
+        for r in m.ranked.iter_mut().take(diamond_len(radius)) {
+            *r = bits;
+        }
+        m
+    }
+
+    #[test]
+    fn a_horizon_answers_the_ticks_and_cells_it_covers_and_nothing_else() {
+        let at = Cell::new(3, 3);
+        let pos = [Some(at), None];
+        let mut h = Horizons::new(2);
+        let right = [Move::Right, Move::Wait];
+        // made for this tick
+        let (id, cov) =
+            accept_horizon(&horizon(0, 5, at, 2, &right), 5, &pos, &mut h.scratch).unwrap();
+        assert_eq!((id, cov.until()), (0, 7));
+        h.keep(id, cov);
+        let want = mapf::Intent::new(&right).unwrap();
+        assert_eq!(h.intent_at(0, 5, at), Some(want));
+        assert_eq!(h.intent_at(0, 7, Cell::new(5, 3)), Some(want));
+        assert_eq!(
+            h.intent_at(0, 8, at),
+            None,
+            "used up: the robot answers anew"
+        );
+        assert_eq!(
+            h.intent_at(0, 6, Cell::new(5, 4)),
+            None,
+            "outside its diamond"
+        );
+        // made for an earlier tick it still covers (a robot that answered late)
+        let s = &mut h.scratch;
+        assert!(accept_horizon(&horizon(0, 4, at, 2, &right), 6, &pos, s).is_ok());
+        // late: no longer covers the tick; not an error
+        assert_eq!(
+            accept_horizon(&horizon(0, 2, at, 2, &right), 5, &pos, s),
+            Err(Reject::Tick { want: 5, got: 2 })
+        );
+        // a tick not granted yet, a center that is not the robot's cell
+        assert_eq!(
+            accept_horizon(&horizon(0, 6, at, 2, &right), 5, &pos, s),
+            Err(Reject::Tick { want: 5, got: 6 })
+        );
+        assert!(matches!(
+            accept_horizon(&horizon(0, 5, Cell::new(3, 4), 2, &right), 5, &pos, s),
+            Err(Reject::Cell { .. })
+        ));
+        // the wire's capacity, rankings past the diamond, bad rankings, absent robots
+        assert_eq!(
+            accept_horizon(&horizon(0, 5, at, 9, &right), 5, &pos, s),
+            Err(Reject::Radius(9))
+        );
+        let mut tail = horizon(0, 5, at, 1, &right);
+        tail.ranked[diamond_len(1)] = 1;
+        assert_eq!(
+            accept_horizon(&tail, 5, &pos, s),
+            Err(Reject::Tail(diamond_len(1)))
+        );
+        let mut bad = horizon(0, 5, at, 1, &right);
+        bad.ranked[2] = 7;
+        assert!(matches!(
+            accept_horizon(&bad, 5, &pos, s),
+            Err(Reject::Moves(_))
+        ));
+        assert_eq!(
+            accept_horizon(&horizon(1, 5, at, 1, &right), 5, &pos, s),
+            Err(Reject::Absent(1))
+        );
+        assert_eq!(
+            accept_horizon(&horizon(4, 5, at, 1, &right), 5, &pos, s),
+            Err(Reject::Robot(4))
+        );
+        h.forget(0);
+        assert_eq!(h.intent_at(0, 5, at), None);
     }
 
     #[test]

@@ -58,6 +58,7 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
                     .unwrap_or_else(|| GridPlan::default_max_ticks(&instance)),
                 scen: args.map.scen.as_ref().map(|p| p.display().to_string()),
                 tick_min: Duration::from_millis(args.world.tick_ms),
+                horizon: args.world.intent_horizon,
                 instance,
             })
         }

@@ -2,6 +2,7 @@
 //! the authority of one grid shared by a fleet. Pure: no IO, no bus, no clocks.
 //!
 //! - [`instance`]: a validated instance (grid, starts, goals, BFS distance tables).
+//! - [`horizon`]: a robot's rankings for the cells it may reach within a few ticks.
 //! - [`moves`]: the five moves and a robot's [`Intent`] (its moves ranked best first).
 //! - [`world`]: the per-tick resolver that grants every robot one collision-free move.
 //! - [`check`](mod@check): an independent checker of finished paths and their costs.
@@ -34,11 +35,13 @@
 #![deny(missing_docs)]
 
 pub mod check;
+pub mod horizon;
 pub mod instance;
 pub mod moves;
 pub mod paths;
 
 pub use check::{Costs, Violation, check};
+pub use horizon::Coverage;
 pub use instance::{Instance, InstanceError, MAX_AGENTS};
 pub use moves::{Intent, IntentError, Move};
 pub use paths::{PathsError, parse_paths, write_paths};

@@ -24,8 +24,8 @@ use bus::iceoryx2::prelude::*;
 use bus::{BusConfig, Inbox, Message, monotonic_ns};
 use bus_schema::names::{Delivery, Topic};
 use bus_schema::{
-    Control, DiscoveryAck, DiscoveryRelay, FinalReport, Grant, Intent, MergedHintBatch,
-    PseudoTargetDiscovery, QHintBatch, Register, RobotState,
+    Control, DiscoveryAck, DiscoveryRelay, FinalReport, Grant, Intent, IntentHorizon,
+    MergedHintBatch, PseudoTargetDiscovery, QHintBatch, Register, RobotState,
 };
 
 use crate::ObserveError;
@@ -86,6 +86,7 @@ pub struct Observer {
     ack: Option<Inbox<DiscoveryAck>>,
     relay: Option<Inbox<DiscoveryRelay>>,
     intent: Option<Inbox<Intent>>,
+    horizon: Option<Inbox<IntentHorizon>>,
     grant: Option<Inbox<Grant>>,
     _node: Node<ipc::Service>,
     run_id: String,
@@ -175,6 +176,7 @@ impl Observer {
             ack: inbox(topics, &node, &cfg)?,
             relay: inbox(topics, &node, &cfg)?,
             intent: inbox(topics, &node, &cfg)?,
+            horizon: inbox(topics, &node, &cfg)?,
             grant: inbox(topics, &node, &cfg)?,
             _node: node,
             run_id: run_id.to_string(),
@@ -201,7 +203,8 @@ impl Observer {
             + drain(&self.merged, f, |m| Msg::Merged(m))?
             + drain(&self.ack, f, |m| Msg::Ack(m))?
             + drain(&self.grant, f, |m| Msg::Grant(m))?
-            + drain(&self.intent, f, |m| Msg::Intent(m))?)
+            + drain(&self.intent, f, |m| Msg::Intent(m))?
+            + drain(&self.horizon, f, |m| Msg::Horizon(m))?)
     }
 
     /// Connects every subscriber of this observer to the publishers that appeared since its
@@ -224,6 +227,7 @@ impl Observer {
         connect(&self.ack)?;
         connect(&self.relay)?;
         connect(&self.intent)?;
+        connect(&self.horizon)?;
         connect(&self.grant)
     }
 
@@ -267,6 +271,7 @@ impl Observer {
             self.ack.as_ref().map(Inbox::listener),
             self.relay.as_ref().map(Inbox::listener),
             self.intent.as_ref().map(Inbox::listener),
+            self.horizon.as_ref().map(Inbox::listener),
             self.grant.as_ref().map(Inbox::listener),
         ];
         all.into_iter().flatten().collect()

@@ -8,8 +8,8 @@
 use bus_schema::names::Topic;
 use bus_schema::{
     Command, Control, DiscoveryAck, DiscoveryRelay, FinalReport, GRANT_CAP, Grant, GridState,
-    HINT_BATCH_CAP, Intent, LatencySummary, MergedHintBatch, PseudoTargetDiscovery, QHint,
-    QHintBatch, Register, RobotState, RobotStatus,
+    HINT_BATCH_CAP, Intent, IntentHorizon, LatencySummary, MergedHintBatch, PseudoTargetDiscovery,
+    QHint, QHintBatch, Register, RobotState, RobotStatus,
 };
 use serde_json::{Map, Value, json};
 
@@ -39,6 +39,8 @@ pub enum Msg<'a> {
     Intent(&'a Intent),
     /// `coord/grant` (shared grid).
     Grant(&'a Grant),
+    /// `robot/horizon` (shared grid).
+    Horizon(&'a IntentHorizon),
 }
 
 /// One message as an owned value: copied out of shared memory for a thread that handles it
@@ -68,6 +70,8 @@ pub enum Owned {
     Intent(Intent),
     /// `coord/grant` (1.3 KiB, boxed).
     Grant(Box<Grant>),
+    /// `robot/horizon`.
+    Horizon(Box<IntentHorizon>),
 }
 
 impl Owned {
@@ -85,6 +89,7 @@ impl Owned {
             Msg::Relay(x) => Self::Relay(*x),
             Msg::Intent(x) => Self::Intent(*x),
             Msg::Grant(x) => Self::Grant(Box::new(*x)),
+            Msg::Horizon(x) => Self::Horizon(Box::new(*x)),
         }
     }
 
@@ -102,6 +107,7 @@ impl Owned {
             Self::Relay(x) => Msg::Relay(x),
             Self::Intent(x) => Msg::Intent(x),
             Self::Grant(x) => Msg::Grant(x),
+            Self::Horizon(x) => Msg::Horizon(x),
         }
     }
 
@@ -112,6 +118,7 @@ impl Owned {
                 Self::Hints(_) => std::mem::size_of::<QHintBatch>(),
                 Self::Merged(_) => std::mem::size_of::<MergedHintBatch>(),
                 Self::Grant(_) => std::mem::size_of::<Grant>(),
+                Self::Horizon(_) => std::mem::size_of::<IntentHorizon>(),
                 _ => 0,
             }
     }
@@ -132,6 +139,7 @@ impl Msg<'_> {
             Msg::Relay(_) => Topic::Relay,
             Msg::Intent(_) => Topic::Intent,
             Msg::Grant(_) => Topic::Grant,
+            Msg::Horizon(_) => Topic::Horizon,
         }
     }
 
@@ -221,8 +229,23 @@ impl Msg<'_> {
                     "send_time_ns": m.send_time_ns, "cells": cells,
                 })
             }
+            Msg::Horizon(m) => {
+                let n = horizon_len(m.radius);
+                json!({
+                    "robot_id": m.robot_id, "tick": m.tick, "cell_x": m.cell_x,
+                    "cell_y": m.cell_y, "radius": m.radius, "ranked": &m.ranked[..n],
+                    "send_time_ns": m.send_time_ns,
+                })
+            }
         }
     }
+}
+
+/// Meaningful entries of an `IntentHorizon` of `radius` (the diamond's cells, at most the
+/// array's capacity).
+fn horizon_len(radius: u8) -> usize {
+    let r = usize::from(radius);
+    (2 * r * r + 2 * r + 1).min(bus_schema::HORIZON_CELLS)
 }
 
 /// The readable name of a `GridState` byte (`"unknown"` for a value outside the contract).
@@ -422,6 +445,15 @@ fn fields(topic: Topic) -> &'static [(&'static str, Ty)] {
             ("cell_x", Int),
             ("cell_y", Int),
             ("count", Int),
+            ("ranked", Ranked),
+            ("send_time_ns", Int),
+        ],
+        Topic::Horizon => &[
+            ("robot_id", Int),
+            ("tick", Int),
+            ("cell_x", Int),
+            ("cell_y", Int),
+            ("radius", Int),
             ("ranked", Ranked),
             ("send_time_ns", Int),
         ],

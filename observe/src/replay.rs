@@ -7,8 +7,8 @@ use std::path::Path;
 use bus_schema::names::Topic;
 use bus_schema::{
     Control, DiscoveryAck, DiscoveryRelay, FinalReport, GRANT_CAP, Grant, HINT_BATCH_CAP, Intent,
-    LatencySummary, MergedHintBatch, PseudoTargetDiscovery, QHint, QHintBatch, REASON_LEN,
-    Register, RobotState,
+    IntentHorizon, LatencySummary, MergedHintBatch, PseudoTargetDiscovery, QHint, QHintBatch,
+    REASON_LEN, Register, RobotState,
 };
 use mcap::records::Record;
 use serde::Serialize;
@@ -447,6 +447,22 @@ pub fn from_json(topic: Topic, v: &Value) -> Owned {
             }
             Owned::Intent(m)
         }
+        Topic::Horizon => {
+            let mut m = Box::new(IntentHorizon {
+                robot_id: j.u32("robot_id"),
+                tick: j.u32("tick"),
+                cell_x: j.u16("cell_x"),
+                cell_y: j.u16("cell_y"),
+                radius: j.u8("radius"),
+                send_time_ns: j.u("send_time_ns"),
+                ..IntentHorizon::ZEROED
+            });
+            let ranked = j.list("ranked", m.ranked.len());
+            for (slot, r) in m.ranked.iter_mut().zip(ranked) {
+                *slot = u16::try_from(r.as_u64().unwrap_or(u64::MAX)).unwrap_or(u16::MAX);
+            }
+            Owned::Horizon(m)
+        }
         Topic::Grant => {
             let mut m = Box::new(Grant {
                 tick: j.u32("tick"),
@@ -575,6 +591,19 @@ mod tests {
                 ..Intent::ZEROED
             }),
             Owned::Grant(grant),
+            Owned::Horizon(Box::new({
+                let mut h = IntentHorizon {
+                    robot_id: 1,
+                    tick: 9,
+                    cell_x: 4,
+                    cell_y: 2,
+                    radius: 1,
+                    send_time_ns: 97,
+                    ..IntentHorizon::ZEROED
+                };
+                h.ranked[..5].copy_from_slice(&[1, 3 | (1 << 3), 2, 5, 4]);
+                h
+            })),
         ]
     }
 

@@ -279,7 +279,7 @@ impl Scene {
             Msg::Relay(_) => self.markers(t_ns, out),
             // positions come from `robot/state` alone (in a shared grid too: robots keep
             // publishing their cell there tick by tick)
-            Msg::Discovery(_) | Msg::Ack(_) | Msg::Intent(_) | Msg::Grant(_) => {}
+            Msg::Discovery(_) | Msg::Ack(_) | Msg::Intent(_) | Msg::Horizon(_) | Msg::Grant(_) => {}
         }
         self.paths(t_ns, out);
     }

@@ -242,7 +242,7 @@ impl ViewModel {
                     }
                 }
             }
-            Msg::Ack(_) | Msg::Intent(_) => {}
+            Msg::Ack(_) | Msg::Intent(_) | Msg::Horizon(_) => {}
             // the shared grid's authority: where every robot stands at this tick
             Msg::Grant(m) => {
                 let n = (m.robots as usize).min(bus_schema::GRANT_CAP);

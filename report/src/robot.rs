@@ -107,6 +107,10 @@ pub struct Counters {
     /// shared grid: the grid's moves are shared, values only between robots of one goal).
     #[serde(default)]
     pub moves_learned_from_others: u64,
+    /// Shared grid: grants dropped because another node than the coordinator this robot
+    /// registered with published them (a forged or stale grant).
+    #[serde(default)]
+    pub grants_foreign: u64,
 }
 
 /// What a robot writes to `robot-<id>.json`: its learning metrics as in `qfleet learn --json`

@@ -16,6 +16,20 @@
 //! A robot never moves on its own: the coordinator's grant is where it is. A grant missed in
 //! the latest-wins buffer is no loss, the next one carries every position.
 //!
+//! # Intent horizon
+//! When `Execute` asks for a horizon `h > 0` (its `episodes` field), the robot answers a grant
+//! with an `IntentHorizon` on `robot/horizon` instead: its ranking (the same [`Ranker`]) at
+//! every cell within `r` moves of its cell, `r = h − tick mod (h + 1)`
+//! ([`mapf::horizon::aligned_radius`]), so the coordinator resolves up to `r + 1` ticks without
+//! it and every robot's horizon runs out on the same tick. The coordinator wakes the robots
+//! only on the ticks where it needs answers; a robot reads the newest grant when woken (or
+//! every 10 ms) and answers only when that grant is past what its last horizon covers, in
+//! time or in space ([`Answering`]). Grants it does not answer still give its cell: it
+//! publishes it on `robot/state` as before.
+//!
+//! Grants count only from the node whose `Ack` accepted this robot (its coordinator); others
+//! are dropped and counted (`grants_foreign`).
+//!
 //! # Ranking
 //! The intent is the robot's learned values at its cell, in the order a tabular learner acts on
 //! them: moves it has tried there by Q-value (best first); waiting, valued one tick later than
@@ -25,7 +39,9 @@
 //! it explored still knows its way back. On its goal a robot prefers to wait. Walls and the
 //! border are never named.
 
-use mapf::Move;
+use bus::bus_schema::HORIZON_CELLS;
+use mapf::horizon::{Coverage, aligned_radius, diamond_len, diamond_offset, offset_cell, pack};
+use mapf::{Intent, Move};
 use planner::task::Task;
 use planner::{Action, Cell, QTable};
 
@@ -143,6 +159,113 @@ impl Ranker {
     }
 }
 
+/// When a robot answers a grant (IO-free): never answered, or the grant's tick or its cell
+/// is past what its last answer covered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Answering {
+    horizon: u8,
+    last: Option<Coverage>,
+}
+
+impl Answering {
+    /// Bookkeeping for horizon `h` (0: one intent per tick).
+    pub fn new(horizon: u8) -> Self {
+        Answering {
+            horizon,
+            last: None,
+        }
+    }
+
+    /// The horizon asked for.
+    pub fn horizon(&self) -> u8 {
+        self.horizon
+    }
+
+    /// The radius to answer the grant of `tick` with, the robot standing on `cell`; `None`
+    /// while the last answer still covers it (nothing to send).
+    pub fn due(&self, tick: u32, cell: Cell) -> Option<u8> {
+        if self.last.is_some_and(|c| c.covers(tick, cell)) {
+            return None;
+        }
+        Some(aligned_radius(self.horizon, tick))
+    }
+
+    /// An answer for `tick` from `cell` with `radius` went out.
+    pub fn answered(&mut self, tick: u32, cell: Cell, radius: u8) {
+        self.last = Some(Coverage {
+            from: tick,
+            center: cell,
+            radius,
+        });
+    }
+}
+
+/// A robot's packed rankings per cell of its map, each computed the first time a horizon
+/// needs it (a horizon overlaps the last one in most of its cells). Cleared when the values
+/// change (merged hints applied while it moves).
+#[derive(Debug, Clone)]
+pub struct RankCache {
+    packed: Vec<u16>,
+}
+
+/// Marks a cell not ranked yet: no ranking packs to it (7 names no move).
+const UNRANKED: u16 = u16::MAX;
+
+impl RankCache {
+    /// An empty cache for `task`'s map (the one allocation, before the robot moves).
+    pub fn new(task: &Task) -> Self {
+        RankCache {
+            packed: vec![UNRANKED; task.grid.len()],
+        }
+    }
+
+    /// Forgets every ranking (the values they came from changed).
+    pub fn clear(&mut self) {
+        self.packed.fill(UNRANKED);
+    }
+}
+
+impl Ranker {
+    /// The packed rankings of every cell of the diamond of `radius` around `center` (the
+    /// wire's `IntentHorizon::ranked`; cells off the map or on walls only wait); entries past
+    /// the diamond are zero. Allocates nothing.
+    pub fn rank_horizon(
+        &self,
+        task: &Task,
+        q: &QTable,
+        cache: &mut RankCache,
+        center: Cell,
+        radius: u8,
+        out: &mut [u16; HORIZON_CELLS],
+    ) {
+        let n = diamond_len(radius).min(HORIZON_CELLS);
+        let wait_only = pack(&Intent::new(&[Move::Wait]).expect("one move"));
+        let grid = &task.grid;
+        for (i, slot) in out.iter_mut().enumerate() {
+            *slot = 0;
+            if i >= n {
+                continue;
+            }
+            let Some((dx, dy)) = diamond_offset(radius, i) else {
+                continue;
+            };
+            let Some(c) =
+                offset_cell(center, dx, dy).filter(|c| grid.contains(c.x.into(), c.y.into()))
+            else {
+                *slot = wait_only;
+                continue;
+            };
+            let cached = &mut cache.packed[grid.index(c)];
+            if *cached == UNRANKED {
+                let (codes, count) = self.rank(task, q, c);
+                *cached = Intent::from_bytes(&codes[..usize::from(count)])
+                    .map_or(wait_only, |i| pack(&i));
+            }
+            *slot = *cached;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -210,6 +333,58 @@ mod tests {
         assert_eq!(ranked(&r, &t, &q, Cell::new(2, 0)), vec![LEFT, WAIT, RIGHT]);
         // a cell with nothing tried: the map's way back, then waiting, then away
         assert_eq!(ranked(&r, &t, &q, Cell::new(1, 0)), vec![RIGHT, WAIT, LEFT]);
+    }
+
+    #[test]
+    fn a_horizon_ranks_every_cell_of_its_diamond_as_one_intent_would() {
+        let t = corridor();
+        let q = QTable::new(&t.grid);
+        let r = Ranker::new(&t, &[], 0.9);
+        let mut out = [u16::MAX; HORIZON_CELLS];
+        let mut cache = RankCache::new(&t);
+        r.rank_horizon(&t, &q, &mut cache, Cell::new(1, 0), 2, &mut out);
+        // the cache gives the same answer the second time
+        let mut again = [0; HORIZON_CELLS];
+        r.rank_horizon(&t, &q, &mut cache, Cell::new(1, 0), 2, &mut again);
+        assert_eq!(out, again);
+        for (i, &bits) in out.iter().enumerate() {
+            let Some((dx, dy)) = diamond_offset(2, i).filter(|_| i < diamond_len(2)) else {
+                assert_eq!(bits, 0, "entries past the diamond are zero");
+                continue;
+            };
+            let got = mapf::horizon::unpack(bits).unwrap();
+            let want = match offset_cell(Cell::new(1, 0), dx, dy) {
+                Some(c) => ranked(&r, &t, &q, c),
+                None => vec![WAIT],
+            };
+            let (codes, n) = got.to_bytes();
+            assert_eq!(codes[..n].to_vec(), want, "offset ({dx}, {dy})");
+        }
+    }
+
+    #[test]
+    fn a_robot_answers_when_its_horizon_is_used_up_or_left() {
+        let mut a = Answering::new(3);
+        let at = Cell::new(5, 5);
+        assert_eq!(a.due(0, at), Some(3), "never answered");
+        a.answered(0, at, 3);
+        assert_eq!(a.due(2, Cell::new(6, 6)), None, "inside, in time");
+        assert_eq!(a.due(3, Cell::new(8, 5)), None, "the last tick it covers");
+        assert_eq!(
+            a.due(4, Cell::new(8, 5)),
+            Some(3),
+            "used up: the next period"
+        );
+        // a late answer (a robot that was slow) ends with the others' period
+        assert_eq!(a.due(6, at), Some(1));
+        a.answered(6, at, 1);
+        assert_eq!(a.due(7, Cell::new(7, 5)), Some(0), "left its diamond");
+        assert_eq!(a.due(8, at), Some(3));
+        // horizon 0: every tick
+        let mut b = Answering::new(0);
+        b.answered(4, at, 0);
+        assert_eq!(b.due(4, at), None);
+        assert_eq!(b.due(5, at), Some(0));
     }
 
     #[test]

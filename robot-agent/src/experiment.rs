@@ -45,7 +45,7 @@
 //! goal and become pseudo targets of every later learner on that goal (`--share
 //! discoveries|both`).
 
-use bus::bus_schema::{Command, Control};
+use bus::bus_schema::{Command, Control, HORIZON_RADIUS_CAP};
 use planner::Cell;
 
 /// One phase the coordinator asked for.
@@ -102,8 +102,8 @@ pub struct Plan {
     go: bool,
     stopped: bool,
     started: bool,
-    /// `Execute` came and was not taken yet.
-    execute: bool,
+    /// `Execute` came and was not taken yet: the horizon it asks for.
+    execute: Option<u8>,
     /// The phase of the last assignment taken: the phase the robot is in, or has finished.
     current: Option<u32>,
 }
@@ -138,7 +138,9 @@ impl Plan {
             }
             Ok(Command::Ack | Command::Refuse) => Effect::Handshake,
             Ok(Command::Execute) => {
-                self.execute = true;
+                // `episodes` carries the horizon (0: one intent per tick), at most the wire's
+                let h = ctl.episodes.min(u32::from(HORIZON_RADIUS_CAP));
+                self.execute = Some(h as u8);
                 Effect::Execute
             }
             Err(_) => Effect::Rejected,
@@ -176,9 +178,9 @@ impl Plan {
         Some(a)
     }
 
-    /// Whether `Execute` came since the last call (and no `Stop`); clears it.
-    pub fn take_execute(&mut self) -> bool {
-        std::mem::take(&mut self.execute) && !self.stopped
+    /// The horizon of the `Execute` that came since the last call (and no `Stop`); clears it.
+    pub fn take_execute(&mut self) -> Option<u8> {
+        self.execute.take().filter(|_| !self.stopped)
     }
 
     /// Drops an assignment that turned out unusable (a goal outside the map or on a wall).

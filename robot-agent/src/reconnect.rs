@@ -14,8 +14,8 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use bus::Origin;
 use bus::bus_schema::{COORDINATOR_NODE_NAME, Command, Control, Register};
-use bus::iceoryx2::identifiers::UniquePublisherId;
 use bus::{BusError, RobotBus, check_nodes, monotonic_ns, reason};
 
 use crate::gate::{ControlGate, Verdict};
@@ -237,7 +237,7 @@ pub fn handshake(
     reg: &Register,
     timeout: Duration,
     stop: &AtomicBool,
-    gate: &mut ControlGate<UniquePublisherId>,
+    gate: &mut ControlGate<Origin>,
     mut on_other: impl FnMut(&Control),
 ) -> Result<Control, BusError> {
     let deadline = Instant::now() + timeout;
@@ -282,7 +282,7 @@ pub fn handshake(
 fn wait_start(
     bus: &RobotBus,
     timeout: Duration,
-    gate: &mut ControlGate<UniquePublisherId>,
+    gate: &mut ControlGate<Origin>,
     on_other: &mut impl FnMut(&Control),
 ) -> Result<Control, BusError> {
     let deadline = Instant::now() + timeout;

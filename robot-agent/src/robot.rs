@@ -34,11 +34,12 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use bus::Origin;
 use bus::bus_schema::{
-    Command, FinalReport, GRANT_CAP, GridState, PseudoTargetDiscovery, Register, RobotStatus,
-    SCHEMA_VERSION, map_fingerprint,
+    Command, FinalReport, GRANT_CAP, GridState, HORIZON_CELLS, PseudoTargetDiscovery, Register,
+    RobotStatus, SCHEMA_VERSION, map_fingerprint,
 };
-use bus::iceoryx2::identifiers::UniquePublisherId;
+use bus::iceoryx2::prelude::PayloadHeader;
 use bus::{BusConfig, BusError, RobotBus, monotonic_ns};
 use hdrhistogram::Histogram;
 use planner::task::Task;
@@ -49,7 +50,7 @@ use report::{Counters, EndStatus, OutDir, OutFile, PhaseDetail, RobotHist, Robot
 use crate::args::AgentArgs;
 use crate::discovery::{AckOutcome, DISCOVERY_RESEND, DiscoveryLog};
 use crate::error::AgentError;
-use crate::execute::Ranker;
+use crate::execute::{Answering, RankCache, Ranker};
 use crate::experiment::{Assignment, Effect, Plan};
 use crate::gate::{ControlGate, Verdict};
 use crate::pace::Pacer;
@@ -160,7 +161,7 @@ struct Robot<'a> {
     cfg: LearnerConfig,
     link: Link,
     /// Which publisher on `coord/control` is the coordinator ([`crate::gate`]).
-    gate: ControlGate<UniquePublisherId>,
+    gate: ControlGate<Origin>,
     plan: Plan,
     disc: DiscoveryLog,
     /// A discovery went out since the coordinator was last woken.
@@ -303,10 +304,10 @@ impl Robot<'_> {
         let mut beat = Instant::now();
         loop {
             self.poll(last.as_deref_mut())?;
-            if self.plan.take_execute()
+            if let Some(horizon) = self.plan.take_execute()
                 && let Some(p) = last.as_deref_mut()
             {
-                self.execute(p)?;
+                self.execute(p, horizon)?;
                 deadline = Instant::now() + self.timeout;
             }
             if let Some(a) = self.plan.take_next() {
@@ -339,19 +340,28 @@ impl Robot<'_> {
     /// Moves on the shared grid as the coordinator grants, tick by tick, until the execution
     /// ends (a grant that is not `Moving`, this robot no longer on the grid, `Stop`, a signal);
     /// see [`crate::execute`] for the protocol and the ranking.
-    fn execute(&mut self, p: &mut Phase) -> Result<(), AgentError> {
+    fn execute(&mut self, p: &mut Phase, horizon: u8) -> Result<(), AgentError> {
         // the values it ranks by, consistent with every merged hint applied so far
         p.learner.settle();
         let ranker = Ranker::new(&p.task, p.learner.tried_pairs(), p.learner.config().gamma);
         let me = self.args.robot_id as usize;
+        let mut answering = Answering::new(horizon);
+        let mut ranks = [0u16; HORIZON_CELLS];
+        let mut cache = RankCache::new(&p.task);
         let mut answered: Option<u32> = None;
         let mut heard = Instant::now();
         let mut polled = Instant::now();
         let mut intents = 0u64;
         loop {
-            // the newest grant: only its tick, state and this robot's entry matter
+            // the newest grant of this robot's coordinator: only its tick, state and this
+            // robot's entry matter
+            let coordinator = self.gate.coordinator().map(|o| o.node);
             let mut newest: Option<(u32, u8, Cell, bool)> = None;
             while let Some(g) = self.bus.grant.receive_sample()? {
+                if coordinator != Some(g.header().node_id().value()) {
+                    self.c.grants_foreign += 1;
+                    continue;
+                }
                 let g = g.payload();
                 if me < GRANT_CAP && newest.is_none_or(|n| g.tick >= n.0) {
                     let cell = Cell::new(g.cell_x[me], g.cell_y[me]);
@@ -375,23 +385,44 @@ impl Robot<'_> {
                     let _ = self.bus.state.notify();
                     break;
                 }
-                let (ranked, count) = ranker.rank(&p.task, p.learner.q(), cell);
                 let robot_id = self.args.robot_id;
-                let sent = self.bus.intent.send_with(|m| {
-                    m.robot_id = robot_id;
-                    m.tick = tick;
-                    m.cell_x = cell.x;
-                    m.cell_y = cell.y;
-                    m.count = count;
-                    m.ranked = ranked;
-                    m.send_time_ns = monotonic_ns();
-                });
+                let sent = match answering.due(tick, cell) {
+                    // the last horizon still answers this tick here: nothing to send
+                    None => None,
+                    Some(_) if answering.horizon() == 0 => {
+                        let (ranked, count) = ranker.rank(&p.task, p.learner.q(), cell);
+                        Some(self.bus.intent.send_with(|m| {
+                            m.robot_id = robot_id;
+                            m.tick = tick;
+                            m.cell_x = cell.x;
+                            m.cell_y = cell.y;
+                            m.count = count;
+                            m.ranked = ranked;
+                            m.send_time_ns = monotonic_ns();
+                        }))
+                    }
+                    Some(radius) => {
+                        let q = p.learner.q();
+                        ranker.rank_horizon(&p.task, q, &mut cache, cell, radius, &mut ranks);
+                        answering.answered(tick, cell, radius);
+                        Some(self.bus.horizon.send_with(|m| {
+                            m.robot_id = robot_id;
+                            m.tick = tick;
+                            m.cell_x = cell.x;
+                            m.cell_y = cell.y;
+                            m.radius = radius;
+                            m.ranked = ranks;
+                            m.send_time_ns = monotonic_ns();
+                        }))
+                    }
+                };
                 match sent {
                     // no wakeup: the coordinator polls while it collects a tick (a notification
                     // per robot per tick cost each robot a syscall and the coordinator one
                     // wakeup per robot)
-                    Ok(_) => intents += 1,
-                    Err(_) => self.c.send_errors += 1,
+                    Some(Ok(_)) => intents += 1,
+                    Some(Err(_)) => self.c.send_errors += 1,
+                    None => {}
                 }
                 // observers see the ticks on robot/state (no wakeup: nobody waits for it)
                 p.episode_step = tick;
@@ -399,7 +430,12 @@ impl Robot<'_> {
             }
             if polled.elapsed() >= Duration::from_millis(20) {
                 polled = Instant::now();
+                let applied = self.applier.counters().entries_applied;
                 self.poll(Some(p))?;
+                if self.applier.counters().entries_applied != applied {
+                    // merged hints changed the values: rank anew
+                    cache.clear();
+                }
                 if self.plan.stopped() {
                     break;
                 }
