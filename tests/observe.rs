@@ -423,7 +423,9 @@ fn hand_end(f: &mut Vec<u8>) {
 }
 
 /// Runs `cmd` to its end (bounded) and returns its output and its peak resident set, KiB
-/// (`wait4`'s `ru_maxrss`).
+/// (`wait4`'s `ru_maxrss`). The child is reaped by `wait4`, not `Child::wait` (which cannot
+/// give its resource usage).
+#[allow(clippy::zombie_processes)]
 fn run_measured(cmd: &mut Command) -> (std::process::Output, i64) {
     use std::io::Read;
     use std::time::Instant;
@@ -441,6 +443,7 @@ fn run_measured(cmd: &mut Command) -> (std::process::Output, i64) {
         }
         if Instant::now() > deadline {
             let _ = child.kill();
+            let _ = child.wait();
             panic!("{cmd:?} did not finish in time");
         }
         std::thread::sleep(std::time::Duration::from_millis(10));
