@@ -333,8 +333,8 @@ fn a_map_on_dev_zero_or_a_fifo_is_refused_at_once() {
 /// same run survived: the segments touched by then were committed.) iceoryx2 0.10 zeroes a
 /// shared-memory segment it creates under a SIGBUS handler (iceoryx2-bb-posix
 /// `SharedMemoryBuilder::create`, `zero_memory`), but its dynamic storage is created with
-/// `zero_memory(false)` (iceoryx2-cal `dynamic_storage/posix_shared_memory.rs`), so some pages
-/// are still first touched mid-run. Not fixed yet: ignored until the segments are committed
+/// `zero_memory(false)` (iceoryx2-cal `dynamic_storage/posix_shared_memory.rs`): probably
+/// where pages are still first touched mid-run (not yet confirmed). Not fixed yet: ignored until the segments are committed
 /// at creation (posix_fallocate of the run's files in /dev/shm after each port is created) or
 /// a SIGBUS handler writes the result so far. Run it with `--ignored` to see the failure.
 #[test]
