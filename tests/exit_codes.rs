@@ -86,3 +86,39 @@ fn bad_input_to_every_command_is_exit_code_2_with_a_clear_error() {
     }
     assert!(wrong.is_empty(), "{}", wrong.join("\n"));
 }
+
+/// Issue 27: 32 robots on `suite:maze-2048-1` need ~4.5 GB; a run whose estimated memory
+/// (`bus::limits::memory_estimate`) exceeds what is available is refused with exit 2 and what
+/// to do, before any process starts. 256 robots on that map are estimated at ~38 GB; on a
+/// machine with that much available the test says SKIPPED.
+#[test]
+fn a_fleet_that_does_not_fit_in_memory_is_refused_before_it_starts() {
+    let cells = 2048 * 2048;
+    let need = bus::limits::memory_estimate(cells, 257);
+    if bus::limits::mem_available().is_none_or(|have| have >= need) {
+        qfleet_suite::skip(
+            "a_fleet_that_does_not_fit_in_memory_is_refused_before_it_starts",
+            "this machine has the memory for 256 robots on a 2048 x 2048 map",
+        );
+        return;
+    }
+    let id = qfleet_suite::run_id("no-mem");
+    let out = qfleet_suite::run_bounded(
+        std::process::Command::new(qfleet_suite::bin("qfleet"))
+            .args(["run", "--robots", "256", "--map", "suite:maze-2048-1"])
+            .args(["--episodes", "1", "--run-id", &id]),
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(
+        out.status.code(),
+        Some(2),
+        "{}",
+        qfleet_suite::describe(&out)
+    );
+    assert!(
+        err.contains("not enough memory: 256 robot(s) and the coordinator")
+            && err.contains("--ignore-memory"),
+        "{err}"
+    );
+    assert!(qfleet_suite::leftovers(&id).is_empty());
+}

@@ -337,3 +337,73 @@ fn a_map_on_dev_zero_or_a_fifo_is_refused_at_once() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Issue 27: `/dev/shm` filling up mid-run kills the run's processes with SIGBUS and no
+/// result is written. Reproduced (2026-12-03): in a private mount namespace with a 96 MiB
+/// tmpfs on `/dev/shm`, a `dd` that fills it right after `Start` (once the coordinator's first
+/// checkpoint exists) makes the launcher report "coordinator was killed by signal 7; robot-agent
+/// 1 was killed by signal 7; the coordinator wrote no result". (Filled 4 s later by hand, the
+/// same run survived: the segments touched by then were committed.) iceoryx2 0.10 zeroes a
+/// shared-memory segment it creates under a SIGBUS handler (iceoryx2-bb-posix
+/// `SharedMemoryBuilder::create`, `zero_memory`), but its dynamic storage is created with
+/// `zero_memory(false)` (iceoryx2-cal `dynamic_storage/posix_shared_memory.rs`): probably
+/// where pages are still first touched mid-run (not yet confirmed). Not fixed yet: ignored until the segments are committed
+/// at creation (posix_fallocate of the run's files in /dev/shm after each port is created) or
+/// a SIGBUS handler writes the result so far. Run it with `--ignored` to see the failure.
+#[test]
+#[ignore = "issue 27: reproduces the SIGBUS of a full /dev/shm mid-run, not fixed yet"]
+fn a_dev_shm_filled_mid_run_neither_kills_the_run_nor_loses_its_result() {
+    if !namespaces_work() {
+        qfleet_suite::skip(
+            "a_dev_shm_filled_mid_run_neither_kills_the_run_nor_loses_its_result",
+            "needs root and mount namespaces (unshare -m)",
+        );
+        return;
+    }
+    let id = run_id("shm-full");
+    let dir = scratch(&id);
+    let out_dir = dir.join("out");
+    let script = format!(
+        "mount -t tmpfs -o size=96m tmpfs /dev/shm || exit 90
+         \"$0\" \"$@\" > {result} & run=$!
+         while [ ! -e {cp} ] && kill -0 $run 2>/dev/null; do sleep 0.05; done
+         dd if=/dev/zero of=/dev/shm/fill bs=1M 2>/dev/null
+         echo \"shm avail $(df -k --output=avail /dev/shm | tail -1)\" >&2
+         wait $run",
+        result = dir.join("result.json").display(),
+        cp = out_dir.join("coordinator-checkpoint.json").display(),
+    );
+    let out = run_bounded(
+        Command::new("unshare")
+            .args(["-m", "--propagation", "private", "sh", "-c", &script])
+            .arg(bin("qfleet"))
+            .args(["run", "--json", "--run-id", &id, "--out"])
+            .arg(&out_dir)
+            .args([
+                "--map",
+                "builtin:paper-20",
+                "--episodes",
+                "300000",
+                "--robots",
+                "2",
+                "--learner",
+                "improved",
+            ]),
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{}", describe(&out));
+    assert!(
+        err.contains("shm avail 0"),
+        "the tmpfs was filled: {}",
+        describe(&out)
+    );
+    let r: Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("result.json")).expect("the result on stdout"),
+    )
+    .expect("a result");
+    for x in r["robots"].as_array().expect("robots") {
+        assert_eq!(x["status"], "finished", "{r}");
+    }
+    assert!(out_dir.join("result.json").exists(), "result.json written");
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+}

@@ -340,3 +340,282 @@ fn a_recording_whose_launcher_was_killed_is_read_up_to_the_kill() {
     assert!(left.is_empty(), "files of the run left: {left:?}");
     drop(dir);
 }
+
+/// MCAP records written by hand (what `qfleet run --record` writes, in little): a recording
+/// of run `run` with `n` `robot/state` messages in one uncompressed chunk, not yet ended (see
+/// [`hand_end`]), and the offsets of the message records.
+fn hand_recording(run: &str, n: u32) -> (Vec<u8>, Vec<usize>) {
+    fn s(x: &[u8]) -> Vec<u8> {
+        let mut v = (x.len() as u32).to_le_bytes().to_vec();
+        v.extend_from_slice(x);
+        v
+    }
+    fn rec(op: u8, body: &[u8]) -> Vec<u8> {
+        let mut v = vec![op];
+        v.extend_from_slice(&(body.len() as u64).to_le_bytes());
+        v.extend_from_slice(body);
+        v
+    }
+    const MAGIC: &[u8] = b"\x89MCAP0\r\n";
+    let mut f = MAGIC.to_vec();
+    f.extend(rec(1, &[s(b""), s(b"test")].concat()));
+    f.extend(rec(
+        3,
+        &[
+            &1u16.to_le_bytes()[..],
+            &s(b"t"),
+            &s(b"jsonschema"),
+            &s(b"{}"),
+        ]
+        .concat(),
+    ));
+    let topic = format!("qfleet/{run}/robot/state");
+    let channel = [
+        &1u16.to_le_bytes()[..],
+        &1u16.to_le_bytes(),
+        &s(topic.as_bytes()),
+        &s(b"json"),
+        &0u32.to_le_bytes(),
+    ]
+    .concat();
+    f.extend(rec(4, &channel));
+    let mut records = Vec::new();
+    let mut offsets = Vec::new();
+    let records_at = f.len() + 9 + 8 + 8 + 8 + 4 + 4 + 8;
+    for i in 0..n {
+        let data = format!("{{\"robot_id\": {i}, \"step\": {}}}", i * 10);
+        let t = 1_000_000_000 + u64::from(i) * 1_000_000;
+        let body = [
+            &1u16.to_le_bytes()[..],
+            &i.to_le_bytes(),
+            &t.to_le_bytes(),
+            &t.to_le_bytes(),
+            data.as_bytes(),
+        ]
+        .concat();
+        offsets.push(records_at + records.len());
+        records.extend(rec(5, &body));
+    }
+    let chunk = [
+        &0u64.to_le_bytes()[..],
+        &0u64.to_le_bytes(),
+        &(records.len() as u64).to_le_bytes(),
+        &0u32.to_le_bytes(),
+        &s(b""),
+        &(records.len() as u64).to_le_bytes(),
+        &records,
+    ]
+    .concat();
+    f.extend(rec(6, &chunk));
+    assert_eq!(offsets[0], records_at);
+    (f, offsets)
+}
+
+/// The end of a finished hand-made recording: data end, an empty footer, the magic.
+fn hand_end(f: &mut Vec<u8>) {
+    f.push(0x0F);
+    f.extend_from_slice(&4u64.to_le_bytes());
+    f.extend_from_slice(&0u32.to_le_bytes());
+    f.push(0x02);
+    f.extend_from_slice(&20u64.to_le_bytes());
+    f.extend_from_slice(&[0u8; 20]);
+    f.extend_from_slice(b"\x89MCAP0\r\n");
+}
+
+/// Runs `cmd` to its end (bounded) and returns its output and its peak resident set, KiB
+/// (`wait4`'s `ru_maxrss`). The child is reaped by `wait4`, not `Child::wait` (which cannot
+/// give its resource usage).
+#[allow(clippy::zombie_processes)]
+fn run_measured(cmd: &mut Command) -> (std::process::Output, i64) {
+    use std::io::Read;
+    use std::time::Instant;
+    let mut child = qfleet_suite::spawn(cmd);
+    let pid = child.id() as i32;
+    let deadline = Instant::now() + qfleet_suite::PROCESS_TIMEOUT;
+    let mut status = 0;
+    // SAFETY: an all-zero rusage is a valid value to be overwritten.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    loop {
+        // SAFETY: wait4 on this test's own child, with valid pointers.
+        let r = unsafe { libc::wait4(pid, &mut status, libc::WNOHANG, &mut usage) };
+        if r == pid {
+            break;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{cmd:?} did not finish in time");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    let (mut out, mut err) = (Vec::new(), Vec::new());
+    let _ = child.stdout.take().map(|mut p| p.read_to_end(&mut out));
+    let _ = child.stderr.take().map(|mut p| p.read_to_end(&mut err));
+    use std::os::unix::process::ExitStatusExt;
+    let output = std::process::Output {
+        status: std::process::ExitStatus::from_raw(status),
+        stdout: out,
+        stderr: err,
+    };
+    (output, usage.ru_maxrss)
+}
+
+/// Issue 27: a damaged recording is bad input (exit 2) that says at which byte it broke, a
+/// message far bigger than any qfleet message is refused without being read, and memory stays
+/// bounded however large the file or the message (a 240 MB message took 3.2 GB; a damaged
+/// 1 GB file 2.1 GB and exited 0 with 0 messages).
+#[test]
+fn a_damaged_recording_or_a_huge_message_is_exit_2_naming_the_byte_in_bounded_memory() {
+    use qfleet_suite::{describe, run_bounded, scratch};
+    let dir = scratch("replay-damaged");
+    let qfleet = bin_dir().join("qfleet");
+    // whole: reads back (the baseline)
+    let (mut whole, at) = hand_recording("hand", 5);
+    hand_end(&mut whole);
+    let file = dir.join("whole.mcap");
+    std::fs::write(&file, &whole).unwrap();
+    let out = run_bounded(Command::new(&qfleet).args(["replay", "--json"]).arg(&file));
+    assert!(out.status.success(), "{}", describe(&out));
+    let s: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(s["messages"], 5, "{s}");
+    // the third message's bytes zeroed: damaged there, after two messages
+    let mut damaged = whole.clone();
+    damaged[at[2] + 9 + 22..at[3]].fill(0);
+    let file = dir.join("damaged.mcap");
+    std::fs::write(&file, &damaged).unwrap();
+    let out = run_bounded(Command::new(&qfleet).arg("replay").arg(&file));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
+    assert!(
+        err.contains(&format!("damaged at byte {} of {}", at[2], damaged.len()))
+            && err.contains("2 message(s) read before it"),
+        "{}",
+        describe(&out)
+    );
+    // its chunk's framing broken right at its start: damaged before any message
+    let mut damaged = whole.clone();
+    damaged[at[0]] = 0x00;
+    std::fs::write(&file, &damaged).unwrap();
+    let out = run_bounded(Command::new(&qfleet).arg("replay").arg(&file));
+    assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains(&format!(
+            "damaged at byte {} of {}: unknown record opcode 0x00",
+            at[0],
+            damaged.len()
+        )),
+        "{}",
+        describe(&out)
+    );
+    // a message claiming 240 MB (a sparse file, as long as the claim): refused unread
+    let (mut huge, _) = hand_recording("hand", 2);
+    let huge_at = huge.len();
+    let claim: u64 = 240 << 20;
+    huge.push(0x05);
+    huge.extend_from_slice(&(claim + 22).to_le_bytes());
+    huge.extend_from_slice(&1u16.to_le_bytes());
+    huge.extend_from_slice(&[0u8; 20]);
+    let file = dir.join("huge.mcap");
+    std::fs::write(&file, &huge).unwrap();
+    let f = std::fs::OpenOptions::new().write(true).open(&file).unwrap();
+    f.set_len(huge.len() as u64 + claim).unwrap();
+    drop(f);
+    let (out, max_rss_kib) = run_measured(Command::new(&qfleet).arg("replay").arg(&file));
+    assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains(&format!(
+            "damaged at byte {huge_at} of {}: a message of {claim} bytes",
+            huge.len() as u64 + claim
+        )),
+        "{}",
+        describe(&out)
+    );
+    eprintln!("replay of a 240 MB message: peak RSS {max_rss_kib} KiB");
+    assert!(max_rss_kib < 64 << 10, "peak RSS {max_rss_kib} KiB");
+    // a large damaged file: its end is not read into memory either (a sparse 1 GB tail
+    // behind a broken record)
+    let mut big = whole.clone();
+    big[at[0]] = 0x00;
+    std::fs::write(&file, &big).unwrap();
+    let f = std::fs::OpenOptions::new().write(true).open(&file).unwrap();
+    f.set_len(1 << 30).unwrap();
+    drop(f);
+    let (out, max_rss_kib) = run_measured(Command::new(&qfleet).arg("replay").arg(&file));
+    assert_eq!(out.status.code(), Some(2), "{}", describe(&out));
+    eprintln!("replay of a damaged 1 GB file: peak RSS {max_rss_kib} KiB");
+    assert!(max_rss_kib < 64 << 10, "peak RSS {max_rss_kib} KiB");
+}
+
+/// Issue 27: an observer showed a stray process in the run's prefix as the run's own (a
+/// phantom robot). A process that is not the launcher's publishes states for a robot the
+/// fleet does not have (7) and for one it has (1), marked with episode 777 777, while a run
+/// is recorded: neither is in the recording, the run's own states are, and the launcher says
+/// how many it left out.
+#[test]
+fn a_stray_process_in_the_prefix_is_neither_recorded_nor_shown_and_is_counted() {
+    use bus::bus_schema::RobotState;
+    use bus::{BusConfig, Observer, Outbox};
+    use qfleet_suite::{PROCESS_TIMEOUT, describe, leftovers, run_id, scratch, spawn};
+    use std::os::unix::process::CommandExt;
+    const MARK: u32 = 777_777;
+    let id = run_id("phantom");
+    let dir = scratch(&id);
+    let file = dir.join("run.mcap");
+    let child = spawn(
+        Command::new(bin_dir().join("qfleet"))
+            .args(["run", "--json", "--run-id", &id, "--out"])
+            .arg(dir.join("out"))
+            .args(["--map", "builtin:paper-20", "--episodes", "20000"])
+            .args(["--pace", "300000", "--learner", "improved", "--robots", "2"])
+            .arg("--record")
+            .arg(&file)
+            .process_group(0),
+    );
+    let cfg = BusConfig::new(id.as_str(), 2).expect("config");
+    let stray = Observer::join(&cfg, "stray", PROCESS_TIMEOUT).expect("join the run");
+    let state = stray.inbox::<RobotState>().expect("state inbox");
+    // the robots are learning: the recorder joined before they started
+    let deadline = std::time::Instant::now() + PROCESS_TIMEOUT;
+    while state.receive().expect("receive").is_none() {
+        assert!(std::time::Instant::now() < deadline, "no robot state");
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    let out = Outbox::<RobotState>::open(stray.node(), stray.config()).expect("state outbox");
+    for _ in 0..100 {
+        for robot_id in [7, 1] {
+            let _ = out.send(&RobotState {
+                robot_id,
+                episode: MARK,
+                ..RobotState::ZEROED
+            });
+        }
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    drop((out, state));
+    qfleet_suite::leave_run(stray, &id);
+    let run = qfleet_suite::wait_bounded(child, PROCESS_TIMEOUT);
+    assert!(run.status.success(), "{}", describe(&run));
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        err.contains("from processes outside the run") && err.contains("robot/state"),
+        "{}",
+        describe(&run)
+    );
+    let rec = observe::replay::Recording::open(&file).expect("the recording");
+    let mut own = 0;
+    rec.for_each(|_, topic, v| {
+        if topic == bus::bus_schema::names::Topic::RobotState {
+            assert!(v["robot_id"].as_u64() < Some(2), "a phantom robot: {v}");
+            assert_ne!(
+                v["episode"].as_u64(),
+                Some(u64::from(MARK)),
+                "a stray's state: {v}"
+            );
+            own += 1;
+        }
+        Ok(())
+    })
+    .expect("reads");
+    assert!(own > 0, "the run's own states are recorded");
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+}

@@ -766,3 +766,42 @@ fn coordinator_crash_during_the_start_handshake_robots_register_again() {
     assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Issue 27: a slow `--out` disk stalled the coordinator inside its checkpoint write, in its
+/// message loop, and healthy robots were reported hung or missing. Every checkpoint write here
+/// takes 5 s (the coordinator's test hook), well past the default `--hang-ms` of 2 s: the
+/// checkpoints are written off the loop, so every robot finishes, none is ever reported hung,
+/// and the run's end still leaves its final checkpoint. (A tighter `--hang-ms` is not used: on
+/// the loaded 2-core VM the loop itself stalled up to 0.9 s, which is not what is tested.)
+#[test]
+fn a_slow_out_disk_never_makes_healthy_robots_hung() {
+    let id = run_id("slow-out");
+    let dir = scratch(&id);
+    let args = LONG.to_vec();
+    let child = spawn(
+        Command::new(bin("qfleet"))
+            .args(["run", "--json", "--run-id", &id, "--out"])
+            .arg(&*dir)
+            .args(&args)
+            .env("QFLEET_TEST_CHECKPOINT_DELAY_MS", "5000")
+            .process_group(0),
+    );
+    let (r, out) = finish(child);
+    let r = r.unwrap_or_else(|| panic!("no result: {}", describe(&out)));
+    assert!(out.status.success(), "{}", describe(&out));
+    for i in 0..3 {
+        assert_eq!(robot(&r, i)["status"], "finished", "{r}");
+        assert!(events(&r, "hung", i).is_empty(), "{r}");
+    }
+    assert!(r["liveness"]["hung"].as_array().unwrap().is_empty(), "{r}");
+    let cp: Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("coordinator-checkpoint.json")).expect("checkpoint"),
+    )
+    .unwrap();
+    assert_eq!(
+        cp["complete"], true,
+        "the final checkpoint is written: {cp}"
+    );
+    assert_no_discovery_lost(&r);
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+}

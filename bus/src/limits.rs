@@ -117,3 +117,53 @@ mod tests {
         );
     }
 }
+
+/// Memory one process of a run (a robot or the coordinator) needs besides what grows with the
+/// map: code, iceoryx2's mappings, buffers.
+pub const MEMORY_BASE: u64 = 16 << 20;
+
+/// Memory one process needs per map cell: Q-values, visit counts, the sharing tables and the
+/// map itself, about 32 bytes a cell (issue 27: 32 robots on `suite:maze-2048-1`, 4 194 304
+/// cells, took 4.5 GB with the coordinator: 33.5 bytes a cell and process).
+pub const MEMORY_PER_CELL: u64 = 32;
+
+/// Estimated memory of a run of `processes` processes (robots and the coordinator) on a map of
+/// `cells` cells.
+pub fn memory_estimate(cells: u64, processes: u64) -> u64 {
+    processes.saturating_mul(MEMORY_BASE.saturating_add(cells.saturating_mul(MEMORY_PER_CELL)))
+}
+
+/// `MemAvailable` of a `/proc/meminfo` text, bytes.
+pub fn mem_available_in(meminfo: &str) -> Option<u64> {
+    let line = meminfo.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    kib.checked_mul(1024)
+}
+
+/// The memory available to new processes now (`MemAvailable`), if it can be read.
+pub fn mem_available() -> Option<u64> {
+    mem_available_in(&std::fs::read_to_string("/proc/meminfo").ok()?)
+}
+
+#[cfg(test)]
+mod memory_tests {
+    use super::*;
+
+    #[test]
+    fn thirty_two_robots_on_a_2048_maze_are_estimated_at_what_they_took() {
+        let cells = 2048 * 2048;
+        let gb = memory_estimate(cells, 33) as f64 / 1e9;
+        assert!((4.4..5.0).contains(&gb), "{gb} GB, measured 4.5");
+        // a small map costs little more than the base
+        assert!(memory_estimate(20 * 20, 5) < 5 * (MEMORY_BASE + (1 << 20)));
+        assert_eq!(memory_estimate(u64::MAX, 2), u64::MAX);
+    }
+
+    #[test]
+    fn mem_available_is_read_from_meminfo() {
+        let text = "MemTotal:       24684404 kB\nMemFree:         6457592 kB\nMemAvailable:   22693308 kB\n";
+        assert_eq!(mem_available_in(text), Some(22_693_308 * 1024));
+        assert_eq!(mem_available_in("MemTotal: 1 kB\n"), None);
+        assert!(mem_available().is_some());
+    }
+}

@@ -286,6 +286,7 @@ mod tests {
             pid: Some(pid),
             executable: "qfleet".into(),
             liveness,
+            id: None,
         }
     }
 

@@ -36,6 +36,9 @@ pub struct NodeInfo {
     pub executable: String,
     /// Whether it is alive.
     pub liveness: Liveness,
+    /// Its iceoryx2 node id (`UniqueNodeId::value`, what a sample's header names as its
+    /// sender), when its state could be read.
+    pub id: Option<u128>,
 }
 
 /// Result of [`check_nodes`].
@@ -62,11 +65,11 @@ impl NodeReport {
 }
 
 fn info(state: &NodeState<ipc::Service>) -> NodeInfo {
-    let (details, liveness) = match state {
-        NodeState::Alive(v) => (v.details().clone(), Liveness::Alive),
-        NodeState::Dead(v) => (v.details().clone(), Liveness::Dead),
-        NodeState::Inaccessible(_) => (None, Liveness::Inaccessible),
-        NodeState::Undefined(_) => (None, Liveness::Undefined),
+    let (details, liveness, id) = match state {
+        NodeState::Alive(v) => (v.details().clone(), Liveness::Alive, Some(v.id().value())),
+        NodeState::Dead(v) => (v.details().clone(), Liveness::Dead, Some(v.id().value())),
+        NodeState::Inaccessible(_) => (None, Liveness::Inaccessible, None),
+        NodeState::Undefined(_) => (None, Liveness::Undefined, None),
     };
     match details {
         Some(d) => NodeInfo {
@@ -74,12 +77,14 @@ fn info(state: &NodeState<ipc::Service>) -> NodeInfo {
             pid: Some(d.process_id().value()),
             executable: d.executable().to_string(),
             liveness,
+            id,
         },
         None => NodeInfo {
             name: String::new(),
             pid: None,
             executable: String::new(),
             liveness,
+            id,
         },
     }
 }

@@ -753,6 +753,22 @@ impl<T: Message> Inbox<T> {
         Ok(n)
     }
 
+    /// As [`Inbox::drain`], with each message's sender: the iceoryx2 node id
+    /// (`UniqueNodeId::value`) from the sample's header.
+    pub fn drain_from(&self, max: usize, mut f: impl FnMut(u128, &T)) -> Result<usize, BusError> {
+        let mut n = 0;
+        while n < max {
+            match self.receive_sample()? {
+                Some(sample) => {
+                    f(sample.header().node_id().value(), sample.payload());
+                    n += 1;
+                }
+                None => break,
+            }
+        }
+        Ok(n)
+    }
+
     /// Whether a message is waiting (the cheap check a spinning loop polls).
     pub fn has_samples(&self) -> Result<bool, BusError> {
         self.subscriber

@@ -14,6 +14,7 @@
 pub mod admission;
 mod assemble;
 pub mod checkpoint;
+pub mod cpwriter;
 pub mod discovery;
 mod engine;
 pub mod experiment;

@@ -318,6 +318,7 @@ mod tests {
             pid: Some(1),
             executable: "robot-agent".into(),
             liveness,
+            id: None,
         }
     }
 

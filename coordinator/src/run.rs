@@ -19,6 +19,7 @@ use bus::bus_schema::{Command, ROBOT_ID_ALL};
 use bus::{CoordinatorBus, Expected, Lister, monotonic_ns};
 
 use crate::assemble::{FleetHists, RunEnd};
+use crate::cpwriter::{Sink, Writer};
 use crate::engine::{Assignment, Engine, tolerate};
 use crate::grid::{self, GridPlan};
 use crate::liveness::{Life, start_lister};
@@ -151,6 +152,7 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         cp.write(&engine, true);
         Ok(r)
     });
+    cp.finish();
     // the last process of the run removes its files; errors here must not hide the result
     if let Err(e) = bus.close() {
         report::log_line!("qfleet-coordinator: warning: cleanup: {e}");
@@ -197,42 +199,80 @@ fn take_over(dir: &OutDir, args: &CoordArgs, engine: &mut Engine) {
     }
 }
 
-/// Writes the checkpoint now and then; a failed write is warned about once and does not stop
-/// the run (the checkpoint only helps a restarted coordinator).
+/// Writes the checkpoint now and then, on a thread of its own ([`crate::cpwriter`]): the
+/// serving loop builds it and hands it over, never waiting for the disk. A failed write is
+/// warned about once and does not stop the run (the checkpoint only helps a restarted
+/// coordinator).
 struct Checkpoints {
-    dir: OutDir,
     run_id: String,
     last: Instant,
-    warned: bool,
+    writer: Option<Writer<CoordinatorCheckpoint>>,
+}
+
+/// Test hook: `QFLEET_TEST_CHECKPOINT_DELAY_MS` makes every checkpoint write that much slower
+/// (at most 60 s), as a slow `--out` disk does (`tests/reliability.rs`
+/// `a_slow_out_disk_never_makes_healthy_robots_hung`).
+const DELAY_HOOK: &str = "QFLEET_TEST_CHECKPOINT_DELAY_MS";
+
+/// The checkpoint file on disk.
+struct CheckpointFile {
+    path: std::path::PathBuf,
+    delay: Duration,
+}
+
+impl Sink<CoordinatorCheckpoint> for CheckpointFile {
+    fn write(&mut self, cp: &CoordinatorCheckpoint) -> Result<(), String> {
+        std::thread::sleep(self.delay);
+        // atomic, without fsync: it is for a coordinator process that dies, not a machine
+        write_json_atomic_with(&self.path, cp, Durability::Process).map_err(|e| e.to_string())
+    }
 }
 
 impl Checkpoints {
     fn new(dir: OutDir, run_id: String) -> Self {
+        let delay = std::env::var(DELAY_HOOK)
+            .ok()
+            .and_then(|v| v.parse::<u64>().ok())
+            .map_or(Duration::ZERO, |ms| Duration::from_millis(ms.min(60_000)));
+        let sink = CheckpointFile {
+            path: dir.path(OutFile::CoordinatorCheckpoint),
+            delay,
+        };
+        let writer = Writer::start(sink, |e| {
+            report::log_line!("qfleet-coordinator: warning: checkpoint not written: {e}");
+        });
+        if let Err(e) = &writer {
+            report::log_line!(
+                "qfleet-coordinator: warning: no checkpoint writer thread ({e}): no checkpoint \
+                 is kept for a restarted coordinator"
+            );
+        }
         Checkpoints {
-            dir,
             run_id,
             last: Instant::now(),
-            warned: false,
+            writer: writer.ok(),
         }
     }
 
-    /// Writes the checkpoint if the last one is [`CHECKPOINT_EVERY`] old.
+    /// Hands the checkpoint over if the last one is [`CHECKPOINT_EVERY`] old.
     fn every(&mut self, engine: &Engine) {
         if self.last.elapsed() >= CHECKPOINT_EVERY {
             self.write(engine, false);
         }
     }
 
+    /// Hands the checkpoint over; returns at once.
     fn write(&mut self, engine: &Engine, complete: bool) {
         self.last = Instant::now();
-        let cp = engine.checkpoint(&self.run_id, complete);
-        // atomic, without fsync: it is for a coordinator process that dies, not a machine, and
-        // the serving loop must not wait for a busy disk every second
-        let path = self.dir.path(OutFile::CoordinatorCheckpoint);
-        if let Err(e) = write_json_atomic_with(&path, &cp, Durability::Process)
-            && !std::mem::replace(&mut self.warned, true)
-        {
-            report::log_line!("qfleet-coordinator: warning: checkpoint not written: {e}");
+        if let Some(w) = &self.writer {
+            w.offer(engine.checkpoint(&self.run_id, complete));
+        }
+    }
+
+    /// Waits until the last checkpoint handed over is on disk (the run's end).
+    fn finish(mut self) {
+        if let Some(w) = self.writer.take() {
+            w.finish();
         }
     }
 }

@@ -28,8 +28,11 @@ use bus_schema::{
     MergedHintBatch, PseudoTargetDiscovery, QHintBatch, Register, RobotState,
 };
 
+use std::cell::RefCell;
+
 use crate::ObserveError;
 use crate::decode::Msg;
+use crate::members::{self, Members, Origin, Verdict};
 
 /// Whether every publish-subscribe service of run `run_id` exists (a read of iceoryx2's
 /// bookkeeping; creates nothing in the run's prefix).
@@ -90,21 +93,66 @@ pub struct Observer {
     grant: Option<Inbox<Grant>>,
     _node: Node<ipc::Service>,
     run_id: String,
+    own: Option<RefCell<OwnOnly>>,
 }
 
 /// Most messages taken from one topic per [`Observer::poll`], so one busy topic cannot starve
 /// the others; more than any topic's buffer.
 const DRAIN_MAX: usize = 4096;
 
-/// Takes up to [`DRAIN_MAX`] messages of `inbox` (if this observer has it) into `f`.
+/// Who the observer shows: the run's own processes ([`crate::members`]), resolved against
+/// the run's node listing.
+struct OwnOnly {
+    members: Members,
+    /// The launcher's pid: the run's processes are its children.
+    launcher: i32,
+    cfg: BusConfig,
+}
+
+impl OwnOnly {
+    /// The verdict on `m` from `sender`, resolving an unknown sender from the node listing
+    /// (once per new node: every node listed is learned).
+    fn judge(&mut self, sender: u128, m: &Msg<'_>) -> Verdict {
+        match self.members.judge(sender, m) {
+            Verdict::Resolve => {
+                let listing = bus::check_nodes(&self.cfg, false)
+                    .map(|r| r.nodes)
+                    .unwrap_or_default();
+                for n in &listing {
+                    if let Some(id) = n.id {
+                        let origin =
+                            members::origin_of(id, &listing, self.launcher, members::parent_of);
+                        self.members.learn(id, origin);
+                    }
+                }
+                if !listing.iter().any(|n| n.id == Some(sender)) {
+                    self.members.learn(sender, Origin::Other);
+                }
+                self.members.judge(sender, m)
+            }
+            v => v,
+        }
+    }
+}
+
+/// Takes up to [`DRAIN_MAX`] messages of `inbox` (if this observer has it) into `f`; with
+/// `own`, only those of the run's own processes (the others are counted there). Returns how
+/// many were taken (shown or not).
 fn drain<T: Message>(
     inbox: &Option<Inbox<T>>,
+    own: &Option<RefCell<OwnOnly>>,
     f: &mut impl FnMut(u64, Msg<'_>),
     wrap: impl for<'m> Fn(&'m T) -> Msg<'m>,
 ) -> Result<usize, ObserveError> {
-    match inbox {
-        Some(i) => Ok(i.drain(DRAIN_MAX, |m| f(monotonic_ns(), wrap(m)))?),
-        None => Ok(0),
+    match (inbox, own) {
+        (Some(i), None) => Ok(i.drain(DRAIN_MAX, |m| f(monotonic_ns(), wrap(m)))?),
+        (Some(i), Some(own)) => Ok(i.drain_from(DRAIN_MAX, |sender, m| {
+            let m = wrap(m);
+            if own.borrow_mut().judge(sender, &m) == Verdict::Show {
+                f(monotonic_ns(), m);
+            }
+        })?),
+        (None, _) => Ok(0),
     }
 }
 
@@ -180,6 +228,7 @@ impl Observer {
             grant: inbox(topics, &node, &cfg)?,
             _node: node,
             run_id: run_id.to_string(),
+            own: None,
         })
     }
 
@@ -188,23 +237,44 @@ impl Observer {
         &self.run_id
     }
 
+    /// From now on, shows only the messages of the run's own processes — those whose parent
+    /// is `launcher` — and, of a robot's messages, only those naming one of its `robots` robot
+    /// ids; the others are counted ([`Observer::others`]). See [`crate::members`].
+    pub fn only_own(mut self, robots: u32, launcher: i32) -> Result<Self, ObserveError> {
+        self.own = Some(RefCell::new(OwnOnly {
+            members: Members::new(robots),
+            launcher,
+            cfg: BusConfig::new(&self.run_id, robots.max(1))?,
+        }));
+        Ok(self)
+    }
+
+    /// Messages not shown because another process sent them, per topic (in
+    /// [`Topic::ALL`]'s order); zeros without [`Observer::only_own`].
+    pub fn others(&self) -> [u64; Topic::ALL.len()] {
+        self.own
+            .as_ref()
+            .map_or([0; Topic::ALL.len()], |o| o.borrow().members.others())
+    }
+
     /// Takes every buffered message of every topic it has and hands each to `f` with its
     /// receive time (monotonic ns); returns how many there were.
     pub fn poll(&self, mut f: impl FnMut(u64, Msg<'_>)) -> Result<usize, ObserveError> {
         let f = &mut f;
         // lossless topics first: a full buffer there loses messages for us
-        Ok(drain(&self.control, f, |m| Msg::Control(m))?
-            + drain(&self.register, f, |m| Msg::Register(m))?
-            + drain(&self.discovery, f, |m| Msg::Discovery(m))?
-            + drain(&self.relay, f, |m| Msg::Relay(m))?
-            + drain(&self.report, f, |m| Msg::Report(m))?
-            + drain(&self.state, f, |m| Msg::State(m))?
-            + drain(&self.hints, f, |m| Msg::Hints(m))?
-            + drain(&self.merged, f, |m| Msg::Merged(m))?
-            + drain(&self.ack, f, |m| Msg::Ack(m))?
-            + drain(&self.grant, f, |m| Msg::Grant(m))?
-            + drain(&self.intent, f, |m| Msg::Intent(m))?
-            + drain(&self.horizon, f, |m| Msg::Horizon(m))?)
+        let o = &self.own;
+        Ok(drain(&self.control, o, f, |m| Msg::Control(m))?
+            + drain(&self.register, o, f, |m| Msg::Register(m))?
+            + drain(&self.discovery, o, f, |m| Msg::Discovery(m))?
+            + drain(&self.relay, o, f, |m| Msg::Relay(m))?
+            + drain(&self.report, o, f, |m| Msg::Report(m))?
+            + drain(&self.state, o, f, |m| Msg::State(m))?
+            + drain(&self.hints, o, f, |m| Msg::Hints(m))?
+            + drain(&self.merged, o, f, |m| Msg::Merged(m))?
+            + drain(&self.ack, o, f, |m| Msg::Ack(m))?
+            + drain(&self.grant, o, f, |m| Msg::Grant(m))?
+            + drain(&self.intent, o, f, |m| Msg::Intent(m))?
+            + drain(&self.horizon, o, f, |m| Msg::Horizon(m))?)
     }
 
     /// Connects every subscriber of this observer to the publishers that appeared since its

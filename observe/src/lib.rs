@@ -3,8 +3,8 @@
 //! An outside reader of a run: it attaches once the run's services exist
 //! ([`attach::Observer`]), decodes every topic to JSON with a JSON schema per type
 //! ([`decode`]), counts messages and rates ([`stats`]), records everything into an MCAP file
-//! that Foxglove opens ([`record`]), reads recordings back ([`replay`]; one whose recorder was
-//! killed through [`salvage`]), and keeps an IO-free model of the run ([`view::ViewModel`])
+//! that Foxglove opens ([`record`]), reads recordings back in bounded memory ([`replay`] over
+//! [`walk`]; one whose recorder was killed up to where it stopped), and keeps an IO-free model of the run ([`view::ViewModel`])
 //! that the terminal live view ([`tui`]) draws. [`scene`] turns a run into Foxglove's
 //! well-known schemas (map, robots, paths, markers), which recordings carry and a Foxglove
 //! WebSocket server ([`foxglove`]) serves live. [`watch`] ties them together for `qfleet
@@ -19,13 +19,14 @@
 pub mod attach;
 pub mod decode;
 pub mod foxglove;
+pub mod members;
 pub mod record;
 pub mod replay;
-pub mod salvage;
 pub mod scene;
 pub mod stats;
 pub mod tui;
 pub mod view;
+pub mod walk;
 pub mod watch;
 
 /// Why observing, recording or replaying failed.
@@ -55,6 +56,24 @@ pub enum ObserveError {
     /// truncated file).
     #[error("mcap")]
     McapFile(#[from] mcap::McapError),
+    /// A recording that cannot be read on: the byte offset of the record that broke, what
+    /// was wrong, and how many messages were read before it.
+    #[error(
+        "the recording is damaged at byte {at} of {file_bytes}: {what} ({messages} message(s) read before it)"
+    )]
+    Damaged {
+        /// Byte offset of the record that broke.
+        at: u64,
+        /// The file's size.
+        file_bytes: u64,
+        /// What was wrong with it.
+        what: String,
+        /// Messages read before it.
+        messages: u64,
+    },
+    /// Reading a recording failed.
+    #[error("reading the recording")]
+    Read(#[source] std::io::Error),
     /// JSON encoding.
     #[error("json: {0}")]
     Json(#[from] serde_json::Error),

@@ -1,8 +1,10 @@
 //! Reading a recording back: the run's metadata and map, every message in log-time order as
 //! its JSON value and as a typed message (for the live view), and a per-topic summary.
 
-use std::collections::BTreeMap;
-use std::path::Path;
+use std::collections::{BTreeMap, HashMap};
+use std::io::{BufReader, Cursor, Read, Seek};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use bus_schema::names::Topic;
 use bus_schema::{
@@ -10,7 +12,6 @@ use bus_schema::{
     IntentHorizon, LatencySummary, MergedHintBatch, PseudoTargetDiscovery, QHint, QHintBatch,
     REASON_LEN, Register, RobotState,
 };
-use mcap::records::Record;
 use serde::Serialize;
 use serde_json::Value;
 
@@ -19,13 +20,13 @@ pub use crate::decode::Owned;
 use crate::decode::topic_by_name;
 use crate::record::{MAP_ATTACHMENT, RUN_METADATA};
 use crate::stats::{TopicCounts, topic_index};
+use crate::walk::{self, Damage, End, Item, WalkError, Walker, Want};
 
-/// Largest recording `replay` reads (it is read into memory whole).
-pub const MAX_RECORDING_BYTES: u64 = 8 << 30;
-
-/// A recording read into memory.
+/// A recording, opened: its metadata and map read, its messages read on demand from the file
+/// ([`Recording::messages`]), never the whole file in memory (see [`crate::walk`]).
 pub struct Recording {
-    bytes: Vec<u8>,
+    source: Source,
+    file_bytes: u64,
     /// The `qfleet.run` metadata (run id, map, start, goal, clock pair, settings).
     pub meta: BTreeMap<String, String>,
     /// The map attachment (MovingAI text), if present.
@@ -35,13 +36,163 @@ pub struct Recording {
     pub cut_short: Option<CutShort>,
 }
 
-/// How much of a recording that was not finished could be read (see [`crate::salvage`]).
+/// Where a recording's bytes are: a file held open (read with `pread`, so each reader keeps
+/// its own position and a file removed after opening is still read), or bytes in memory.
+enum Source {
+    File(PathBuf, Arc<std::fs::File>),
+    Bytes(Arc<[u8]>),
+}
+
+/// A reader of a shared open file at a position of its own.
+struct At {
+    file: Arc<std::fs::File>,
+    pos: u64,
+}
+
+impl Read for At {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        use std::os::unix::fs::FileExt;
+        let n = self.file.read_at(buf, self.pos)?;
+        self.pos += n as u64;
+        Ok(n)
+    }
+}
+
+impl Seek for At {
+    fn seek(&mut self, pos: std::io::SeekFrom) -> std::io::Result<u64> {
+        let base = match pos {
+            std::io::SeekFrom::Start(n) => Some(n),
+            std::io::SeekFrom::Current(d) => self.pos.checked_add_signed(d),
+            std::io::SeekFrom::End(d) => self.file.metadata()?.len().checked_add_signed(d),
+        };
+        self.pos = base.ok_or_else(|| std::io::Error::from(std::io::ErrorKind::InvalidInput))?;
+        Ok(self.pos)
+    }
+}
+
+trait ReadSeek: Read + Seek {}
+impl<T: Read + Seek> ReadSeek for T {}
+
+/// How much of a recording that was not finished could be read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub struct CutShort {
     /// Bytes read from the start of the file: every complete record.
     pub read_bytes: u64,
     /// The file's size.
     pub file_bytes: u64,
+}
+
+/// One message of a recording.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Message {
+    /// Its MCAP log time (the observer's receive time, wall-clock ns).
+    pub log_time: u64,
+    /// Its topic.
+    pub topic: Topic,
+    /// The message as JSON.
+    pub json: Value,
+}
+
+/// The messages of a recording, read from its file one at a time (see
+/// [`Recording::messages`]).
+pub struct Messages {
+    walker: Walker<Box<dyn ReadSeek>>,
+    /// Channel id → its qfleet topic (None: another channel, e.g. the scene's).
+    channels: HashMap<u16, Option<Topic>>,
+    read: u64,
+    /// The fleet's size (the `robots` metadata), if the recording says it.
+    robots: Option<u64>,
+    others: u64,
+}
+
+/// Whether `topic` carries a robot's own messages (which name it by `robot_id`).
+fn robot_topic(topic: Topic) -> bool {
+    matches!(
+        topic,
+        Topic::Register
+            | Topic::RobotState
+            | Topic::Discovery
+            | Topic::Hints
+            | Topic::Report
+            | Topic::Intent
+    )
+}
+
+impl Messages {
+    /// Messages skipped so far as not the run's own: a robot's message naming a robot id the
+    /// fleet (metadata `robots`) does not have.
+    pub fn others(&self) -> u64 {
+        self.others
+    }
+
+    /// The next message of a qfleet topic, in file order (the recorder writes in receive
+    /// order); `None` at the end of the data (of what was written, for a file cut short). A
+    /// damaged record is [`ObserveError::Damaged`] with its byte offset.
+    pub fn next_message(&mut self) -> Result<Option<Message>, ObserveError> {
+        let file_bytes = self.walker.file_len();
+        let read = self.read;
+        let damaged = |d: Damage| ObserveError::Damaged {
+            at: d.at,
+            file_bytes,
+            what: d.what,
+            messages: read,
+        };
+        loop {
+            let channels = &self.channels;
+            let item = self.walker.next(|c| match channels.get(&c) {
+                Some(Some(_)) => Want::Load,
+                Some(None) => Want::Skip,
+                None => Want::Unknown,
+            });
+            let item = match item {
+                Ok(Some(item)) => item,
+                Ok(None) => return Ok(None),
+                Err(WalkError::Damaged(d)) => return Err(damaged(d)),
+                Err(WalkError::Io(e)) => return Err(ObserveError::Read(e)),
+            };
+            match item {
+                Item::Record { op, at, body } if op == walk::op::CHANNEL => {
+                    let (id, topic) = walk::channel_of(at, &body).map_err(damaged)?;
+                    self.channels.insert(id, topic_by_name(&topic));
+                }
+                Item::Record { .. } => {}
+                Item::Message {
+                    channel,
+                    log_time,
+                    at,
+                    data,
+                } => {
+                    let Some(&Some(topic)) = self.channels.get(&channel) else {
+                        continue;
+                    };
+                    let json: Value = serde_json::from_slice(&data).map_err(|e| {
+                        damaged(Damage {
+                            at,
+                            what: format!("a message on {} that is not JSON: {e}", topic.path()),
+                        })
+                    })?;
+                    self.read += 1;
+                    // a robot the fleet does not have (an outside process's message in an
+                    // older recording): not the run's, counted
+                    if let Some(robots) = self.robots
+                        && robot_topic(topic)
+                        && json
+                            .get("robot_id")
+                            .and_then(Value::as_u64)
+                            .is_none_or(|r| r >= robots)
+                    {
+                        self.others += 1;
+                        continue;
+                    }
+                    return Ok(Some(Message {
+                        log_time,
+                        topic,
+                        json,
+                    }));
+                }
+            }
+        }
+    }
 }
 
 /// One topic in a [`Summary`].
@@ -76,57 +227,127 @@ pub struct Summary {
     pub metadata: BTreeMap<String, String>,
     /// Null for a finished recording; how much was read of one whose recorder did not finish.
     pub cut_short: Option<CutShort>,
+    /// Messages left out as not the run's own (a robot id the fleet does not have).
+    pub others: u64,
 }
 
 impl Recording {
-    /// Reads `path` (at most [`MAX_RECORDING_BYTES`]) and its metadata and map.
+    /// Opens `path`: reads its metadata and map and finds where its data ends (seeking past
+    /// the chunks of messages: memory stays bounded whatever the file's size). A file that is
+    /// not MCAP or is damaged is an error that says at which byte.
     pub fn open(path: &Path) -> Result<Self, ObserveError> {
         let io = |e| ObserveError::Io {
             path: path.display().to_string(),
             source: e,
         };
-        let len = std::fs::metadata(path).map_err(io)?.len();
-        if len > MAX_RECORDING_BYTES {
+        let file = std::fs::File::open(path).map_err(io)?;
+        if !file.metadata().map_err(io)?.is_file() {
             return Err(ObserveError::Mcap(format!(
-                "{} is {len} bytes, more than the {MAX_RECORDING_BYTES} replay reads",
+                "{} is not a regular file",
                 path.display()
             )));
         }
-        let bytes = std::fs::read(path).map_err(io)?;
-        // a recorder that was killed or whose disk filled left no end: read what it wrote
-        // (a file that cannot be salvaged either gets the error of reading it as it is)
-        if !crate::salvage::is_finished(&bytes)
-            && let Some(s) = crate::salvage::salvage(&bytes)
-            && let Ok(mut r) = Self::from_bytes(s.bytes)
-        {
-            r.cut_short = Some(CutShort {
-                read_bytes: s.kept_bytes,
-                file_bytes: len,
-            });
-            return Ok(r);
-        }
-        Self::from_bytes(bytes)
+        Self::with_source(Source::File(path.to_path_buf(), Arc::new(file)))
     }
 
-    /// A recording from its bytes.
+    /// A recording from its bytes (held, not copied, while it is read).
     pub fn from_bytes(bytes: Vec<u8>) -> Result<Self, ObserveError> {
+        Self::with_source(Source::Bytes(bytes.into()))
+    }
+
+    fn reader(source: &Source) -> Result<(Box<dyn ReadSeek>, u64), ObserveError> {
+        match source {
+            Source::File(path, file) => {
+                let len = file
+                    .metadata()
+                    .map_err(|e| ObserveError::Io {
+                        path: path.display().to_string(),
+                        source: e,
+                    })?
+                    .len();
+                let at = At {
+                    file: Arc::clone(file),
+                    pos: 0,
+                };
+                Ok((Box::new(BufReader::with_capacity(128 << 10, at)), len))
+            }
+            Source::Bytes(b) => Ok((Box::new(Cursor::new(Arc::clone(b))), b.len() as u64)),
+        }
+    }
+
+    fn with_source(source: Source) -> Result<Self, ObserveError> {
+        let (r, file_bytes) = Self::reader(&source)?;
         let mut meta = BTreeMap::new();
         let mut map_text = None;
-        let mut records = mcap::read::LinearReader::new(&bytes)?;
-        while let Some(rec) = undamaged(|| records.next())? {
-            match rec? {
-                Record::Metadata(m) if m.name == RUN_METADATA => meta = m.metadata,
-                Record::Attachment { header, data, .. } if header.name == MAP_ATTACHMENT => {
-                    map_text = Some(String::from_utf8_lossy(&data).into_owned());
+        let damaged = |d: Damage| ObserveError::Damaged {
+            at: d.at,
+            file_bytes,
+            what: d.what,
+            messages: 0,
+        };
+        let end = walk::outline(r, file_bytes, |op, at, body| {
+            match op {
+                walk::op::METADATA => {
+                    let (name, m) = walk::metadata_of(at, body)?;
+                    if name == RUN_METADATA {
+                        meta = m;
+                    }
+                }
+                walk::op::ATTACHMENT => {
+                    let (name, data) = walk::attachment_of(at, body)?;
+                    if name == MAP_ATTACHMENT {
+                        map_text = Some(String::from_utf8_lossy(data).into_owned());
+                    }
                 }
                 _ => {}
             }
-        }
+            Ok(())
+        })
+        .map_err(|e| match e {
+            WalkError::Damaged(d) => damaged(d),
+            WalkError::Io(e) => ObserveError::Read(e),
+        })?;
+        let cut_short = match end {
+            End::Finished {
+                end_magic: true, ..
+            } => None,
+            End::Finished { at, .. } | End::Cut { at } => Some(CutShort {
+                read_bytes: at,
+                file_bytes,
+            }),
+        };
         Ok(Self {
-            bytes,
+            source,
+            file_bytes,
             meta,
             map_text,
-            cut_short: None,
+            cut_short,
+        })
+    }
+
+    /// The file's size.
+    pub fn file_bytes(&self) -> u64 {
+        self.file_bytes
+    }
+
+    /// The messages, read from the file one at a time.
+    pub fn messages(&self) -> Result<Messages, ObserveError> {
+        let (r, len) = Self::reader(&self.source)?;
+        let walker = Walker::new(r, len, true).map_err(|e| match e {
+            WalkError::Damaged(d) => ObserveError::Damaged {
+                at: d.at,
+                file_bytes: len,
+                what: d.what,
+                messages: 0,
+            },
+            WalkError::Io(e) => ObserveError::Read(e),
+        })?;
+        Ok(Messages {
+            walker,
+            channels: HashMap::new(),
+            read: 0,
+            robots: self.meta.get("robots").and_then(|r| r.parse().ok()),
+            others: 0,
         })
     }
 
@@ -142,24 +363,14 @@ impl Recording {
 
     /// Calls `f(log_time, topic, json)` for every message of a qfleet topic, in file order
     /// (the recorder writes in receive order). Messages of other topics are skipped; a message
-    /// that is not JSON is an error.
+    /// that is not JSON, or any damaged record, is an error.
     pub fn for_each(
         &self,
         mut f: impl FnMut(u64, Topic, &Value) -> Result<(), ObserveError>,
     ) -> Result<(), ObserveError> {
-        let mut messages = mcap::MessageStream::new(&self.bytes)?;
-        while let Some(m) = undamaged(|| messages.next())? {
-            let m = m?;
-            let Some(topic) = topic_by_name(&m.channel.topic) else {
-                continue;
-            };
-            let v: Value = serde_json::from_slice(&m.data).map_err(|e| {
-                ObserveError::Mcap(format!(
-                    "message {} on {} is not JSON: {e}",
-                    m.sequence, m.channel.topic
-                ))
-            })?;
-            f(m.log_time, topic, &v)?;
+        let mut messages = self.messages()?;
+        while let Some(m) = messages.next_message()? {
+            f(m.log_time, m.topic, &m.json)?;
         }
         Ok(())
     }
@@ -169,10 +380,10 @@ impl Recording {
         let mut counts = TopicCounts::default();
         let mut names: Vec<String> = Vec::new();
         let run_id = self.meta.get("run_id").cloned().unwrap_or_default();
-        self.for_each(|t, topic, _| {
-            counts.add(topic, t);
-            Ok(())
-        })?;
+        let mut messages = self.messages()?;
+        while let Some(m) = messages.next_message()? {
+            counts.add(m.topic, m.log_time);
+        }
         let t0 = counts
             .0
             .iter()
@@ -207,6 +418,7 @@ impl Recording {
             topics,
             metadata: self.meta.clone(),
             cut_short: self.cut_short,
+            others: messages.others(),
         })
     }
 
@@ -215,20 +427,6 @@ impl Recording {
         let (x, y) = self.meta.get(key)?.split_once(',')?;
         Some((x.trim().parse().ok()?, y.trim().parse().ok()?))
     }
-}
-
-/// Runs one step of the `mcap` crate's readers, turning a panic inside it into an error: its
-/// readers trust some lengths of a damaged file and overflow on them (a proptest of ours found
-/// `attempt to subtract with overflow` in mcap 0.26's linear reader), and a damaged recording
-/// is bad input, never a crash. The panic message is kept off the terminal while it runs.
-fn undamaged<T>(step: impl FnOnce() -> T) -> Result<T, ObserveError> {
-    let quiet = std::panic::take_hook();
-    std::panic::set_hook(Box::new(|_| {}));
-    let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(step));
-    std::panic::set_hook(quiet);
-    r.map_err(|_| {
-        ObserveError::Mcap("the recording is damaged: the MCAP reader gave up on it".into())
-    })
 }
 
 struct J<'a>(&'a Value);
@@ -493,7 +691,7 @@ pub fn index_of(topic: Topic) -> usize {
 mod tests {
     use super::*;
     use crate::record::{Recorder, RunInfo};
-    use std::io::Cursor;
+    use crate::walk::MAX_MESSAGE_BYTES;
 
     fn sample_msgs() -> Vec<Owned> {
         let mut hints = Box::new(QHintBatch {
@@ -787,15 +985,17 @@ mod tests {
 
     #[test]
     fn a_recording_cut_anywhere_gives_back_the_messages_before_the_cut() {
-        use crate::salvage::{is_finished, salvage};
         let (file, sent) = finished_recording(40);
-        assert!(is_finished(&file));
         let mut before = 0;
-        // every cut point through the data section, a few bytes apart
+        // every cut point through the file, a few bytes apart
         for cut in (8..file.len()).step_by(7) {
-            let s = salvage(&file[..cut]).expect("starts like MCAP");
-            assert!(s.kept_bytes <= cut as u64);
-            let r = Recording::from_bytes(s.bytes).expect("the salvaged file reads");
+            let r = Recording::from_bytes(file[..cut].to_vec()).expect("a cut file opens");
+            let c = r.cut_short.expect("said to be cut short");
+            assert!(
+                c.read_bytes <= cut as u64,
+                "read {c:?} of a file cut at {cut}"
+            );
+            assert_eq!(c.file_bytes, cut as u64);
             let got = messages(&r);
             assert_eq!(
                 got[..],
@@ -808,10 +1008,178 @@ mod tests {
             );
             before = got.len();
         }
+        assert_eq!(before, sent.len(), "all of them before the summary");
+    }
+
+    /// Offsets of the message records of the qfleet topics in `file`, in file order.
+    fn message_offsets(file: &[u8]) -> Vec<u64> {
+        let len = file.len() as u64;
+        let mut w = Walker::new(Cursor::new(file), len, true).unwrap();
+        let mut channels = HashMap::new();
+        let mut at = Vec::new();
+        while let Some(item) = w
+            .next(|c| match channels.get(&c) {
+                Some(true) => Want::Load,
+                _ => Want::Skip,
+            })
+            .unwrap()
+        {
+            match item {
+                Item::Record { op, at, body } if op == walk::op::CHANNEL => {
+                    let (id, topic) = walk::channel_of(at, &body).unwrap();
+                    channels.insert(id, topic_by_name(&topic).is_some());
+                }
+                Item::Message { at: a, .. } => at.push(a),
+                Item::Record { .. } => {}
+            }
+        }
+        at
+    }
+
+    #[test]
+    fn a_damaged_recording_is_an_error_that_says_at_which_byte_it_broke() {
+        let (mut file, sent) = finished_recording(10);
+        let at = message_offsets(&file);
+        assert_eq!(at.len(), sent.len());
+        // the 25th message's length field now claims more than its chunk holds
+        let k = 24;
+        let bad = at[k] as usize;
+        file[bad + 1..bad + 9].copy_from_slice(&(1u64 << 40).to_le_bytes());
+        let len = file.len() as u64;
+        let r = Recording::from_bytes(file).expect("its outline is whole");
+        assert_eq!(r.cut_short, None, "a finished file is not cut short");
+        let mut got = 0;
+        let e = r
+            .for_each(|_, _, _| {
+                got += 1;
+                Ok(())
+            })
+            .expect_err("damaged");
+        match e {
+            ObserveError::Damaged {
+                at,
+                file_bytes,
+                messages,
+                ref what,
+            } => {
+                assert_eq!(at, bad as u64, "{e}");
+                assert_eq!(file_bytes, len);
+                assert_eq!(messages, k as u64);
+                assert!(what.contains("past the end of its chunk"), "{e}");
+            }
+            e => panic!("not said to be damaged: {e}"),
+        }
+        assert_eq!(got, k, "the messages before the damage were read");
+        // damage in the file's outline is found when it is opened
+        let (mut file, _) = finished_recording(2);
+        file[8] = 0x42;
+        let e = Recording::from_bytes(file).err().expect("damaged");
         assert!(
-            before + sample_msgs().len() >= sent.len(),
-            "nearly all before the summary"
+            e.to_string().contains("damaged at byte 8 of") && e.to_string().contains("0x42"),
+            "{e}"
         );
+    }
+
+    #[test]
+    fn a_message_too_big_for_qfleet_is_refused_unread_and_other_channels_are_skipped_unread() {
+        // a recording without chunks whose last message claims 240 MB: a sparse file, so the
+        // test writes (and a reader could read) only what it must
+        let topic = Topic::RobotState.service_name("huge");
+        let mut w = mcap::WriteOptions::new()
+            .use_chunks(false)
+            .create(Cursor::new(Vec::new()))
+            .unwrap();
+        let schema = w.add_schema("s", "jsonschema", b"{}").unwrap();
+        let scene = w
+            .add_channel(schema, "/map", "json", &BTreeMap::new())
+            .unwrap();
+        let state = w
+            .add_channel(schema, &topic, "json", &BTreeMap::new())
+            .unwrap();
+        let header = |channel_id, sequence| mcap::records::MessageHeader {
+            channel_id,
+            sequence,
+            log_time: 1,
+            publish_time: 1,
+        };
+        w.write_to_known_channel(&header(scene, 0), b"not even json: skipped unread")
+            .unwrap();
+        w.write_to_known_channel(&header(state, 0), br#"{"robot_id": 1}"#)
+            .unwrap();
+        w.write_to_known_channel(&header(state, 1), br#"{"robot_id": 2}"#)
+            .unwrap();
+        w.finish().unwrap();
+        let file = w.into_inner().into_inner();
+        let at = message_offsets(&file);
+        let sent = at.len();
+        assert_eq!(sent, 2);
+        let path = std::env::temp_dir().join(format!(
+            "qfleet-observe-huge-{}-{}.mcap",
+            std::process::id(),
+            bus::monotonic_ns()
+        ));
+        {
+            use std::io::Write;
+            let mut f = std::fs::File::create(&path).unwrap();
+            let last = *at.last().unwrap() as usize;
+            f.write_all(&file[..last]).unwrap();
+            let huge: u64 = 240 << 20;
+            let mut head = vec![walk::op::MESSAGE];
+            head.extend_from_slice(&(huge + 22).to_le_bytes());
+            // the same channel as the record it replaces
+            head.extend_from_slice(&file[last + 9..last + 9 + 22]);
+            f.write_all(&head).unwrap();
+            f.set_len((last + head.len()) as u64 + huge).unwrap();
+        }
+        let r = Recording::open(&path);
+        let _ = std::fs::remove_file(&path);
+        let r = r.expect("opens: its messages are not read yet");
+        let e = r.for_each(|_, _, _| Ok(())).expect_err("refused");
+        let text = e.to_string();
+        assert!(
+            text.contains(&format!("damaged at byte {}", at.last().unwrap()))
+                && text.contains(&format!("at most {MAX_MESSAGE_BYTES} bytes"))
+                && text.contains(&format!("{} message(s) read before it", sent - 1)),
+            "{text}"
+        );
+    }
+
+    #[test]
+    fn the_biggest_qfleet_message_is_far_under_the_message_cap() {
+        let mut merged = Box::new(MergedHintBatch {
+            coordinator_seq: u64::MAX,
+            goal_id: u32::MAX,
+            count: HINT_BATCH_CAP as u32,
+            oldest_origin_ns: u64::MAX,
+            send_time_ns: u64::MAX,
+            ..MergedHintBatch::ZEROED
+        });
+        for i in 0..HINT_BATCH_CAP {
+            merged.entries[i] = QHint {
+                cell: u32::MAX,
+                action: u8::MAX,
+                visits: u16::MAX,
+                q: -f32::MAX,
+                ..QHint::ZEROED
+            };
+            merged.origin_robot[i] = u32::MAX;
+            merged.origin_ns[i] = u64::MAX;
+        }
+        let mut grant = Box::new(Grant {
+            tick: u32::MAX,
+            robots: GRANT_CAP as u32,
+            state: u8::MAX,
+            seq: u64::MAX,
+            send_time_ns: u64::MAX,
+            ..Grant::ZEROED
+        });
+        grant.cell_x.fill(u16::MAX);
+        grant.cell_y.fill(u16::MAX);
+        grant.present.fill(u8::MAX);
+        for m in [Owned::Merged(merged), Owned::Grant(grant)] {
+            let n = serde_json::to_vec(&m.as_msg().to_json()).unwrap().len() as u64;
+            assert!(n * 16 < MAX_MESSAGE_BYTES, "{n} bytes");
+        }
     }
 
     /// A `Write + Seek` into a buffer that outlives the writer (the test keeps a handle).
@@ -847,10 +1215,6 @@ mod tests {
         // killed: nothing after this point is written, no chunk is closed
         std::mem::forget(rec);
         let bytes = file.0.lock().unwrap().get_ref().clone();
-        assert!(
-            Recording::from_bytes(bytes.clone()).is_err(),
-            "unreadable as it is"
-        );
         let path = std::env::temp_dir().join(format!(
             "qfleet-observe-killed-{}-{}.mcap",
             std::process::id(),
@@ -880,13 +1244,17 @@ mod tests {
         let r = Recording::from_bytes(file).unwrap();
         assert_eq!(r.cut_short, None);
         assert_eq!(messages(&r), sent);
-        assert_eq!(crate::salvage::salvage(b"type octile\nheight 3\n"), None);
-        assert_eq!(crate::salvage::salvage(b""), None);
+        for other in [&b"type octile\nheight 3\n"[..], b""] {
+            let e = Recording::from_bytes(other.to_vec())
+                .err()
+                .expect("not MCAP");
+            assert!(e.to_string().contains("not an MCAP file"), "{e}");
+        }
     }
 
     proptest::proptest! {
         #[test]
-        fn salvaging_a_damaged_recording_never_panics(
+        fn reading_a_damaged_recording_never_panics(
             cut in 0usize..20_000,
             flips in proptest::collection::vec((0usize..20_000, proptest::num::u8::ANY), 0..8),
         ) {
@@ -896,9 +1264,7 @@ mod tests {
                 file[at % n] ^= b;
             }
             file.truncate(cut.min(file.len()));
-            if let Some(s) = crate::salvage::salvage(&file)
-                && let Ok(r) = Recording::from_bytes(s.bytes)
-            {
+            if let Ok(r) = Recording::from_bytes(file) {
                 let _ = r.for_each(|_, _, _| Ok(()));
             }
         }

@@ -39,6 +39,10 @@ pub struct WatchOptions {
     pub record: Option<PathBuf>,
     /// Serve the run to Foxglove clients on this (already bound) server.
     pub foxglove: Option<Arc<crate::foxglove::Server>>,
+    /// Show and record only the run's own processes — children of this process (the
+    /// launcher) — and of a robot's messages only those naming one of this many robots; the
+    /// others are counted ([`WatchReport::others`]). `None`: everything in the prefix.
+    pub own_fleet: Option<u32>,
 }
 
 impl WatchOptions {
@@ -57,6 +61,9 @@ pub struct WatchReport {
     pub counts: TopicCounts,
     /// Messages written into the recording.
     pub recorded: u64,
+    /// Messages neither shown nor recorded because a process outside the run sent them (or
+    /// they named a robot the fleet does not have), per topic in [`bus_schema::names::Topic::ALL`]'s order.
+    pub others: Vec<u64>,
 }
 
 /// A running watch thread.
@@ -211,8 +218,13 @@ fn watch_thread(
     on_quit: &dyn Fn(),
 ) -> Result<WatchReport, ObserveError> {
     let give_up = || done.load(Ordering::SeqCst);
+    let own = |o: Observer| match opts.own_fleet {
+        Some(robots) => o.only_own(robots, std::process::id() as i32),
+        None => Ok(o),
+    };
     let joining = Observer::attach(run_id, Topics::LatestWins, ATTACH_TIMEOUT, &give_up)
-        .and_then(|o| Ok((o, LosslessReader::start(run_id)?)));
+        .and_then(own)
+        .and_then(|o| Ok((o, LosslessReader::start(run_id, opts.own_fleet)?)));
     let (observer, lossless) = match joining {
         Ok(both) => {
             joined.store(JOINED, Ordering::SeqCst);
@@ -234,6 +246,7 @@ fn watch_thread(
         }
     };
     let mut lossless = Some(lossless);
+    let mut lossless_others = [0u64; bus_schema::names::Topic::ALL.len()];
     let mut feed = |vm: &mut ViewModel| -> Result<Feed, ObserveError> {
         let over = done.load(Ordering::SeqCst);
         let mut take = |t: u64, m: Msg<'_>| {
@@ -257,7 +270,7 @@ fn watch_thread(
         if over {
             // the lossless reader's last drain comes after the run's last process ended
             if let Some(l) = lossless.take() {
-                l.finish(&mut take)?;
+                lossless_others = l.finish(&mut take)?;
             }
             return Ok(Feed::Ended);
         }
@@ -272,6 +285,12 @@ fn watch_thread(
         quit = tui::run(&mut vm, &src, &mut feed, on_quit, false, false)? == Exit::Quit;
     }
     while feed(&mut vm)? == Feed::More {}
+    let others = observer
+        .others()
+        .iter()
+        .zip(lossless_others)
+        .map(|(a, b)| a + b)
+        .collect();
     drop(observer);
     // the launcher may have cleaned up while we were still attached: finish its job
     crate::attach::leave(run_id)?;
@@ -279,6 +298,7 @@ fn watch_thread(
         quit,
         counts: vm.counts.clone(),
         recorded: 0,
+        others,
     };
     if let Some(r) = rec {
         report.recorded = r.finish()?;
@@ -303,13 +323,16 @@ const LOSSLESS_TICK: Duration = Duration::from_millis(20);
 struct LosslessReader {
     rx: mpsc::Receiver<(u64, Owned)>,
     stop: Arc<AtomicBool>,
-    handle: Option<JoinHandle<Result<(), ObserveError>>>,
+    handle: Option<JoinHandle<Result<Others, ObserveError>>>,
 }
+
+/// Messages not shown, per topic (see [`Observer::others`]).
+type Others = [u64; bus_schema::names::Topic::ALL.len()];
 
 impl LosslessReader {
     /// Starts the thread and waits until its observer has joined run `run_id` (the run's
     /// services must exist); it reads until [`finish`](Self::finish), then once more.
-    fn start(run_id: &str) -> Result<Self, ObserveError> {
+    fn start(run_id: &str, own_fleet: Option<u32>) -> Result<Self, ObserveError> {
         let (tx, rx) = mpsc::channel();
         let stop = Arc::new(AtomicBool::new(false));
         let done = Arc::clone(&stop);
@@ -321,7 +344,11 @@ impl LosslessReader {
                 // iceoryx2 ports stay on the thread that made them: join here (retrying an
                 // open that fails while the coordinator still creates a service)
                 let quit = || done.load(Ordering::SeqCst);
-                let joined = Observer::attach(&run_id, Topics::Lossless, JOIN_LOSSLESS, &quit);
+                let joined = Observer::attach(&run_id, Topics::Lossless, JOIN_LOSSLESS, &quit)
+                    .and_then(|o| match own_fleet {
+                        Some(robots) => o.only_own(robots, std::process::id() as i32),
+                        None => Ok(o),
+                    });
                 let observer = match joined {
                     Ok(o) => {
                         let _ = joined_tx.send(Ok(()));
@@ -329,10 +356,11 @@ impl LosslessReader {
                     }
                     Err(e) => {
                         let _ = joined_tx.send(Err(e));
-                        return Ok(());
+                        return Ok([0; bus_schema::names::Topic::ALL.len()]);
                     }
                 };
-                read_lossless(&observer, &done, &tx)
+                read_lossless(&observer, &done, &tx)?;
+                Ok(observer.others())
             })
             .map_err(|e| ObserveError::Io {
                 path: "the lossless reader thread".into(),
@@ -362,21 +390,22 @@ impl LosslessReader {
     }
 
     /// Stops the thread after one last read (call it once the run's processes all ended),
-    /// waits for it to leave the run, and hands the rest to `f`.
-    fn finish(mut self, f: &mut impl FnMut(u64, Msg<'_>)) -> Result<(), ObserveError> {
+    /// waits for it to leave the run, and hands the rest to `f`; returns the messages it did
+    /// not show.
+    fn finish(mut self, f: &mut impl FnMut(u64, Msg<'_>)) -> Result<Others, ObserveError> {
         let r = self.stop_and_join();
         self.take(f);
         r
     }
 
-    fn stop_and_join(&mut self) -> Result<(), ObserveError> {
+    fn stop_and_join(&mut self) -> Result<Others, ObserveError> {
         self.stop.store(true, Ordering::SeqCst);
         match self.handle.take().map(JoinHandle::join) {
             Some(Ok(r)) => r,
             Some(Err(_)) => Err(ObserveError::Bus(
                 "the lossless reader thread panicked".into(),
             )),
-            None => Ok(()),
+            None => Ok([0; bus_schema::names::Topic::ALL.len()]),
         }
     }
 }
@@ -474,7 +503,7 @@ mod tests {
     fn the_lossless_reader_keeps_what_a_publisher_sent_before_it_left() {
         let cfg = BusConfig::new(unique_run_id("obs-lossless"), 1).unwrap();
         let coordinator = CoordinatorBus::create(&cfg).expect("the run's services");
-        let reader = LosslessReader::start(&cfg.run_id).expect("joins");
+        let reader = LosslessReader::start(&cfg.run_id, None).expect("joins");
         // an observer that does not read while the visitor is there: what an idle-class
         // reader on a saturated machine is
         let idle = Observer::open(&cfg.run_id, Topics::Lossless).expect("joins");

@@ -433,6 +433,7 @@ impl ExperimentCmd {
                 });
             let cfg = vec![
                 ("manifest".into(), self.file.display().to_string()),
+                ("robots".into(), plan.starts.len().to_string()),
                 ("seed".into(), seed.to_string()),
                 (
                     "pace".into(),

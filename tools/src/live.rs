@@ -108,10 +108,16 @@ pub fn start(
     foxglove: Option<Arc<Server>>,
     on_quit: Box<dyn Fn() + Send>,
 ) -> Result<Hook> {
+    // the run's own processes only: a stray process in the prefix is counted, not drawn
+    let own_fleet = config
+        .iter()
+        .find(|(k, _)| k == "robots")
+        .and_then(|(_, v)| v.parse().ok());
     let opts = WatchOptions {
         live: watch.live,
         record: record.clone(),
         foxglove,
+        own_fleet,
     };
     let watch = match opts.any() {
         true => Some(
@@ -161,6 +167,20 @@ pub fn finish(hook: Hook) -> Result<bool> {
             "recorded {} messages to {}",
             r.recorded,
             p.display()
+        ));
+    }
+    let others: u64 = r.others.iter().sum();
+    if others > 0 {
+        let topics: Vec<String> = bus::bus_schema::names::Topic::ALL
+            .iter()
+            .zip(&r.others)
+            .filter(|(_, n)| **n > 0)
+            .map(|(t, n)| format!("{} {n}", t.path()))
+            .collect();
+        crate::term::warn(&format!(
+            "warning: {others} message(s) from processes outside the run (or naming a robot it \
+             does not have) were neither shown nor recorded: {}",
+            topics.join(", ")
         ));
     }
     Ok(r.quit)

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow};
 use clap::Args;
-use observe::replay::{Recording, from_json};
+use observe::replay::{Messages, Recording, from_json};
 use observe::tui::{self, Feed};
 use observe::watch::view_of_recording;
 
@@ -66,7 +66,10 @@ impl ReplayCmd {
             return self.serve(&rec, addr);
         }
         // a recording whose records or messages do not decode is bad input too
-        let s = rec.summary().context(launcher::Exit::BadInput)?;
+        let s = rec
+            .summary()
+            .with_context(|| format!("reading {}", self.file.display()))
+            .context(launcher::Exit::BadInput)?;
         if let (Some(c), 0) = (rec.cut_short, s.messages) {
             // damaged before its first message: nothing to replay is an error, not "0 messages"
             return Err(anyhow::anyhow!(
@@ -85,7 +88,7 @@ impl ReplayCmd {
         let span = match s.messages {
             0 => "no messages".to_string(),
             1 => "1 message".to_string(),
-            n => format!("{n} messages over {:.3} s", s.duration_s),
+            n => format!("{n} messages {}", span_text(s.duration_s)),
         };
         crate::term::out!(
             "recording {}: run {} on {}, {span}",
@@ -105,6 +108,13 @@ impl ReplayCmd {
             ]);
         }
         crate::term::write_out(format_args!("{}", t.render("  ")))?;
+        if s.others > 0 {
+            crate::term::warn(&format!(
+                "{} message(s) naming a robot the run does not have were left out (another \
+                 process's, not the run's)",
+                s.others
+            ));
+        }
         Ok(())
     }
 
@@ -112,15 +122,14 @@ impl ReplayCmd {
     /// (over `--speed`), once a first client has connected.
     fn serve(&self, rec: &Recording, addr: SocketAddr) -> Result<()> {
         let vm = view_of_recording(rec).context(launcher::Exit::BadInput)?;
-        let mut msgs = Vec::new();
-        rec.for_each(|t, topic, v| {
-            msgs.push((t, from_json(topic, v)));
-            Ok(())
-        })
-        .context(launcher::Exit::BadInput)?;
+        // read as played, one message at a time (a recording is never held whole)
+        let mut msgs = rec.messages().context(launcher::Exit::BadInput)?;
+        let mut first = next_owned(&mut msgs)?;
         let server = crate::live::serve_at(addr)?;
         crate::catch_interrupts()?;
-        let t0 = msgs.first().map_or_else(observe::record::wall_ns, |m| m.0);
+        let t0 = first
+            .as_ref()
+            .map_or_else(observe::record::wall_ns, |m| m.0);
         let cell = |k: &str| rec.cell(k).map(|(x, y)| planner::grid::Cell::new(x, y));
         let start = cell("start").unwrap_or(planner::grid::Cell::new(0, 0));
         server.begin_run(
@@ -141,7 +150,10 @@ impl ReplayCmd {
         // the client subscribes after it read the advertisement
         std::thread::sleep(Duration::from_millis(500));
         let begin = Instant::now();
-        for (t, m) in msgs {
+        while let Some((t, m)) = match first.take() {
+            Some(m) => Some(m),
+            None => next_owned(&mut msgs)?,
+        } {
             if stopped() {
                 break;
             }
@@ -160,25 +172,22 @@ impl ReplayCmd {
 
     fn live(&self, rec: &Recording) -> Result<()> {
         let mut vm = view_of_recording(rec).context(launcher::Exit::BadInput)?;
-        // decode everything first (typed, with receive times), then play it at its pace
-        let mut msgs = Vec::new();
-        rec.for_each(|t, topic, v| {
-            msgs.push((rec.mono_of(t), from_json(topic, v)));
-            Ok(())
-        })
-        .context(launcher::Exit::BadInput)?;
-        let t0 = msgs.first().map_or(0, |m| m.0);
+        // read as played, one message at a time (a recording is never held whole); a damaged
+        // record ends the view with its error
+        let mut msgs = rec.messages().context(launcher::Exit::BadInput)?;
+        let mut next = next_owned(&mut msgs)?.map(|(t, m)| (rec.mono_of(t), m));
+        let t0 = next.as_ref().map_or(0, |m| m.0);
         let start = Instant::now();
         let speed = self.speed;
-        let mut next = 0;
         let feed = |vm: &mut observe::view::ViewModel| -> Result<Feed, observe::ObserveError> {
             let played = (start.elapsed().as_secs_f64() * speed * 1e9) as u64;
-            while next < msgs.len() && msgs[next].0.saturating_sub(t0) <= played {
-                let (t, m) = &msgs[next];
-                vm.apply(*t, m.as_msg());
-                next += 1;
+            while let Some((t, m)) = next.take_if(|m| m.0.saturating_sub(t0) <= played) {
+                vm.apply(t, m.as_msg());
+                next = msgs
+                    .next_message()?
+                    .map(|m| (rec.mono_of(m.log_time), from_json(m.topic, &m.json)));
             }
-            if next == msgs.len() {
+            if next.is_none() {
                 return Ok(Feed::Ended);
             }
             std::thread::sleep(Duration::from_millis(2));
@@ -187,5 +196,41 @@ impl ReplayCmd {
         let src = format!("replay {}", self.file.display());
         tui::run(&mut vm, &src, feed, &|| {}, true, true)?;
         Ok(())
+    }
+}
+
+/// The next message of a recording, typed, with its log time; a damaged record is bad input.
+fn next_owned(msgs: &mut Messages) -> Result<Option<(u64, observe::replay::Owned)>> {
+    Ok(msgs
+        .next_message()
+        .context(launcher::Exit::BadInput)?
+        .map(|m| (m.log_time, from_json(m.topic, &m.json))))
+}
+
+/// "over 2.500 s", "over 3.2 ms", "over 41 µs", "at one instant" (messages logged in the same
+/// nanosecond): never "over 0.000 s".
+fn span_text(s: f64) -> String {
+    if s >= 1.0 {
+        format!("over {s:.3} s")
+    } else if s >= 1e-3 {
+        format!("over {:.1} ms", s * 1e3)
+    } else if s > 0.0 {
+        format!("over {:.0} µs", (s * 1e6).max(1.0))
+    } else {
+        "at one instant".to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::span_text;
+
+    #[test]
+    fn a_span_is_never_printed_as_zero_seconds() {
+        assert_eq!(span_text(2.5), "over 2.500 s");
+        assert_eq!(span_text(0.0032), "over 3.2 ms");
+        assert_eq!(span_text(0.000041), "over 41 µs");
+        assert_eq!(span_text(2e-9), "over 1 µs");
+        assert_eq!(span_text(0.0), "at one instant");
     }
 }

@@ -75,6 +75,10 @@ pub struct RunCmd {
     /// Write into a non-empty `--out` directory, replacing files of the same names.
     #[arg(long)]
     force: bool,
+    /// Start even if the run's estimated memory (robots and coordinator, from the map's size)
+    /// exceeds the memory available now.
+    #[arg(long)]
+    ignore_memory: bool,
     /// Seconds a stopping process gets before it is killed.
     #[arg(long, default_value_t = 5.0)]
     grace: f64,
@@ -345,6 +349,23 @@ impl RunCmd {
             run_id.clone(),
             self.remote.total(self.robots)?,
         )?)?;
+        // every local process holds tables the size of the map: refuse what cannot fit (issue
+        // 27: 32 robots on suite:maze-2048-1 need ~4.5 GB) rather than let the OOM killer choose
+        let cells = (task.grid.width() * task.grid.height()) as u64;
+        let need = bus::limits::memory_estimate(cells, u64::from(self.robots) + 1);
+        if !self.ignore_memory
+            && let Some(have) = bus::limits::mem_available()
+            && need > have
+        {
+            return Err(anyhow!(
+                "not enough memory: {} robot(s) and the coordinator on a map of {cells} cells \
+                 need ~{} MiB, {} MiB are available; run fewer robots or a smaller map, or pass \
+                 --ignore-memory",
+                self.robots,
+                need >> 20,
+                have >> 20
+            ));
+        }
         Ok((task, cfg, grace, time_limit, run_id))
     }
 
