@@ -660,7 +660,7 @@ mod tests {
         for f in &wire {
             assert!(
                 !f.windows(8)
-                    .any(|w| w == &0x1122_3344_5566_7788u64.to_le_bytes())
+                    .any(|w| w == 0x1122_3344_5566_7788u64.to_le_bytes())
             );
             assert!(!f.windows(5).any(|w| w == b"t_ns\""));
             assert_ne!(
