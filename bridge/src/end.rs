@@ -269,13 +269,7 @@ impl LinkEnd {
     pub fn send_latest<T: Message>(&mut self, m: &T, sink: &mut impl Sink) {
         if self.up() {
             wire::write_data_frame(&mut self.scratch, m, 0);
-            emit(
-                &mut self.sealer,
-                &mut self.counts,
-                sink,
-                true,
-                &self.scratch,
-            );
+            self.emit_scratch(sink);
         }
     }
 
@@ -322,13 +316,7 @@ impl LinkEnd {
                 gone.to_vec(),
             );
             wire::write_heartbeat(&mut self.scratch, &hb);
-            emit(
-                &mut self.sealer,
-                &mut self.counts,
-                sink,
-                true,
-                &self.scratch,
-            );
+            self.emit_scratch(sink);
         }
         // while the link is down nothing is resent (nor counted): it all goes when it is back
         if self.up() {
@@ -337,6 +325,17 @@ impl LinkEnd {
             }
         }
         event
+    }
+
+    /// Sends the frame written into `scratch`.
+    fn emit_scratch(&mut self, sink: &mut impl Sink) {
+        emit(
+            &mut self.sealer,
+            &mut self.counts,
+            sink,
+            true,
+            &self.scratch,
+        );
     }
 
     /// Tells the peer this end is leaving.

@@ -367,19 +367,20 @@ impl Joiner {
     /// Handles one frame; true when the hub said goodbye.
     fn on_frame(&mut self, frame: &[u8], now: Instant) -> bool {
         let local = &mut self.local;
-        let (got, came_back) = self.end.on_frame(
-            frame,
-            now,
-            monotonic_ns(),
-            &mut self.publisher,
-            |t, b, shift| local.put(t, b, shift),
-        );
-        if came_back {
-            report::log_line!(
-                "qfleet join: the coordinator's host is back; resending what it missed"
-            );
+        let put = |t, b: &[u8], shift| local.put(t, b, shift);
+        match self
+            .end
+            .on_frame(frame, now, monotonic_ns(), &mut self.publisher, put)
+        {
+            (Got::Goodbye { .. }, _) => true,
+            (_, true) => {
+                report::log_line!(
+                    "qfleet join: the coordinator's host is back; resending what it missed"
+                );
+                false
+            }
+            _ => false,
         }
-        matches!(got, Got::Goodbye { .. })
     }
 
     fn deliver_in_order(&mut self) -> bool {
