@@ -63,13 +63,19 @@ fn bad_input_to_every_command_is_exit_code_2_with_a_clear_error() {
         vec!["experiment", manifest, "--record", no_dir],
         vec!["experiment", missing],
         vec!["clean", "--run-id", "../x"],
+        // with a valid secret in the environment (below): the non-empty --out is refused
         vec!["join", "tcp/127.0.0.1:9", "--out", &full],
+        vec!["join", "tcp/127.0.0.1:9", "--secret-file", missing],
         vec!["eval", "--families", "movingai", "--movingai", "/dev/zero"],
     ];
     let mut wrong = Vec::new();
     for args in &cases {
         let out = Command::new(bin("qfleet"))
             .args(args)
+            .env(
+                "QFLEET_JOIN_SECRET",
+                format!("qfleet-join-v1:exit-codes:{}", "ab".repeat(32)),
+            )
             .current_dir(&*dir)
             .output()
             .unwrap();

@@ -9,8 +9,13 @@
 //! [`TwoHosts`]'s `Drop`, after every process in them is killed), and each test checks that its
 //! run left nothing in the outer system's `/dev/shm` or `/tmp/iceoryx2`.
 //!
-//! The four tests take turns (a lock): each runs a fleet on both "hosts", and four at once on
+//! The tests take turns (a lock): each runs a fleet on both "hosts", and several at once on
 //! two cores would turn the link-down test's 2 s outage into noise.
+//!
+//! Both hosts get the run's join secret from a file (`--secret-file`), as a user copies it;
+//! [`a_stranger_on_the_network_reads_nothing_forges_nothing_and_takes_no_slot`] adds a third
+//! party on the network: this test binary itself, re-run inside host B's namespace as a plain
+//! Zenoh session ([`stranger_role`]).
 
 use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
@@ -169,6 +174,19 @@ impl Drop for TwoHosts {
     }
 }
 
+/// A join secret for run `id` (or an experiment's run-id prefix) in a file of its own, mode
+/// 0600, outside both hosts' `--out`.
+fn secret_file(id: &str) -> (Scratch, String) {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = scratch(&format!("{id}-secret"));
+    let path = dir.join("join.secret");
+    let secret = bridge::Secret::generate(id).expect("randomness");
+    std::fs::write(&path, secret.text()).expect("write the secret");
+    std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).expect("chmod");
+    let p = path.display().to_string();
+    (dir, p)
+}
+
 /// `qfleet run` on host A with `local` robots and `remote` robots to come from host B.
 fn start_a(
     hosts: &TwoHosts,
@@ -176,6 +194,7 @@ fn start_a(
     out: &Path,
     local: u32,
     remote: u32,
+    secret: &str,
     extra: &[&str],
 ) -> Child {
     let (l, r) = (local.to_string(), remote.to_string());
@@ -190,6 +209,8 @@ fn start_a(
         &r,
         "--listen",
         ENDPOINT,
+        "--secret-file",
+        secret,
         "--out",
         &out,
     ];
@@ -201,11 +222,20 @@ fn start_a(
 }
 
 /// `qfleet join` on host B.
-fn start_b(hosts: &TwoHosts, robots: u32, out: &Path, extra: &[&str]) -> Child {
+fn start_b(hosts: &TwoHosts, robots: u32, out: &Path, secret: &str, extra: &[&str]) -> Child {
     let n = robots.to_string();
     let out = out.display().to_string();
     let mut args = vec![
-        "join", ENDPOINT, "--robots", &n, "--name", "host-b", "--out", &out,
+        "join",
+        ENDPOINT,
+        "--robots",
+        &n,
+        "--name",
+        "host-b",
+        "--secret-file",
+        secret,
+        "--out",
+        &out,
     ];
     args.extend_from_slice(extra);
     hosts
@@ -333,8 +363,17 @@ fn a_run_across_two_hosts_completes_with_every_discovery_delivered() {
     let _ = bin("qfleet");
     let id = run_id("mh-run");
     let (da, db) = scratch_pair(&id);
-    let a = start_a(&hosts, &id, &da, 1, 2, &[&SHORT[..], &["--json"]].concat());
-    let b = start_b(&hosts, 2, &db, &[]);
+    let (_s, secret) = secret_file(&id);
+    let a = start_a(
+        &hosts,
+        &id,
+        &da,
+        1,
+        2,
+        &secret,
+        &[&SHORT[..], &["--json"]].concat(),
+    );
+    let b = start_b(&hosts, 2, &db, &secret, &[]);
     let out_b = wait_bounded(b, LIMIT);
     let out_a = wait_bounded(a, LIMIT);
     assert!(out_a.status.success(), "host A: {}", describe(&out_a));
@@ -364,8 +403,9 @@ fn the_link_down_for_two_seconds_loses_nothing_and_counts_a_reconnect() {
     let _ = bin("qfleet");
     let id = run_id("mh-down");
     let (da, db) = scratch_pair(&id);
-    let a = start_a(&hosts, &id, &da, 1, 2, &LONG);
-    let b = start_b(&hosts, 2, &db, &[]);
+    let (_s, secret) = secret_file(&id);
+    let a = start_a(&hosts, &id, &da, 1, 2, &secret, &LONG);
+    let b = start_b(&hosts, 2, &db, &secret, &[]);
     wait_joined(&db, &[1, 2]);
     hosts.link(false);
     std::thread::sleep(Duration::from_secs(2));
@@ -396,15 +436,17 @@ fn a_killed_joining_host_has_its_robots_reported_lost_and_the_run_completes() {
     let _ = bin("qfleet");
     let id = run_id("mh-kill");
     let (da, db) = scratch_pair(&id);
+    let (_s, secret) = secret_file(&id);
     let a = start_a(
         &hosts,
         &id,
         &da,
         1,
         2,
+        &secret,
         &[&LONG[..], &["--host-deadline", "3"]].concat(),
     );
-    let b = start_b(&hosts, 2, &db, &[]);
+    let b = start_b(&hosts, 2, &db, &secret, &[]);
     wait_joined(&db, &[1, 2]);
     hosts.kill_all(Host::B);
     let _ = wait_bounded(b, LIMIT);
@@ -430,8 +472,15 @@ fn a_join_with_another_schema_version_is_refused_clearly_on_both_hosts() {
     let _ = bin("qfleet");
     let id = run_id("mh-schema");
     let (da, db) = scratch_pair(&id);
-    let a = start_a(&hosts, &id, &da, 1, 1, &SHORT);
-    let b = start_b(&hosts, 1, &db, &["--schema-version-override", "999"]);
+    let (_s, secret) = secret_file(&id);
+    let a = start_a(&hosts, &id, &da, 1, 1, &secret, &SHORT);
+    let b = start_b(
+        &hosts,
+        1,
+        &db,
+        &secret,
+        &["--schema-version-override", "999"],
+    );
     let out_b = wait_bounded(b, LIMIT);
     assert!(
         !out_b.status.success(),
@@ -470,6 +519,8 @@ fn an_experiment_across_two_hosts_runs_every_phase_with_the_remote_robots() {
     // a short prefix: the experiment adds the seed, its pid and the time (48 characters at most)
     let id = format!("mhx{}", std::process::id());
     let (da, db) = scratch_pair(&id);
+    // one secret for the experiment: it names the seeds' run-id prefix
+    let (_s, secret) = secret_file(&id);
     // two goals, two phases: the phase change (a control message) must cross the link too
     let manifest = da.join("m.toml");
     std::fs::write(
@@ -512,6 +563,8 @@ episodes = 200
                 "2",
                 "--listen",
                 ENDPOINT,
+                "--secret-file",
+                &secret,
                 "--out",
                 &o,
                 "--json",
@@ -519,7 +572,7 @@ episodes = 200
         )
         .spawn()
         .expect("spawn qfleet experiment");
-    let b = start_b(&hosts, 2, &db, &[]);
+    let b = start_b(&hosts, 2, &db, &secret, &[]);
     let out_b = wait_bounded(b, LIMIT);
     let out_a = wait_bounded(a, LIMIT);
     assert!(out_a.status.success(), "host A: {}", describe(&out_a));
@@ -544,6 +597,253 @@ episodes = 200
     let b = host_b(&r);
     assert_eq!(b["robots"], serde_json::json!([1, 2]), "{b}");
     assert_eq!(b["state"], "up", "{b}");
+    drop(hosts);
+    assert_no_leftovers(&id);
+}
+
+/// What the stranger saw and got (printed by [`stranger_role`] as one JSON line).
+#[derive(Debug, Default, serde::Serialize, serde::Deserialize)]
+struct Stranger {
+    /// Samples its `**` subscription received.
+    samples: u64,
+    /// Of those, keys or payloads holding the run id or a heartbeat's JSON (plaintext).
+    plaintext: u64,
+    /// Answers to its forged joins: each `Refused` or `Challenge`, never `Accepted`.
+    join_answers: Vec<String>,
+    /// Replies of other peers' admin spaces (`@/**`).
+    admin_replies: u64,
+    /// Frames it replayed or forged onto the keys it saw.
+    forged: u64,
+    /// Idle TCP connections it opened, and how many host A closed within 5 s.
+    idle_opened: u64,
+    idle_closed: u64,
+}
+
+/// The stranger itself: does nothing unless `QFLEET_STRANGER=ENDPOINT;RUN_ID` is set (then it
+/// is the copy of this test binary that the stranger test starts inside host B's namespace).
+/// A plain Zenoh peer on host A's endpoint: it subscribes to everything, asks the admin space
+/// who is there, asks to join without the secret (and floods the join key), opens idle TCP
+/// connections, and replays every frame it saw and forges goodbyes and heartbeats on the keys
+/// it saw.
+#[test]
+fn stranger_role() {
+    use zenoh::Wait;
+    let Ok(spec) = std::env::var("QFLEET_STRANGER") else {
+        return;
+    };
+    let (endpoint, run_id) = spec.split_once(';').expect("ENDPOINT;RUN_ID");
+    let mut seen = Stranger::default();
+    let addr = endpoint.trim_start_matches("tcp/");
+    let idle: Vec<std::net::TcpStream> = (0..200)
+        .filter_map(|_| std::net::TcpStream::connect(addr).ok())
+        .collect();
+    seen.idle_opened = idle.len() as u64;
+    let mut c = zenoh::Config::default();
+    for (k, v) in [
+        ("mode", "\"peer\"".to_string()),
+        ("scouting/multicast/enabled", "false".into()),
+        ("listen/endpoints", "[]".into()),
+        ("connect/endpoints", format!("[\"{endpoint}\"]")),
+    ] {
+        c.insert_json5(k, &v).expect("config");
+    }
+    let s = zenoh::open(c).wait().expect("the stranger's session");
+    let sub = s.declare_subscriber("**").wait().expect("subscribe");
+    let plain = |b: &[u8]| {
+        b.windows(run_id.len()).any(|w| w == run_id.as_bytes())
+            || b.windows(7).any(|w| w == b"\"acked\"")
+    };
+    // ask to join without the secret: a made-up proof, and a flood of hellos
+    let ask = |body: String| -> Vec<String> {
+        let mut out = Vec::new();
+        if let Ok(r) = s
+            .get("qfleet/join")
+            .payload(body)
+            .timeout(Duration::from_secs(1))
+            .wait()
+        {
+            while let Ok(reply) = r.recv() {
+                if let Ok(sample) = reply.into_result() {
+                    let text = String::from_utf8_lossy(&sample.payload().to_bytes()).into_owned();
+                    out.push(text.chars().take(40).collect());
+                }
+            }
+        }
+        out
+    };
+    std::thread::sleep(Duration::from_millis(500));
+    let forged_join = serde_json::json!({"Join": {
+        "cookie": "00".repeat(32), "nonce": "00".repeat(16),
+        "request": {"schema_version": bus_schema::SCHEMA_VERSION, "little_endian": true,
+                    "host": "stranger", "robots": 2, "t_ns": 1},
+        "proof": "00".repeat(32)}});
+    seen.join_answers.extend(ask(forged_join.to_string()));
+    seen.join_answers.extend(ask(
+        serde_json::json!({"Hello": {"nonce": "11".repeat(16)}}).to_string(),
+    ));
+    for _ in 0..300 {
+        let _ = s
+            .get("qfleet/join")
+            .payload(forged_join.to_string())
+            .timeout(Duration::from_millis(1))
+            .wait();
+    }
+    // (its own session answers for itself: only other peers' answers count)
+    let own = s.zid().to_string();
+    if let Ok(r) = s.get("@/**").timeout(Duration::from_secs(1)).wait() {
+        while let Ok(reply) = r.recv() {
+            if let Ok(sample) = reply.result()
+                && !sample.key_expr().as_str().contains(&own)
+            {
+                seen.admin_replies += 1;
+            }
+        }
+    }
+    // listen for three seconds, keeping the last frames of every key
+    let mut frames: std::collections::BTreeMap<String, Vec<Vec<u8>>> = Default::default();
+    let until = Instant::now() + Duration::from_secs(3);
+    while Instant::now() < until {
+        match sub.recv_timeout(Duration::from_millis(50)) {
+            Ok(Some(sample)) => {
+                seen.samples += 1;
+                let key = sample.key_expr().as_str().to_string();
+                let bytes = sample.payload().to_bytes().to_vec();
+                if key.contains(run_id) || plain(&bytes) {
+                    seen.plaintext += 1;
+                }
+                let kept = frames.entry(key).or_default();
+                if kept.len() < 50 {
+                    kept.push(bytes);
+                }
+            }
+            _ => continue,
+        }
+    }
+    // replay everything, then forge: a plain goodbye, a heartbeat acknowledging everything,
+    // garbage — on every key seen and on made-up up keys
+    let mut goodbye = vec![3u8];
+    goodbye.resize(16, 0);
+    let mut ack_all = vec![2u8];
+    ack_all.resize(16, 0);
+    ack_all.extend_from_slice(
+        br#"{"t_ns":1,"echo_ns":0,"hold_ns":0,"acked":1000000,"sent":1000000,"gone":[1,2]}"#,
+    );
+    for (key, kept) in &frames {
+        let up = key.replace("/down/", "/up/");
+        for f in kept.iter().chain([&goodbye, &ack_all, &vec![0xAA; 64]]) {
+            for k in [key.as_str(), up.as_str(), "qfleet/up/0"] {
+                if s.put(k, f.clone()).wait().is_ok() {
+                    seen.forged += 1;
+                }
+            }
+        }
+    }
+    let _ = s.close().wait();
+    // host A dropped the idle connections long ago (its accept timeout is 1 s)
+    for mut t in idle {
+        use std::io::Read;
+        let _ = t.set_read_timeout(Some(Duration::from_secs(5)));
+        if matches!(t.read(&mut [0u8; 64]), Ok(0) | Err(_)) {
+            seen.idle_closed += 1;
+        }
+    }
+    println!("STRANGER {}", serde_json::to_string(&seen).unwrap());
+}
+
+#[test]
+fn a_stranger_on_the_network_reads_nothing_forges_nothing_and_takes_no_slot() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    if std::env::var_os("QFLEET_STRANGER").is_some() {
+        return;
+    }
+    let Some(hosts) = TwoHosts::new("stranger") else {
+        return;
+    };
+    let _ = bin("qfleet");
+    let id = run_id("mh-stranger");
+    let (da, db) = scratch_pair(&id);
+    let (_s, secret) = secret_file(&id);
+    let a = start_a(
+        &hosts,
+        &id,
+        &da,
+        1,
+        2,
+        &secret,
+        &[&LONG[..], &["--json"]].concat(),
+    );
+    // the stranger first: its joins, floods and idle connections come before the real host's
+    std::thread::sleep(Duration::from_millis(1500));
+    let me = std::env::current_exe().expect("this test binary");
+    let mut stranger = hosts.command(
+        Host::B,
+        &me,
+        &[
+            "stranger_role",
+            "--exact",
+            "--nocapture",
+            "--test-threads",
+            "1",
+        ],
+    );
+    stranger.env("QFLEET_STRANGER", format!("{ENDPOINT};{id}"));
+    let stranger = stranger.spawn().expect("spawn the stranger");
+    std::thread::sleep(Duration::from_millis(1500));
+    let b = start_b(&hosts, 2, &db, &secret, &[]);
+    let out_s = wait_bounded(stranger, LIMIT);
+    let out_b = wait_bounded(b, LIMIT);
+    let out_a = wait_bounded(a, LIMIT);
+    assert!(out_a.status.success(), "host A: {}", describe(&out_a));
+    assert!(out_b.status.success(), "host B: {}", describe(&out_b));
+    // the run is whole: every robot finished, every discovery crossed
+    let r = result(&da, &out_a);
+    assert_complete(&r, 3);
+    assert_eq!(host_b(&r)["robots"], serde_json::json!([1, 2]), "{r}");
+    // what the stranger got: frames, but no plaintext; no slot; no admin space
+    let text = String::from_utf8_lossy(&out_s.stdout);
+    let line = text
+        .lines()
+        .find_map(|l| l.split_once("STRANGER ").map(|(_, json)| json))
+        .unwrap_or_else(|| panic!("the stranger printed nothing: {}", describe(&out_s)));
+    let seen: Stranger = serde_json::from_str(line).expect("the stranger's JSON");
+    eprintln!("stranger: {seen:?}");
+    assert!(
+        seen.samples > 0,
+        "the stranger saw no frame at all: {seen:?}"
+    );
+    assert_eq!(seen.plaintext, 0, "{seen:?}");
+    assert!(!seen.join_answers.is_empty(), "{seen:?}");
+    assert!(
+        seen.join_answers
+            .iter()
+            .all(|a| a.contains("Refused") || a.contains("Challenge")),
+        "{seen:?}"
+    );
+    assert_eq!(seen.admin_replies, 0, "{seen:?}");
+    assert!(seen.forged > 0, "{seen:?}");
+    assert!(seen.idle_opened > 0, "{seen:?}");
+    assert_eq!(seen.idle_closed, seen.idle_opened, "{seen:?}");
+    // host A counted the stranger's joins, host B dropped its replays and forgeries
+    let bridge: Value = serde_json::from_str(
+        &std::fs::read_to_string(da.join("bridge.json")).expect("bridge.json"),
+    )
+    .expect("bridge.json is JSON");
+    assert!(bridge["unauthenticated"].as_u64() >= Some(1), "{bridge}");
+    let joined: Value =
+        serde_json::from_str(&std::fs::read_to_string(db.join("join.json")).expect("join.json"))
+            .expect("join.json is JSON");
+    // every replayed or forged frame was dropped and counted where it arrived: by host B
+    // (replays of the hub's frames), by the hub for host B, or as foreign at the hub
+    let dropped = joined["forged"].as_u64().unwrap_or(0)
+        + host_b(&r)["forged"].as_u64().unwrap_or(0)
+        + bridge["foreign_frames"].as_u64().unwrap_or(0);
+    assert!(dropped > 0, "{joined} {bridge}");
+    // the secret stays in the run's own directory, private
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let meta = std::fs::metadata(da.join("join.secret")).expect("join.secret in --out");
+        assert_eq!(meta.permissions().mode() & 0o077, 0);
+    }
     drop(hosts);
     assert_no_leftovers(&id);
 }

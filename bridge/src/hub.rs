@@ -27,21 +27,20 @@ use std::sync::mpsc::Receiver;
 
 use bus::iceoryx2::prelude::{CallbackProgression, SignalHandlingMode, WaitSetBuilder, ipc};
 use bus::{BusConfig, BusError, RobotBus, WakeListener, Waker, monotonic_ns, wake_pair};
-use hdrhistogram::Histogram;
 use serde::Serialize;
 use zenoh::Wait;
 use zenoh::pubsub::Subscriber;
 use zenoh::query::{Query, Queryable};
 use zenoh::sample::Sample;
 
-use crate::health::{ClockSync, LinkEvent, LinkState, LinkWatch};
-use crate::join::{Admission, JOIN_KEY, JoinPlan, JoinReply, JoinRequest, RefusedLog, RemotePlan};
-use crate::link::{self, Tuning, Tx};
-use crate::reliable::{Arrival, Incoming, Outgoing, Pending};
-use crate::stats::{HostEntry, HostReport, Percentiles, new_hist, record};
+use crate::end::{Got, LinkEnd, Put};
+use crate::health::{ClockSync, LinkEvent, LinkState};
+use crate::join::{Admission, Door, JOIN_KEY, JoinPlan, JoinReply, Knock, RefusedLog, RemotePlan};
+use crate::link::{self, Tuning};
+use crate::seal::{self, Secret};
+use crate::stats::{HostEntry, HostReport};
 use crate::topics::{FromRobot, ToRobot};
-use crate::wire::{self, HEADER, Heartbeat, Kind};
-use crate::{BridgeError, HEARTBEAT_EVERY, down_key, up_key_all};
+use crate::{BridgeError, HEARTBEAT_EVERY};
 
 /// How the hub runs.
 #[derive(Debug, Clone)]
@@ -66,6 +65,10 @@ pub struct HubOptions {
     /// (what the launcher leaves for a robot that died before it registered), so the
     /// coordinator's start does not wait for it.
     pub out: Option<PathBuf>,
+    /// The run's join secret: only a host that proves it holds it is given slots.
+    pub secret: Secret,
+    /// Frames travel unsealed (`--insecure-plain`): a host still proves the secret to join.
+    pub plain: bool,
 }
 
 /// What the hub saw, for the run's result.
@@ -81,7 +84,12 @@ pub struct HubReport {
     pub refused: Vec<String>,
     /// Joins refused in all.
     pub refused_total: u64,
-    /// Frames on a joined host's key for a host index that never joined, or unparsable keys.
+    /// Join queries dropped before any slot was looked at: unreadable, or without a valid
+    /// proof of the join secret (counted, their reasons not kept).
+    pub unauthenticated: u64,
+    /// Whether frames travelled unsealed (`--insecure-plain`).
+    pub plain: bool,
+    /// Frames on a key of no joined host.
     pub foreign_frames: u64,
     /// Hosts that joined but did not start their robots within `start_within`.
     pub expired_hosts: u32,
@@ -210,33 +218,29 @@ impl GoneQueue {
 /// One joined host.
 struct Host {
     name: String,
-    ids: Vec<u32>,
-    tx: Tx,
-    out: Outgoing,
-    inc: Incoming,
-    watch: LinkWatch,
-    clock: ClockSync,
-    /// The last heartbeat's `t_ns` and when it arrived (our clock), to echo.
-    echo: (u64, u64),
-    last_beat: Instant,
-    /// Lossless frames in order, waiting to be written into this host's bus.
-    pending: Pending,
-    proxies: BTreeMap<u32, Proxy>,
+    /// The Zenoh key its frames arrive on (derived from the join's keys).
+    up_key: String,
+    publisher: zenoh::pubsub::Publisher<'static>,
+    end: LinkEnd,
+    stand: Stand,
     /// Robots the host reported gone, applied once every frame it sent before is delivered.
     gone_after: GoneQueue,
-    gone: BTreeSet<u32>,
-    /// When it joined, and which of its robots registered since: a host that does not start
-    /// its robots within `start_within` is given up.
+    /// When it joined: a host that does not start its robots within `start_within` is given up.
     joined_at: Instant,
-    registered: BTreeSet<u32>,
     expired: bool,
     last_control: Option<u64>,
     last_relay: Option<u64>,
     left: bool,
     deadline: Duration,
-    rtt: Histogram<u64>,
-    one_way: Histogram<u64>,
     report: HostReport,
+}
+
+/// A joined host's robots on this host's bus: their proxies, which registered, which are gone.
+struct Stand {
+    ids: Vec<u32>,
+    proxies: BTreeMap<u32, Proxy>,
+    registered: BTreeSet<u32>,
+    gone: BTreeSet<u32>,
 }
 
 fn waitset_error(e: impl std::fmt::Debug) -> BridgeError {
@@ -268,12 +272,12 @@ fn run(
     // thread's WaitSet, which also holds the wake listeners of the coordinator's topics
     let joins: Queryable<Receiver<Query>> = session
         .declare_queryable(JOIN_KEY)
-        .with(link::waking(64, waker.clone()))
+        .with(link::waking(64, waker.clone(), true))
         .wait()
         .map_err(zerr("declaring the join queryable"))?;
     let frames: Subscriber<Receiver<Sample>> = session
-        .declare_subscriber(up_key_all(&plan.run_id))
-        .with(link::waking(link::SUBSCRIBER_DEPTH, waker))
+        .declare_subscriber(seal::UP_KEYS)
+        .with(link::waking(link::SUBSCRIBER_DEPTH, waker, false))
         .wait()
         .map_err(zerr("subscribing to the joined hosts"))?;
     // iceoryx2's own SIGINT/SIGTERM handler would replace the process's: keep it off
@@ -285,15 +289,17 @@ fn run(
     let remote = plan.robots_total - plan.first_remote;
     let mut admission = Admission::new(plan.first_remote, plan.robots_total);
     let mut refused = RefusedLog::default();
+    let mut door = Door::new(opts.secret.clone())?;
     let started = Instant::now();
     let mut hosts: Vec<Host> = Vec::new();
     let mut report = HubReport {
         listen: opts.listen.clone(),
         remote_robots: remote,
+        plain: opts.plain,
         ..HubReport::default()
     };
     report::log_line!(
-        "qfleet: waiting for {remote} robot(s) from other hosts on {}: run `qfleet join {} --robots N` there",
+        "qfleet: waiting for {remote} robot(s) from other hosts on {}: run `qfleet join {} --robots N --secret-file join.secret` there (join.secret: this run's, copied from its out directory)",
         opts.listen,
         crate::join::join_hint(&opts.listen)
     );
@@ -305,7 +311,12 @@ fn run(
         // joins
         while let Ok(q) = joins.try_recv() {
             busy = true;
-            answer_join(session, &q, opts, &mut admission, &mut hosts, &mut refused);
+            let at = Joining {
+                session,
+                opts,
+                started,
+            };
+            at.answer(&q, &mut door, &mut admission, &mut hosts, &mut refused);
         }
         // frames from the joined hosts
         for _ in 0..4096 {
@@ -314,12 +325,7 @@ fn run(
             };
             busy = true;
             let key = sample.key_expr().as_str();
-            let host = key
-                .rsplit('/')
-                .next()
-                .and_then(|s| s.parse::<usize>().ok())
-                .and_then(|h| hosts.get_mut(h));
-            match host {
+            match hosts.iter_mut().find(|h| h.up_key == key) {
                 Some(host) => host.on_frame(&sample.payload().to_bytes(), now, &cfg),
                 None => report.foreign_frames += 1,
             }
@@ -368,7 +374,7 @@ fn run(
         let due = hosts
             .iter()
             .filter(|h| !h.lost())
-            .map(|h| h.last_beat + HEARTBEAT_EVERY)
+            .map(|h| h.end.next_beat())
             .min()
             .unwrap_or(now + HEARTBEAT_EVERY);
         let Some(timeout) = link::rest(pacing.after_pass(now, busy, data, due)) else {
@@ -376,7 +382,7 @@ fn run(
         };
         // one proxy's inboxes are enough to hear the coordinator: a notify wakes every
         // listener of a topic, and every proxy subscribes to every coordinator topic
-        let anchor = hosts.iter().find_map(|h| h.proxies.values().next());
+        let anchor = hosts.iter().find_map(|h| h.stand.proxies.values().next());
         let guards = match anchor {
             Some(p) => p
                 .bus
@@ -404,14 +410,15 @@ fn run(
         }
     }
     for host in &mut hosts {
-        host.tx.send(true, &wire::goodbye_frame());
+        host.end.goodbye(&mut host.publisher);
     }
     report.joined_robots = hosts
         .iter()
         .filter(|h| !h.expired)
-        .map(|h| h.ids.len() as u32)
+        .map(|h| h.stand.ids.len() as u32)
         .sum();
     report.refused_total = refused.total;
+    report.unauthenticated = door.unauthenticated;
     report.refused = refused.reasons;
     report.hosts = hosts.into_iter().map(Host::into_report).collect();
     Ok(report)
@@ -431,187 +438,161 @@ fn give_up(out: Option<&std::path::Path>, ids: &[u32]) {
     }
 }
 
-fn answer_join(
-    session: &zenoh::Session,
-    q: &Query,
-    opts: &HubOptions,
-    admission: &mut Admission,
-    hosts: &mut Vec<Host>,
-    refused: &mut RefusedLog,
-) {
-    let plan = &opts.plan;
-    let reply = |r: &JoinReply| {
-        let body = serde_json::to_vec(r).unwrap_or_default();
-        if let Err(e) = q.reply(JOIN_KEY, body).wait() {
-            report::log_line!("qfleet: warning: answering a join: {e}");
-        }
-    };
-    let req: JoinRequest = match q.payload().map(|p| serde_json::from_slice(&p.to_bytes())) {
-        Some(Ok(r)) => r,
-        other => {
-            let reason = match other {
-                Some(Err(e)) => format!("unreadable join request ({e}): another qfleet version?"),
-                _ => "empty join request".to_string(),
-            };
-            if refused.push(&reason) {
-                report::log_line!("qfleet: refused a join: {}", report::escape(&reason));
-            }
-            reply(&JoinReply::Refused { reason });
-            return;
-        }
-    };
-    let (index, ids) = match admission.admit(&req) {
-        Ok(x) => x,
-        Err(reason) => {
-            if refused.push(&reason) {
-                let host: String = req.host.chars().take(crate::join::MAX_HOST_NAME).collect();
-                report::log_line!(
-                    "qfleet: refused the join of host {}: {}",
-                    report::escape(&host),
-                    report::escape(&reason)
-                );
-            }
-            reply(&JoinReply::Refused { reason });
-            return;
-        }
-    };
-    let publisher = match link::publisher(session, down_key(&plan.run_id, index), opts.tuning) {
-        Ok(p) => p,
-        Err(e) => {
-            let reason = format!("the coordinator's host could not open the link: {e}");
-            admission.release(&ids);
-            refused.push(&reason);
-            reply(&JoinReply::Refused { reason });
-            return;
-        }
-    };
-    let now = Instant::now();
-    let accepted = JoinPlan {
-        run_id: plan.run_id.clone(),
-        host_index: index,
-        robots_total: plan.robots_total,
-        robot_ids: ids.clone(),
-        robot_args: ids
-            .iter()
-            .map(|&id| {
-                plan.robot_args
-                    .get(id as usize)
-                    .cloned()
-                    .unwrap_or_default()
-            })
-            .collect(),
-        files: plan.files.clone(),
-        hint_buffer: plan.hint_buffer,
-        merged_buffer: plan.merged_buffer,
-        down_after_ms: opts.down_after.as_millis() as u64,
-        deadline_ms: opts.deadline.as_millis() as u64,
-        t_ns: monotonic_ns(),
-    };
-    reply(&JoinReply::Accepted(accepted));
-    report::log_line!(
-        "qfleet: host {} joined with robots {ids:?} ({} of {} remote robots now)",
-        report::escape(&req.host),
-        plan.robots_total - plan.first_remote - admission.open_slots(),
-        plan.robots_total - plan.first_remote
-    );
-    let mut watch = LinkWatch::new(now, opts.down_after, opts.deadline);
-    watch.heard(now);
-    hosts.push(Host {
-        report: HostReport {
-            host: req.host.clone(),
-            robots: ids.clone(),
-            ..HostReport::default()
-        },
-        name: req.host,
-        ids,
-        tx: Tx::new(publisher),
-        out: Outgoing::default(),
-        inc: Incoming::default(),
-        watch,
-        clock: ClockSync::default(),
-        echo: (0, 0),
-        last_beat: now - HEARTBEAT_EVERY,
-        pending: Pending::default(),
-        proxies: BTreeMap::new(),
-        gone_after: GoneQueue::default(),
-        gone: BTreeSet::new(),
-        joined_at: now,
-        registered: BTreeSet::new(),
-        expired: false,
-        last_control: None,
-        last_relay: None,
-        left: false,
-        deadline: opts.deadline,
-        rtt: new_hist(),
-        one_way: new_hist(),
-    });
+/// What answering a join needs of the hub.
+struct Joining<'a> {
+    session: &'a zenoh::Session,
+    opts: &'a HubOptions,
+    started: Instant,
 }
 
-/// What became of a message written into the bus.
-enum Put {
-    Done,
-    /// Try again later (the coordinator's buffer is full, or it is not there yet).
-    Later,
-    Rejected,
+impl Joining<'_> {
+    /// Answers one join query: a challenge to a hello; to a join that proves the secret, a slot
+    /// decision; anything else is dropped and counted ([`Door`]) without a slot looked at.
+    fn answer(
+        &self,
+        q: &Query,
+        door: &mut Door,
+        admission: &mut Admission,
+        hosts: &mut Vec<Host>,
+        refused: &mut RefusedLog,
+    ) {
+        let reply = |r: &JoinReply| {
+            let body = serde_json::to_vec(r).unwrap_or_default();
+            if let Err(e) = q.reply(JOIN_KEY, body).wait() {
+                report::log_line!("qfleet: warning: answering a join: {e}");
+            }
+        };
+        let payload = q.payload().map(|p| p.to_bytes()).unwrap_or_default();
+        let now_ms = self.started.elapsed().as_millis() as u64;
+        let (req, keys) = match door.knock(&payload, now_ms) {
+            Knock::Answer(r) => return reply(&r),
+            Knock::Proven { request, keys } => (request, keys),
+        };
+        let opts = self.opts;
+        let plan = &opts.plan;
+        let (index, ids) = match admission.admit(&req) {
+            Ok(x) => x,
+            Err(reason) => {
+                if refused.push(&reason) {
+                    let host: String = req.host.chars().take(crate::join::MAX_HOST_NAME).collect();
+                    report::log_line!(
+                        "qfleet: refused the join of host {}: {}",
+                        report::escape(&host),
+                        report::escape(&reason)
+                    );
+                }
+                reply(&JoinReply::Refused { reason });
+                return;
+            }
+        };
+        let publisher = match link::publisher(self.session, keys.down_key(index), opts.tuning) {
+            Ok(p) => p,
+            Err(e) => {
+                let reason = format!("the coordinator's host could not open the link: {e}");
+                admission.release(&ids);
+                refused.push(&reason);
+                reply(&JoinReply::Refused { reason });
+                return;
+            }
+        };
+        let now = Instant::now();
+        let accepted = JoinPlan {
+            run_id: plan.run_id.clone(),
+            host_index: index,
+            robots_total: plan.robots_total,
+            robot_ids: ids.clone(),
+            robot_args: ids
+                .iter()
+                .map(|&id| {
+                    plan.robot_args
+                        .get(id as usize)
+                        .cloned()
+                        .unwrap_or_default()
+                })
+                .collect(),
+            files: plan.files.clone(),
+            hint_buffer: plan.hint_buffer,
+            merged_buffer: plan.merged_buffer,
+            down_after_ms: opts.down_after.as_millis() as u64,
+            deadline_ms: opts.deadline.as_millis() as u64,
+            t_ns: monotonic_ns(),
+            plain: opts.plain,
+        };
+        let body = serde_json::to_vec(&accepted).unwrap_or_default();
+        reply(&JoinReply::Accepted {
+            plan: seal::hex(&keys.seal_plan(&body)),
+        });
+        report::log_line!(
+            "qfleet: host {} joined with robots {ids:?} ({} of {} remote robots now)",
+            report::escape(&req.host),
+            plan.robots_total - plan.first_remote - admission.open_slots(),
+            plan.robots_total - plan.first_remote
+        );
+        let sealed = (!opts.plain).then(|| keys.hub_end(index));
+        hosts.push(Host {
+            report: HostReport {
+                host: req.host.clone(),
+                robots: ids.clone(),
+                ..HostReport::default()
+            },
+            name: req.host,
+            stand: Stand {
+                ids,
+                proxies: BTreeMap::new(),
+                registered: BTreeSet::new(),
+                gone: BTreeSet::new(),
+            },
+            up_key: keys.up_key(index),
+            publisher,
+            end: LinkEnd::new(
+                now,
+                opts.down_after,
+                opts.deadline,
+                ClockSync::default(),
+                sealed,
+            ),
+            gone_after: GoneQueue::default(),
+            joined_at: now,
+            expired: false,
+            last_control: None,
+            last_relay: None,
+            left: false,
+            deadline: opts.deadline,
+        });
+    }
 }
 
 impl Host {
     fn lost(&self) -> bool {
-        self.watch.state() == LinkState::Lost
+        self.end.lost()
     }
 
     fn on_frame(&mut self, frame: &[u8], now: Instant, cfg: &BusConfig) {
         if self.lost() || self.expired {
             return;
         }
-        self.report.link.frames_in += 1;
-        let h = match wire::header(frame) {
-            Ok(h) => h,
-            Err(_) => {
-                self.report.link.rejected += 1;
-                return;
-            }
-        };
-        if let Some(LinkEvent::CameBack) = self.watch.heard(now) {
+        let stand = &mut self.stand;
+        let (got, came_back) = self.end.on_frame(
+            frame,
+            now,
+            monotonic_ns(),
+            &mut self.publisher,
+            |topic, b, shift| stand.put(topic, b, shift, cfg),
+        );
+        if came_back {
             report::log_line!(
                 "qfleet: host {} is back; resending what it missed",
                 report::escape(&self.name)
             );
-            self.resend(now, true);
         }
-        match h.kind {
-            Kind::Heartbeat => {
-                let Ok(hb) = wire::read_heartbeat(&frame[HEADER..]) else {
-                    self.report.link.rejected += 1;
-                    return;
-                };
-                let t = monotonic_ns();
-                if let Some(rtt) = self.clock.sample(hb.t_ns, hb.echo_ns, hb.hold_ns, t) {
-                    record(&mut self.rtt, rtt);
-                }
-                self.echo = (hb.t_ns, t);
-                if !self.out.ack(hb.acked, now) {
-                    self.report.link.rejected += 1;
-                }
-                if !hb.gone.is_empty() {
-                    self.report.link.capped += self.gone_after.report(hb.sent, &hb.gone, &self.ids);
-                }
+        match got {
+            Got::Nothing => {}
+            Got::Gone { after, ids } => {
+                self.end.counts.capped += self.gone_after.report(after, &ids, &self.stand.ids);
             }
-            Kind::Lossless => {
-                if self.pending.is_full() {
-                    // not taken, not acknowledged: the host sends it again later
-                    self.report.link.capped += 1;
-                } else if self.inc.arrive(h.seq) == Arrival::Next {
-                    self.pending.push(frame);
-                }
-            }
-            Kind::Latest => {
-                let _ = self.put(h.topic, &frame[HEADER..], cfg);
-            }
-            Kind::Goodbye => {
+            Got::Goodbye { after } => {
                 self.left = true;
-                let after = self.inc.acked();
-                let ids = self.ids.clone();
+                let ids = self.stand.ids.clone();
                 self.gone_after.report(after, &ids, &ids);
             }
         }
@@ -619,41 +600,188 @@ impl Host {
 
     /// Writes the in-order lossless frames into the bus until one has to wait.
     fn deliver_in_order(&mut self, cfg: &BusConfig) -> bool {
-        let mut pending = std::mem::take(&mut self.pending);
-        let any = pending.deliver(|frame| match wire::header(frame) {
-            Ok(h) => !matches!(self.put(h.topic, &frame[HEADER..], cfg), Put::Later),
-            Err(_) => true,
-        });
-        self.pending = pending;
-        any
+        let stand = &mut self.stand;
+        self.end.deliver(monotonic_ns(), |topic, b, shift| {
+            stand.put(topic, b, shift, cfg)
+        })
     }
 
-    fn put(&mut self, topic: Topic, payload: &[u8], cfg: &BusConfig) -> Put {
-        match topic {
-            Topic::Register => self.put_as::<Register>(payload, cfg, 0),
-            Topic::RobotState => self.put_as::<RobotState>(payload, cfg, 1),
-            Topic::Discovery => self.put_as::<PseudoTargetDiscovery>(payload, cfg, 2),
-            Topic::Hints => self.put_as::<QHintBatch>(payload, cfg, 3),
-            Topic::Report => self.put_as::<FinalReport>(payload, cfg, 4),
-            // coordinator topics never come from a joined host
-            _ => {
-                self.report.link.rejected += 1;
-                Put::Rejected
+    /// Drops proxies of robots the host reported gone, once their last frames are delivered.
+    fn apply_gone(&mut self) {
+        for id in self.gone_after.due(self.end.delivered()) {
+            if self.stand.gone.insert(id) {
+                self.stand.proxies.remove(&id);
             }
         }
     }
 
-    fn put_as<T: FromRobot>(&mut self, payload: &[u8], cfg: &BusConfig, slot: usize) -> Put {
+    /// Gives the host up when its robots have not all registered within `within` of its join:
+    /// its proxies go, nothing more is taken from it, and its robot ids are returned for
+    /// another host (or for the run to go on without them).
+    fn expire_if_late(&mut self, now: Instant, within: Duration) -> Option<Vec<u32>> {
+        let stand = &mut self.stand;
+        let late = !self.expired
+            && !self.end.lost()
+            && stand.registered.len() < stand.ids.len()
+            && now.duration_since(self.joined_at) >= within;
+        if !late {
+            return None;
+        }
+        report::log_line!(
+            "qfleet: host {} did not start its robots {:?} within {within:?} of its join: its slots are open again",
+            report::escape(&self.name),
+            stand.ids
+        );
+        self.expired = true;
+        stand.proxies.clear();
+        stand.gone.extend(stand.ids.iter().copied());
+        self.report.robots.clear();
+        Some(stand.ids.clone())
+    }
+
+    /// Reads what the coordinator sent through the proxies and publishes it to the host
+    /// straight from the proxies' shared memory (one reused frame buffer; lossless frames are
+    /// kept in the resend window's reused buffers).
+    fn forward_down(&mut self, now: Instant) -> bool {
+        if self.stand.proxies.is_empty() || self.lost() || self.expired {
+            return false;
+        }
+        let Host {
+            stand,
+            end,
+            publisher,
+            last_control,
+            last_relay,
+            name,
+            ..
+        } = self;
+        let ids = &stand.ids;
+        let mut any = false;
+        let mut overflow = None;
+        for (i, proxy) in stand.proxies.values().enumerate() {
+            let reader = i == 0;
+            drain::<Control>(&proxy.bus, |c| {
+                let mine = c.robot_id == ROBOT_ID_ALL || ids.contains(&c.robot_id);
+                if mine && last_control.is_none_or(|s| c.seq > s) {
+                    *last_control = Some(c.seq);
+                    any = true;
+                    if let Err(e) = end.send_lossless(c, now, publisher) {
+                        overflow = Some(e);
+                    }
+                }
+            });
+            drain::<DiscoveryRelay>(&proxy.bus, |r| {
+                if last_relay.is_none_or(|s| r.relay_seq > s) {
+                    *last_relay = Some(r.relay_seq);
+                    any = true;
+                    if let Err(e) = end.send_lossless(r, now, publisher) {
+                        overflow = Some(e);
+                    }
+                }
+            });
+            drain::<MergedHintBatch>(&proxy.bus, |m| {
+                if reader {
+                    any = true;
+                    end.send_latest(m, publisher);
+                }
+            });
+            drain::<DiscoveryAck>(&proxy.bus, |a| {
+                if reader && ids.contains(&a.robot_id) {
+                    any = true;
+                    end.send_latest(a, publisher);
+                }
+            });
+        }
+        if let Some(e) = overflow {
+            report::log_line!("qfleet: warning: host {}: {e}", report::escape(name));
+        }
+        any
+    }
+
+    /// Heartbeat, resends, and the link's state.
+    fn tick(&mut self, now: Instant) {
+        if self.lost() || self.expired {
+            return;
+        }
+        match self.end.tick(now, monotonic_ns(), &[], &mut self.publisher) {
+            Some(LinkEvent::WentDown) => report::log_line!(
+                "qfleet: host {} is silent; its robots' lossless messages are kept for it",
+                report::escape(&self.name)
+            ),
+            Some(LinkEvent::Lost) => {
+                let ids: Vec<u32> = self.stand.ids.clone();
+                report::log_line!(
+                    "qfleet: host {} silent for {:?}: given up, its robots {ids:?} are reported lost",
+                    report::escape(&self.name),
+                    self.deadline
+                );
+                self.stand.proxies.clear();
+                self.stand.gone.extend(ids);
+            }
+            _ => {}
+        }
+    }
+
+    /// Notifies the coordinator of what was written into the proxies; whether anything was.
+    fn wake(&mut self) -> bool {
+        let mut any = false;
+        for p in self.stand.proxies.values_mut() {
+            let b = &p.bus;
+            let w = std::mem::take(&mut p.wake);
+            any |= w.contains(&true);
+            let r = [
+                w[0].then(|| b.register.notify()),
+                w[1].then(|| b.state.notify()),
+                w[2].then(|| b.discovery.notify()),
+                w[3].then(|| b.hints.notify()),
+                w[4].then(|| b.report.notify()),
+            ];
+            drop(r);
+        }
+        any
+    }
+
+    fn into_report(self) -> HostReport {
+        let mut r = self.report;
+        self.end.report(&mut r);
+        if self.expired {
+            r.state = Some(LinkState::Lost);
+        }
+        r
+    }
+}
+
+impl Stand {
+    /// Writes a robot's message into its proxy (opened on its first message); `shift` moves
+    /// its times onto this host's clock.
+    fn put(&mut self, topic: Topic, payload: &[u8], shift: i64, cfg: &BusConfig) -> Put {
+        match topic {
+            Topic::Register => self.put_as::<Register>(payload, shift, cfg, 0),
+            Topic::RobotState => self.put_as::<RobotState>(payload, shift, cfg, 1),
+            Topic::Discovery => self.put_as::<PseudoTargetDiscovery>(payload, shift, cfg, 2),
+            Topic::Hints => self.put_as::<QHintBatch>(payload, shift, cfg, 3),
+            Topic::Report => self.put_as::<FinalReport>(payload, shift, cfg, 4),
+            // coordinator topics never come from a joined host
+            _ => Put::Rejected,
+        }
+    }
+
+    fn put_as<T: FromRobot>(
+        &mut self,
+        payload: &[u8],
+        shift: i64,
+        cfg: &BusConfig,
+        slot: usize,
+    ) -> Put {
         let mut m = T::default();
-        if wire::read_into(payload, &mut m).is_err() || !self.ids.contains(&m.robot_id()) {
+        if crate::wire::read_into(payload, &mut m).is_err() || !self.ids.contains(&m.robot_id()) {
             // a robot of another host (or of this one) cannot be impersonated from there
-            self.report.link.rejected += 1;
             return Put::Rejected;
         }
-        m.shift(self.clock.to_local());
+        m.shift(shift);
         let id = m.robot_id();
         if self.gone.contains(&id) {
-            return Put::Rejected;
+            return Put::Skipped;
         }
         let proxy = match self.proxies.entry(id) {
             std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
@@ -673,200 +801,19 @@ impl Host {
                 }
             }
         };
-        let lossless = T::TOPIC.delivery() == bus::bus_schema::Delivery::Lossless;
         match T::outbox(&proxy.bus).send(&m) {
             Ok(_) => {
                 proxy.wake[slot] = true;
                 if T::TOPIC == Topic::Register {
                     self.registered.insert(id);
                 }
-                let t = monotonic_ns();
-                let sent = m.send_ns();
-                if sent != 0 && sent <= t {
-                    record(&mut self.one_way, t - sent);
+                Put::Done {
+                    sent_ns: m.send_ns(),
                 }
-                Put::Done
             }
-            Err(_) if lossless => Put::Later,
-            Err(_) => {
-                self.report.link.dropped += 1;
-                Put::Rejected
-            }
+            Err(_) if T::TOPIC.delivery() == bus::bus_schema::Delivery::Lossless => Put::Later,
+            Err(_) => Put::Dropped,
         }
-    }
-
-    /// Drops proxies of robots the host reported gone, once their last frames are delivered.
-    fn apply_gone(&mut self) {
-        let delivered = self.inc.acked() - self.pending.len() as u64;
-        for id in self.gone_after.due(delivered) {
-            if self.gone.insert(id) {
-                self.proxies.remove(&id);
-            }
-        }
-    }
-
-    /// Gives the host up when its robots have not all registered within `within` of its join:
-    /// its proxies go, nothing more is taken from it, and its robot ids are returned for
-    /// another host (or for the run to go on without them).
-    fn expire_if_late(&mut self, now: Instant, within: Duration) -> Option<Vec<u32>> {
-        let late = !self.expired
-            && !self.lost()
-            && self.registered.len() < self.ids.len()
-            && now.duration_since(self.joined_at) >= within;
-        if !late {
-            return None;
-        }
-        report::log_line!(
-            "qfleet: host {} did not start its robots {:?} within {within:?} of its join: its slots are open again",
-            report::escape(&self.name),
-            self.ids
-        );
-        self.expired = true;
-        self.proxies.clear();
-        self.gone.extend(self.ids.iter().copied());
-        self.report.robots.clear();
-        Some(self.ids.clone())
-    }
-
-    /// Reads what the coordinator sent through the proxies and publishes it to the host
-    /// straight from the proxies' shared memory (one reused frame buffer; lossless frames are
-    /// kept in the resend window's reused buffers).
-    fn forward_down(&mut self, now: Instant) -> bool {
-        if self.proxies.is_empty() || self.lost() || self.expired {
-            return false;
-        }
-        let up = self.watch.state() == LinkState::Up;
-        let Host {
-            ids,
-            tx,
-            out,
-            proxies,
-            last_control,
-            last_relay,
-            name,
-            ..
-        } = self;
-        let mut any = false;
-        let mut overflow = None;
-        for (i, proxy) in proxies.values().enumerate() {
-            let reader = i == 0;
-            drain::<Control>(&proxy.bus, |c| {
-                let mine = c.robot_id == ROBOT_ID_ALL || ids.contains(&c.robot_id);
-                if mine && last_control.is_none_or(|s| c.seq > s) {
-                    *last_control = Some(c.seq);
-                    any = true;
-                    if let Err(e) = tx.lossless(up, out, c, now) {
-                        overflow = Some(e);
-                    }
-                }
-            });
-            drain::<DiscoveryRelay>(&proxy.bus, |r| {
-                if last_relay.is_none_or(|s| r.relay_seq > s) {
-                    *last_relay = Some(r.relay_seq);
-                    any = true;
-                    if let Err(e) = tx.lossless(up, out, r, now) {
-                        overflow = Some(e);
-                    }
-                }
-            });
-            drain::<MergedHintBatch>(&proxy.bus, |m| {
-                if reader {
-                    any = true;
-                    tx.latest(up, m);
-                }
-            });
-            drain::<DiscoveryAck>(&proxy.bus, |a| {
-                if reader && ids.contains(&a.robot_id) {
-                    any = true;
-                    tx.latest(up, a);
-                }
-            });
-        }
-        if let Some(e) = overflow {
-            report::log_line!("qfleet: warning: host {}: {e}", report::escape(name));
-        }
-        any
-    }
-
-    fn resend(&mut self, now: Instant, force: bool) {
-        let up = self.watch.state() == LinkState::Up;
-        self.tx.resend(up, &mut self.out, now, force);
-    }
-
-    /// Heartbeat, resends, and the link's state.
-    fn tick(&mut self, now: Instant) {
-        if self.lost() || self.expired {
-            return;
-        }
-        match self.watch.tick(now) {
-            Some(LinkEvent::WentDown) => report::log_line!(
-                "qfleet: host {} is silent; its robots' lossless messages are kept for it",
-                report::escape(&self.name)
-            ),
-            Some(LinkEvent::Lost) => {
-                let ids: Vec<u32> = self.ids.clone();
-                report::log_line!(
-                    "qfleet: host {} silent for {:?}: given up, its robots {ids:?} are reported lost",
-                    report::escape(&self.name),
-                    self.deadline
-                );
-                self.proxies.clear();
-                self.gone.extend(ids);
-                return;
-            }
-            _ => {}
-        }
-        if now.duration_since(self.last_beat) >= HEARTBEAT_EVERY {
-            self.last_beat = now;
-            let hb = Heartbeat::at(
-                monotonic_ns(),
-                self.echo,
-                self.inc.acked(),
-                self.out.next_seq(),
-                Vec::new(),
-            );
-            // heartbeats go even while the link looks down: they are how it comes back
-            self.tx.send(true, &wire::heartbeat_frame(&hb));
-        }
-        self.resend(now, false);
-    }
-
-    /// Notifies the coordinator of what was written into the proxies; whether anything was.
-    fn wake(&mut self) -> bool {
-        let mut any = false;
-        for p in self.proxies.values_mut() {
-            let b = &p.bus;
-            let w = std::mem::take(&mut p.wake);
-            any |= w.contains(&true);
-            let r = [
-                w[0].then(|| b.register.notify()),
-                w[1].then(|| b.state.notify()),
-                w[2].then(|| b.discovery.notify()),
-                w[3].then(|| b.hints.notify()),
-                w[4].then(|| b.report.notify()),
-            ];
-            drop(r);
-        }
-        any
-    }
-
-    fn into_report(self) -> HostReport {
-        let mut r = self.report;
-        r.link.frames_out = self.tx.frames_out;
-        r.state = Some(if self.expired {
-            LinkState::Lost
-        } else {
-            self.watch.state()
-        });
-        r.link.reconnects = self.watch.reconnects;
-        r.link.down_ms = self.watch.down_for.as_millis() as u64;
-        r.link.clock_offset_ns = self.clock.offset_ns();
-        r.link.best_rtt_ns = self.clock.best_rtt_ns().unwrap_or(0);
-        r.link.rtt_ns = Percentiles::of(&self.rtt);
-        r.link.one_way_in_ns = Percentiles::of(&self.one_way);
-        r.link.resent = self.out.resent;
-        r.link.duplicates = self.inc.duplicates;
-        r
     }
 }
 
@@ -893,7 +840,7 @@ mod tests {
                 ..Heartbeat::default()
             };
             let f = heartbeat_frame(&hb);
-            let hb = read_heartbeat(&f[wire::HEADER..]).unwrap();
+            let hb = read_heartbeat(&f[crate::wire::HEADER..]).unwrap();
             dropped += q.report(hb.sent, &hb.gone, &own);
         }
         assert_eq!(q.waiting(), 2, "one entry per robot of the host");

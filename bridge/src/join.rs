@@ -45,16 +45,203 @@ impl JoinRequest {
     }
 }
 
+/// What a joining host sends (each a Zenoh query on [`JOIN_KEY`], JSON).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum JoinAsk {
+    /// First: a random nonce (hex); the hub answers a challenge.
+    Hello {
+        /// B's nonce, [`crate::seal::NONCE_BYTES`] as hex.
+        nonce: String,
+    },
+    /// Then: the request with the proof that B holds the run's secret.
+    Join {
+        /// The hub's challenge, as received.
+        cookie: String,
+        /// B's nonce of the hello.
+        nonce: String,
+        /// What B asks for.
+        request: JoinRequest,
+        /// [`crate::seal::proof`] over the run id, the cookie, the nonce and the request's
+        /// JSON, hex.
+        proof: String,
+    },
+}
+
 /// What the coordinator's host answers.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum JoinReply {
-    /// Come in: run these robots.
-    Accepted(JoinPlan),
+    /// Prove you hold the secret: answer this cookie (hex).
+    Challenge {
+        /// The hub's stateless challenge ([`crate::seal::Challenges`]).
+        cookie: String,
+    },
+    /// Come in: the [`JoinPlan`]'s JSON, sealed with the join's plan key, hex.
+    Accepted {
+        /// Sealed plan.
+        plan: String,
+    },
     /// Not this host: why.
     Refused {
         /// Readable reason, printed on both hosts.
         reason: String,
     },
+}
+
+/// Largest join query read: a real one is a few hundred bytes; anything larger is dropped
+/// before it is parsed.
+pub const MAX_ASK: usize = 4096;
+
+/// What the door makes of one join query.
+#[derive(Debug)]
+pub enum Knock {
+    /// Answer this (a challenge, or a refusal of an unauthenticated query).
+    Answer(JoinReply),
+    /// The asker proved it holds the secret: decide on `request` ([`Admission`]); seal the
+    /// plan and the link with `keys`.
+    Proven {
+        /// What it asks for.
+        request: JoinRequest,
+        /// The keys of this join.
+        keys: crate::seal::HostKeys,
+    },
+}
+
+/// The hub's door: answers hellos with challenges and lets through only joins that prove they
+/// hold the run's secret, each challenge once. Nothing is kept per asker; what fails is only
+/// counted. No IO.
+pub struct Door {
+    secret: crate::seal::Secret,
+    challenges: crate::seal::Challenges,
+    /// Join queries dropped because they were unreadable, too large, answered a challenge that
+    /// is not ours, expired or spent, or carried a proof that does not verify.
+    pub unauthenticated: u64,
+}
+
+impl Door {
+    /// The door of the run `secret` is for.
+    pub fn new(secret: crate::seal::Secret) -> Result<Door, crate::seal::AuthError> {
+        Ok(Door {
+            secret,
+            challenges: crate::seal::Challenges::new()?,
+            unauthenticated: 0,
+        })
+    }
+
+    /// One join query's payload, at `now_ms` on the hub's clock.
+    pub fn knock(&mut self, payload: &[u8], now_ms: u64) -> Knock {
+        use crate::seal::{self, COOKIE_BYTES, NONCE_BYTES, unhex_n};
+        let refuse = |door: &mut Door| {
+            door.unauthenticated += 1;
+            Knock::Answer(JoinReply::Refused {
+                reason: "not authenticated: the join secret does not match this run (or the \
+                         challenge expired)"
+                    .into(),
+            })
+        };
+        if payload.len() > MAX_ASK {
+            return refuse(self);
+        }
+        match serde_json::from_slice::<JoinAsk>(payload) {
+            Ok(JoinAsk::Hello { nonce }) if unhex_n::<NONCE_BYTES>(&nonce).is_some() => {
+                match self.challenges.issue(now_ms) {
+                    Ok(c) => Knock::Answer(JoinReply::Challenge {
+                        cookie: seal::hex(&c),
+                    }),
+                    Err(e) => Knock::Answer(JoinReply::Refused {
+                        reason: e.to_string(),
+                    }),
+                }
+            }
+            Ok(JoinAsk::Join {
+                cookie,
+                nonce,
+                request,
+                proof,
+            }) => {
+                let (Some(cookie), Some(nonce), Some(proof)) = (
+                    unhex_n::<COOKIE_BYTES>(&cookie),
+                    unhex_n::<NONCE_BYTES>(&nonce),
+                    seal::unhex(&proof),
+                ) else {
+                    return refuse(self);
+                };
+                let body = serde_json::to_vec(&request).unwrap_or_default();
+                let ok = self.challenges.check(&cookie, now_ms).is_ok()
+                    && seal::check_proof(&self.secret, &cookie, &nonce, &body, &proof).is_ok();
+                if !ok {
+                    return refuse(self);
+                }
+                self.challenges.spend(&cookie, now_ms);
+                Knock::Proven {
+                    request,
+                    keys: seal::HostKeys::new(&self.secret, &cookie, &nonce),
+                }
+            }
+            _ => refuse(self),
+        }
+    }
+}
+
+/// B's side of the join, without IO: makes the hello, answers the challenge, opens the plan.
+pub struct Knocker {
+    secret: crate::seal::Secret,
+    nonce: [u8; crate::seal::NONCE_BYTES],
+}
+
+impl Knocker {
+    /// A fresh nonce for a join with `secret`.
+    pub fn new(secret: crate::seal::Secret) -> Result<Knocker, crate::seal::AuthError> {
+        let mut nonce = [0; crate::seal::NONCE_BYTES];
+        crate::seal::random(&mut nonce)?;
+        Ok(Knocker { secret, nonce })
+    }
+
+    /// The first query.
+    pub fn hello(&self) -> JoinAsk {
+        JoinAsk::Hello {
+            nonce: crate::seal::hex(&self.nonce),
+        }
+    }
+
+    /// The second query, answering `cookie`; the keys it will share with the hub.
+    pub fn join(
+        &self,
+        cookie: &str,
+        request: JoinRequest,
+    ) -> Result<(JoinAsk, crate::seal::HostKeys), crate::seal::AuthError> {
+        use crate::seal::{self, COOKIE_BYTES, unhex_n};
+        let c = unhex_n::<COOKIE_BYTES>(cookie).ok_or(crate::seal::AuthError::Cookie)?;
+        let body = serde_json::to_vec(&request).unwrap_or_default();
+        let proof = seal::proof(&self.secret, &c, &self.nonce, &body);
+        Ok((
+            JoinAsk::Join {
+                cookie: cookie.to_string(),
+                nonce: seal::hex(&self.nonce),
+                request,
+                proof: seal::hex(&proof),
+            },
+            seal::HostKeys::new(&self.secret, &c, &self.nonce),
+        ))
+    }
+
+    /// Opens the sealed plan of an accepted join (which proves the hub holds the secret too)
+    /// and checks it is for the run the secret names.
+    pub fn open(&self, keys: &crate::seal::HostKeys, sealed_hex: &str) -> Result<JoinPlan, String> {
+        let sealed = crate::seal::unhex(sealed_hex).ok_or("a sealed plan that is not hex")?;
+        let bytes = keys
+            .open_plan(&sealed)
+            .map_err(|e| format!("{e}: the answer is not from a holder of this run's secret"))?;
+        let plan: JoinPlan = serde_json::from_slice(&bytes)
+            .map_err(|e| format!("unreadable plan ({e}): another qfleet version?"))?;
+        if !self.secret.names(&plan.run_id) {
+            return Err(format!(
+                "the coordinator's host runs {:?}, not the run {:?} that was asked for",
+                plan.run_id,
+                self.secret.run_id()
+            ));
+        }
+        Ok(plan)
+    }
 }
 
 /// Everything a joining host needs: no map file or learner option is needed on that host.
@@ -83,6 +270,10 @@ pub struct JoinPlan {
     pub deadline_ms: u64,
     /// The hub's monotonic clock when it answered (seeds the clock offset).
     pub t_ns: u64,
+    /// Frames travel unsealed (`--insecure-plain` on host A); host B accepts that only with
+    /// `--insecure-plain` too.
+    #[serde(default)]
+    pub plain: bool,
 }
 
 /// Most files a plan may ship (a run ships at most a map and a scenario per distinct file).
@@ -605,6 +796,7 @@ mod tests {
             down_after_ms: 500,
             deadline_ms: 10_000,
             t_ns: 1,
+            plain: false,
         }
     }
 
@@ -802,5 +994,163 @@ mod tests {
         let r = JoinReply::Refused { reason: "x".into() };
         let back: JoinReply = serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
         assert_eq!(back, r);
+    }
+
+    use crate::seal::{SECRET_BYTES, Secret};
+
+    fn secret(b: u8, run: &str) -> Secret {
+        Secret::new(run, [b; SECRET_BYTES])
+    }
+
+    fn tiny_plan() -> JoinPlan {
+        JoinPlan {
+            run_id: "run-1".into(),
+            host_index: 0,
+            robots_total: 2,
+            robot_ids: vec![1],
+            robot_args: vec![vec![]],
+            files: BTreeMap::new(),
+            hint_buffer: 1,
+            merged_buffer: 1,
+            down_after_ms: 1,
+            deadline_ms: 1,
+            t_ns: 1,
+            plain: false,
+        }
+    }
+
+    fn ask(a: &JoinAsk) -> Vec<u8> {
+        serde_json::to_vec(a).unwrap()
+    }
+
+    /// B's full exchange with `door` at `now_ms`: hello, challenge, join.
+    fn exchange(door: &mut Door, b: &Knocker, robots: u32, now_ms: u64) -> Knock {
+        let Knock::Answer(JoinReply::Challenge { cookie }) = door.knock(&ask(&b.hello()), now_ms)
+        else {
+            panic!("a hello gets a challenge");
+        };
+        let (j, _) = b.join(&cookie, req(robots)).unwrap();
+        door.knock(&ask(&j), now_ms)
+    }
+
+    #[test]
+    fn only_a_join_proving_the_secret_gets_through_the_door() {
+        let mut door = Door::new(secret(1, "run-1")).unwrap();
+        let b = Knocker::new(secret(1, "run-1")).unwrap();
+        let Knock::Proven { request, keys } = exchange(&mut door, &b, 2, 1000) else {
+            panic!("the secret's holder is let in");
+        };
+        assert_eq!(request.robots, 2);
+        assert_eq!(door.unauthenticated, 0);
+        // another secret, or the same bytes for another run: refused, counted, nothing more
+        for other in [secret(2, "run-1"), secret(1, "run-2")] {
+            let k = Knocker::new(other).unwrap();
+            assert!(matches!(
+                exchange(&mut door, &k, 2, 1000),
+                Knock::Answer(JoinReply::Refused { .. })
+            ));
+        }
+        assert_eq!(door.unauthenticated, 2);
+        // B opens the plan the hub sealed with the same join's keys
+        let plan = tiny_plan();
+        let sealed = crate::seal::hex(&keys.seal_plan(&serde_json::to_vec(&plan).unwrap()));
+        let (_, b_keys) = b.join(&crate::seal::hex(&[0; 32]), req(2)).unwrap();
+        assert!(b.open(&b_keys, &sealed).is_err(), "another join's keys");
+    }
+
+    #[test]
+    fn b_refuses_a_plan_for_another_run_even_from_a_holder_of_the_secret() {
+        let mut door = Door::new(secret(1, "run-1")).unwrap();
+        let b = Knocker::new(secret(1, "run-1")).unwrap();
+        let Knock::Answer(JoinReply::Challenge { cookie }) = door.knock(&ask(&b.hello()), 1) else {
+            panic!()
+        };
+        let (j, b_keys) = b.join(&cookie, req(1)).unwrap();
+        let Knock::Proven { keys, .. } = door.knock(&ask(&j), 1) else {
+            panic!()
+        };
+        let mut plan = tiny_plan();
+        let seal =
+            |p: &JoinPlan| crate::seal::hex(&keys.seal_plan(&serde_json::to_vec(p).unwrap()));
+        assert_eq!(b.open(&b_keys, &seal(&plan)).unwrap(), plan);
+        plan.run_id = "run-9".into();
+        let e = b.open(&b_keys, &seal(&plan)).unwrap_err();
+        assert!(e.contains("not the run \"run-1\""), "{e}");
+        // a plan sealed by someone without the secret does not open
+        let stranger = crate::seal::HostKeys::new(&secret(7, "run-1"), &[0; 32], &[0; 16]);
+        let forged = crate::seal::hex(&stranger.seal_plan(b"{}"));
+        assert!(b.open(&b_keys, &forged).is_err());
+    }
+
+    #[test]
+    fn a_replayed_forged_or_flooding_join_takes_no_slot() {
+        let mut door = Door::new(secret(1, "run-1")).unwrap();
+        let mut admission = Admission::new(0, 4);
+        let b = Knocker::new(secret(1, "run-1")).unwrap();
+        let Knock::Answer(JoinReply::Challenge { cookie }) = door.knock(&ask(&b.hello()), 1) else {
+            panic!()
+        };
+        let (j, _) = b.join(&cookie, req(1)).unwrap();
+        let mut admitted = 0;
+        let mut try_admit = |k: Knock, admission: &mut Admission| {
+            if let Knock::Proven { request, .. } = k {
+                admission.admit(&request).unwrap();
+                admitted += 1;
+            }
+        };
+        try_admit(door.knock(&ask(&j), 2), &mut admission);
+        // the same join replayed by whoever saw it on the wire
+        try_admit(door.knock(&ask(&j), 3), &mut admission);
+        // a stranger's joins: made-up cookies and proofs, a cookie of ours with a made-up
+        // proof, a request for every slot with a proof of a smaller one, garbage, a huge query
+        let JoinAsk::Join {
+            cookie: c2, nonce, ..
+        } = b.join(&cookie, req(1)).unwrap().0
+        else {
+            panic!()
+        };
+        let mut flood = vec![
+            ask(&JoinAsk::Join {
+                cookie: crate::seal::hex(&[1; 32]),
+                nonce: nonce.clone(),
+                request: req(4),
+                proof: crate::seal::hex(&[0; 32]),
+            }),
+            ask(&JoinAsk::Join {
+                cookie: c2,
+                nonce,
+                request: req(4),
+                proof: crate::seal::hex(&[0; 32]),
+            }),
+            b"not json".to_vec(),
+            vec![b' '; MAX_ASK + 1],
+        ];
+        if let JoinAsk::Join {
+            cookie,
+            nonce,
+            proof,
+            ..
+        } = b.join(&cookie, req(1)).unwrap().0
+        {
+            flood.push(ask(&JoinAsk::Join {
+                cookie,
+                nonce,
+                request: req(4),
+                proof,
+            }));
+        }
+        for _ in 0..1000 {
+            for f in &flood {
+                try_admit(door.knock(f, 4), &mut admission);
+            }
+        }
+        assert_eq!(admitted, 1);
+        assert_eq!(admission.open_slots(), 3);
+        assert_eq!(door.unauthenticated, 1 + 5000);
+        // a hello flood answers challenges and keeps nothing
+        for _ in 0..10_000 {
+            door.knock(&ask(&b.hello()), 5);
+        }
+        assert_eq!(door.challenges.spent(), 1);
     }
 }

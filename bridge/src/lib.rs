@@ -14,28 +14,36 @@
 //! reconnect) or is lost past a deadline ([`health`]), and estimate the two clocks' offset so
 //! every time stamp is moved onto the receiving host's clock ([`wire`]).
 //!
+//! Every host proves it holds the run's join secret before it gets a slot, and every frame after
+//! the join is sealed with keys of that host and direction ([`seal`]); the frame handling,
+//! ordering and figures both sides share are one [`end::LinkEnd`].
+//!
 //! Not here: a transport (Zenoh is the transport), process spawning (the `qfleet` CLI), the
 //! coordinator's or the robots' logic.
 
 #![deny(missing_docs)]
 
+pub mod end;
 pub mod health;
 pub mod hub;
 pub mod join;
 pub mod link;
 pub mod reliable;
 pub mod remote;
+pub mod seal;
 pub mod stats;
 pub mod topics;
 pub mod wire;
 
 use std::time::Duration;
 
+pub use end::{Got, LinkEnd, Sink};
 pub use health::{ClockSync, LinkState, LinkWatch};
 pub use hub::{Hub, HubOptions, HubReport};
 pub use join::{JoinPlan, JoinReply, JoinRequest, PlanError, RemotePlan};
 pub use link::{RUNTIME_THREADS, SPIN_AFTER, Tuning, prefer_runtime_threads};
-pub use remote::{Ending, Joiner, request};
+pub use remote::{Ending, Joined, Joiner, request};
+pub use seal::Secret;
 pub use stats::{HostEntry, HostLink, HostReport, HostState, Percentiles};
 
 /// How often each side sends a heartbeat (acks, clock echo, robots gone).
@@ -54,21 +62,6 @@ pub const DEFAULT_START_WITHIN: Duration = Duration::from_secs(10);
 /// Default time after the hub's start during which hosts may join (before the coordinator's
 /// 30 s registration timeout, so a run whose remote slots stay empty still completes).
 pub const DEFAULT_JOIN_WITHIN: Duration = Duration::from_secs(15);
-
-/// Zenoh key the hub publishes to joined host `host` on.
-pub fn down_key(run_id: &str, host: u32) -> String {
-    format!("qfleet/{run_id}/bridge/down/{host}")
-}
-
-/// Zenoh key joined host `host` publishes to the hub on.
-pub fn up_key(run_id: &str, host: u32) -> String {
-    format!("qfleet/{run_id}/bridge/up/{host}")
-}
-
-/// The hub's subscription: every joined host's key.
-pub fn up_key_all(run_id: &str) -> String {
-    format!("qfleet/{run_id}/bridge/up/*")
-}
 
 /// What can go wrong in a bridge.
 #[derive(Debug, thiserror::Error)]
@@ -98,6 +91,9 @@ pub enum BridgeError {
     /// The join exchange failed.
     #[error("join failed: {0}")]
     Join(String),
+    /// The join secret, the challenge or a sealed answer.
+    #[error(transparent)]
+    Auth(#[from] seal::AuthError),
     /// The link itself failed.
     #[error("link: {0}")]
     Link(String),

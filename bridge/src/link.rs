@@ -13,8 +13,6 @@ use zenoh::Wait;
 use zenoh::qos::{CongestionControl, Priority};
 
 use crate::BridgeError;
-use crate::reliable::{Outgoing, Overflow};
-use crate::wire;
 
 /// Zenoh settings that move the link's latency (measured by `qfleet bench`, BENCHMARKS.md
 /// "Across machines").
@@ -75,6 +73,17 @@ fn base_config(tuning: Tuning) -> Result<zenoh::Config, BridgeError> {
     set("scouting/multicast/enabled", "false")?;
     set("scouting/gossip/enabled", "false")?;
     set("timestamping/enabled", "false")?;
+    // nobody but the run's hosts has anything to ask this session (issue 27: the admin space
+    // told a stranger who the peers are)
+    set("adminspace/enabled", "false")?;
+    set("adminspace/permissions/read", "false")?;
+    // a connection that has not finished Zenoh's handshake within a second is dropped, and
+    // enough may wait that a burst of half-open ones does not shut the real host out;
+    // sessions are capped (a run has at most a few hundred hosts)
+    set("transport/unicast/accept_timeout", "1000")?;
+    set("transport/unicast/accept_pending", "1024")?;
+    set("transport/unicast/max_sessions", "512")?;
+    set("transport/unicast/max_links", "1")?;
     if tuning.lowlatency {
         set("transport/unicast/lowlatency", "true")?;
         set("transport/unicast/qos/enabled", "false")?;
@@ -159,15 +168,24 @@ pub fn publisher(
 pub const SUBSCRIBER_DEPTH: usize = 1 << 14;
 
 /// A Zenoh handler (`.with(…)` of a subscriber or queryable): Zenoh's callback pushes each item
-/// into a channel of `depth` (waiting while it is full, as Zenoh's FIFO handler does), then
-/// wakes the bridge loop's `WaitSet` through `waker`; the loop reads the returned receiver.
+/// into a channel of `depth`, then wakes the bridge loop's `WaitSet` through `waker`; the loop
+/// reads the returned receiver. While the channel is full the callback waits (as Zenoh's FIFO
+/// handler does), or, when `lossy`, drops the item: join queries are lossy, so a flood of them
+/// never holds up Zenoh's receiving thread and the joined hosts' frames keep moving (a real
+/// host asks again).
 pub fn waking<T: Send + 'static>(
     depth: usize,
     waker: bus::Waker,
+    lossy: bool,
 ) -> (impl Fn(T) + Send + Sync + 'static, Receiver<T>) {
     let (tx, rx) = sync_channel(depth);
     let push = move |t: T| {
-        if tx.send(t).is_ok() {
+        let pushed = if lossy {
+            tx.try_send(t).is_ok()
+        } else {
+            tx.send(t).is_ok()
+        };
+        if pushed {
             waker.wake();
         }
     };
@@ -180,62 +198,9 @@ pub fn put(publisher: &zenoh::pubsub::Publisher<'static>, frame: &[u8]) -> bool 
     publisher.put(frame.to_vec()).wait().is_ok()
 }
 
-/// One side's sending end of a link: the publisher, a frame buffer reused for every message,
-/// and the count of frames that went out.
-pub struct Tx {
-    publisher: zenoh::pubsub::Publisher<'static>,
-    scratch: Vec<u8>,
-    /// Frames published.
-    pub frames_out: u64,
-}
-
-impl Tx {
-    /// Sends on `publisher`.
-    pub fn new(publisher: zenoh::pubsub::Publisher<'static>) -> Self {
-        Tx {
-            publisher,
-            scratch: Vec::new(),
-            frames_out: 0,
-        }
-    }
-
-    /// Publishes `frame` if the link is `up` (heartbeats go regardless: pass `true`).
-    pub fn send(&mut self, up: bool, frame: &[u8]) {
-        if up && put(&self.publisher, frame) {
-            self.frames_out += 1;
-        }
-    }
-
-    /// Publishes a latest-wins message (sent once, may drop).
-    pub fn latest<T: bus::Message>(&mut self, up: bool, m: &T) {
-        wire::write_data_frame(&mut self.scratch, m, 0);
-        if up && put(&self.publisher, &self.scratch) {
-            self.frames_out += 1;
-        }
-    }
-
-    /// Numbers a lossless message in `out` (kept there until acknowledged) and publishes it.
-    pub fn lossless<T: bus::Message>(
-        &mut self,
-        up: bool,
-        out: &mut Outgoing,
-        m: &T,
-        now: Instant,
-    ) -> Result<(), Overflow> {
-        let f = out.push_with(now, |seq, buf| wire::write_data_frame(buf, m, seq))?;
-        if up && put(&self.publisher, f) {
-            self.frames_out += 1;
-        }
-        Ok(())
-    }
-
-    /// Publishes again what `out` says is due (see [`Outgoing::due`]).
-    pub fn resend(&mut self, up: bool, out: &mut Outgoing, now: Instant, force: bool) {
-        for f in out.due(now, force) {
-            if up && put(&self.publisher, f) {
-                self.frames_out += 1;
-            }
-        }
+impl crate::end::Sink for zenoh::pubsub::Publisher<'static> {
+    fn put(&mut self, frame: &[u8]) -> bool {
+        put(self, frame)
     }
 }
 

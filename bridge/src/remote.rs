@@ -22,67 +22,119 @@ use bus::iceoryx2::prelude::{CallbackProgression, SignalHandlingMode, WaitSetBui
 use bus::{
     BusConfig, BusError, CoordinatorBus, Lister, Listing, WakeListener, monotonic_ns, wake_pair,
 };
-use hdrhistogram::Histogram;
 use zenoh::Wait;
 use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
 
-use crate::health::{ClockSync, LinkEvent, LinkState, LinkWatch};
-use crate::join::{JOIN_KEY, JoinPlan, JoinReply, JoinRequest};
-use crate::link::{self, Tuning, Tx};
-use crate::reliable::{Arrival, Incoming, Outgoing, Pending};
-use crate::stats::{HostReport, Percentiles, new_hist, record};
+use crate::end::{Got, LinkEnd, Put};
+use crate::health::{ClockSync, LinkEvent};
+use crate::join::{JOIN_KEY, JoinAsk, JoinPlan, JoinReply, JoinRequest, Knocker};
+use crate::link::{self, Tuning};
+use crate::seal::{HostKeys, Secret};
+use crate::stats::HostReport;
 use crate::topics::{FromRobot, ToRobot};
-use crate::wire::{self, HEADER, Heartbeat, Kind};
-use crate::{BridgeError, HEARTBEAT_EVERY, down_key, up_key};
+use crate::{BridgeError, HEARTBEAT_EVERY};
 
 /// How often the joining side looks at this host's robot processes (a full listing at most
 /// every [`bus::lister::FULL_EVERY`]).
 const LIST_EVERY: Duration = Duration::from_millis(200);
 
-/// Asks `endpoint` to let `req.robots` robots join; the session stays open for [`Joiner`].
+/// What an accepted join leaves for [`Joiner::new`].
+pub struct Joined {
+    /// The session to the coordinator's host.
+    pub session: zenoh::Session,
+    /// The plan, opened and checked to be for the run the secret names.
+    pub plan: JoinPlan,
+    /// The clock offset seeded by the exchange.
+    pub clock: ClockSync,
+    /// The keys of this join (the link's seal and Zenoh keys).
+    pub keys: HostKeys,
+}
+
+impl std::fmt::Debug for Joined {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Joined").field("plan", &self.plan).finish()
+    }
+}
+
+/// One query on the join key: the answer, or None when nobody answered (yet).
+fn ask(
+    session: &zenoh::Session,
+    endpoint: &str,
+    ask: &JoinAsk,
+) -> Result<Option<JoinReply>, BridgeError> {
+    let body = serde_json::to_vec(ask).map_err(|e| BridgeError::Join(e.to_string()))?;
+    let replies = session
+        .get(JOIN_KEY)
+        .payload(body)
+        .timeout(Duration::from_secs(1))
+        .wait()
+        .map_err(|e| BridgeError::Zenoh {
+            what: format!("asking {endpoint} to join"),
+            detail: crate::zenoh_text(&e),
+        })?;
+    let Ok(reply) = replies.recv() else {
+        return Ok(None);
+    };
+    let sample = reply
+        .into_result()
+        .map_err(|e| BridgeError::Join(format!("{endpoint} answered with an error: {e:?}")))?;
+    serde_json::from_slice(&sample.payload().to_bytes())
+        .map(Some)
+        .map_err(|e| {
+            BridgeError::Join(format!(
+                "unreadable answer from {endpoint} ({e}): another qfleet version?"
+            ))
+        })
+}
+
+/// Asks `endpoint` to let `req.robots` robots join the run `secret` is for: proves the secret
+/// (challenge–response; it never crosses the wire), opens the sealed plan (which proves the
+/// other host holds it too) and refuses a plan of another run. The session stays open for
+/// [`Joiner`].
 pub fn request(
     endpoint: &str,
     req: &JoinRequest,
+    secret: &Secret,
     timeout: Duration,
     tuning: Tuning,
-) -> Result<(zenoh::Session, JoinPlan, ClockSync), BridgeError> {
+) -> Result<Joined, BridgeError> {
     let session = link::connect(endpoint, timeout, tuning)?;
     let deadline = Instant::now() + timeout;
+    let knocker = Knocker::new(secret.clone())?;
     loop {
-        let mut req = req.clone();
-        req.t_ns = monotonic_ns();
-        let body = serde_json::to_vec(&req).map_err(|e| BridgeError::Join(e.to_string()))?;
-        let replies = session
-            .get(JOIN_KEY)
-            .payload(body)
-            .timeout(Duration::from_secs(1))
-            .wait()
-            .map_err(|e| BridgeError::Zenoh {
-                what: format!("asking {endpoint} to join"),
-                detail: crate::zenoh_text(&e),
-            })?;
-        if let Ok(reply) = replies.recv() {
-            let got = monotonic_ns();
-            let sample = reply.into_result().map_err(|e| {
-                BridgeError::Join(format!("{endpoint} answered with an error: {e:?}"))
-            })?;
-            let answer: JoinReply =
-                serde_json::from_slice(&sample.payload().to_bytes()).map_err(|e| {
-                    BridgeError::Join(format!(
-                        "unreadable answer from {endpoint} ({e}): another qfleet version?"
-                    ))
-                })?;
-            return match answer {
-                JoinReply::Accepted(plan) => {
+        let cookie = match ask(&session, endpoint, &knocker.hello())? {
+            Some(JoinReply::Challenge { cookie }) => Some(cookie),
+            Some(JoinReply::Refused { reason }) => return Err(BridgeError::Refused(reason)),
+            Some(JoinReply::Accepted { .. }) => {
+                return Err(BridgeError::Join(format!(
+                    "{endpoint} accepted a hello: not a qfleet run of this version"
+                )));
+            }
+            // connected but the hub's queryable is not known here yet (or no run listens there)
+            None => None,
+        };
+        if let Some(cookie) = cookie {
+            let mut req = req.clone();
+            req.t_ns = monotonic_ns();
+            let (join, keys) = knocker.join(&cookie, req.clone())?;
+            match ask(&session, endpoint, &join)? {
+                Some(JoinReply::Accepted { plan }) => {
+                    let got = monotonic_ns();
+                    let plan = knocker.open(&keys, &plan).map_err(BridgeError::Refused)?;
                     let mut clock = ClockSync::default();
                     clock.seed(req.t_ns, plan.t_ns, got);
-                    Ok((session, plan, clock))
+                    return Ok(Joined {
+                        session,
+                        plan,
+                        clock,
+                        keys,
+                    });
                 }
-                JoinReply::Refused { reason } => Err(BridgeError::Refused(reason)),
-            };
+                Some(JoinReply::Refused { reason }) => return Err(BridgeError::Refused(reason)),
+                Some(JoinReply::Challenge { .. }) | None => {}
+            }
         }
-        // connected but the hub's queryable is not known here yet (or no run listens there)
         if Instant::now() >= deadline {
             return Err(BridgeError::Join(format!(
                 "no qfleet run answered on {endpoint} within {timeout:?}"
@@ -96,26 +148,23 @@ pub fn request(
 pub struct Joiner {
     session: zenoh::Session,
     plan: JoinPlan,
-    bus: CoordinatorBus,
-    tx: Tx,
+    local: Local,
+    publisher: zenoh::pubsub::Publisher<'static>,
+    end: LinkEnd,
     frames: Subscriber<Receiver<Sample>>,
     /// Rung by the subscriber's callback after each frame (taken by [`Joiner::serve`]).
     wakes: Option<WakeListener>,
-    out: Outgoing,
-    inc: Incoming,
-    watch: LinkWatch,
-    clock: ClockSync,
-    echo: (u64, u64),
-    /// Lossless frames in order, waiting to be written into this host's bus.
-    pending: Pending,
     seen: BTreeSet<u32>,
     gone: BTreeSet<u32>,
-    rtt: Histogram<u64>,
-    one_way: Histogram<u64>,
-    wake: [bool; 4],
     report: HostReport,
     /// How long the loop keeps looking after a message moved ([`Tuning::spin`]).
     spin: Duration,
+}
+
+/// This host's bus as the robots' coordinator, and which of its topics need a wakeup.
+struct Local {
+    bus: CoordinatorBus,
+    wake: [bool; 4],
 }
 
 /// How [`Joiner::serve`] ended.
@@ -133,36 +182,36 @@ pub enum Ending {
 
 impl Joiner {
     /// Creates this host's services for the plan (before any robot starts).
-    pub fn new(
-        session: zenoh::Session,
-        plan: JoinPlan,
-        clock: ClockSync,
-        host: &str,
-        tuning: Tuning,
-    ) -> Result<Self, BridgeError> {
+    pub fn new(joined: Joined, host: &str, tuning: Tuning) -> Result<Self, BridgeError> {
+        let Joined {
+            session,
+            plan,
+            clock,
+            keys,
+        } = joined;
         let mut cfg = BusConfig::new(plan.run_id.clone(), plan.robots_total)?;
         cfg.hint_buffer = plan.hint_buffer;
         cfg.merged_buffer = plan.merged_buffer;
         cfg.send_timeout = Duration::from_secs(1);
         cfg.validate()?;
         let bus = CoordinatorBus::create(&cfg)?;
-        let publisher = link::publisher(&session, up_key(&plan.run_id, plan.host_index), tuning)?;
+        let publisher = link::publisher(&session, keys.up_key(plan.host_index), tuning)?;
         let (waker, wakes) = wake_pair()?;
         let frames = session
-            .declare_subscriber(down_key(&plan.run_id, plan.host_index))
-            .with(link::waking(link::SUBSCRIBER_DEPTH, waker))
+            .declare_subscriber(keys.down_key(plan.host_index))
+            .with(link::waking(link::SUBSCRIBER_DEPTH, waker, false))
             .wait()
             .map_err(|e| BridgeError::Zenoh {
                 what: "subscribing to the coordinator's host".into(),
                 detail: crate::zenoh_text(&e),
             })?;
-        let now = Instant::now();
-        let mut watch = LinkWatch::new(
-            now,
+        let end = LinkEnd::new(
+            Instant::now(),
             Duration::from_millis(plan.down_after_ms),
             Duration::from_millis(plan.deadline_ms),
+            clock,
+            (!plan.plain).then(|| keys.host_end(plan.host_index)),
         );
-        watch.heard(now);
         let report = HostReport {
             host: host.to_string(),
             robots: plan.robot_ids.clone(),
@@ -171,21 +220,16 @@ impl Joiner {
         Ok(Joiner {
             session,
             plan,
-            bus,
-            tx: Tx::new(publisher),
+            local: Local {
+                bus,
+                wake: [false; 4],
+            },
+            publisher,
+            end,
             frames,
             wakes: Some(wakes),
-            out: Outgoing::default(),
-            inc: Incoming::default(),
-            watch,
-            clock,
-            echo: (0, 0),
-            pending: Pending::default(),
             seen: BTreeSet::new(),
             gone: BTreeSet::new(),
-            rtt: new_hist(),
-            one_way: new_hist(),
-            wake: [false; 4],
             report,
             spin: tuning.spin,
         })
@@ -221,9 +265,13 @@ impl Joiner {
         let wake_guard = wakes.attach(&waitset)?;
         // the robots' liveness, looked at on a thread of its own: a full listing costs
         // hundreds of µs, which this loop would hold a frame up for
-        let lister = Lister::start(self.bus.config(), LIST_EVERY, true, "qfleet-join-live")
-            .map_err(|e| BridgeError::Thread(format!("starting the liveness thread: {e}")))?;
-        let mut last_beat = Instant::now() - HEARTBEAT_EVERY;
+        let lister = Lister::start(
+            self.local.bus.config(),
+            LIST_EVERY,
+            true,
+            "qfleet-join-live",
+        )
+        .map_err(|e| BridgeError::Thread(format!("starting the liveness thread: {e}")))?;
         let mut last_list = Instant::now();
         let mut pacing = link::Pacing::new(Instant::now(), self.spin);
         let mut done_at: Option<Instant> = None;
@@ -252,7 +300,15 @@ impl Joiner {
                     self.robots_listed(listing)?;
                 }
             }
-            match self.watch.tick(now) {
+            let gone: Vec<u32> = if now >= self.end.next_beat() {
+                self.gone.iter().copied().collect()
+            } else {
+                Vec::new()
+            };
+            match self
+                .end
+                .tick(now, monotonic_ns(), &gone, &mut self.publisher)
+            {
                 Some(LinkEvent::WentDown) => report::log_line!(
                     "qfleet join: the coordinator's host is silent; robots keep learning, their \
                      lossless messages are kept"
@@ -260,12 +316,6 @@ impl Joiner {
                 Some(LinkEvent::Lost) => break Ending::Lost,
                 _ => {}
             }
-            if now.duration_since(last_beat) >= HEARTBEAT_EVERY {
-                last_beat = now;
-                self.heartbeat();
-            }
-            let up = self.watch.state() == LinkState::Up;
-            self.tx.resend(up, &mut self.out, now, false);
             if over {
                 break Ending::RunOver;
             }
@@ -275,30 +325,30 @@ impl Joiner {
             if robots_done() {
                 // the last reports must be acknowledged; a robot's "gone" must reach the hub
                 let t = *done_at.get_or_insert(now);
-                if self.out.unacked() == 0 && now.duration_since(t) >= HEARTBEAT_EVERY * 3 {
+                if self.end.unacked() == 0 && now.duration_since(t) >= HEARTBEAT_EVERY * 3 {
                     break Ending::Done;
                 }
             }
             // idle: keep looking a little, then block on the WaitSet until a frame, a robot's
             // notified message, or the next heartbeat / robot listing
-            let due = (last_beat + HEARTBEAT_EVERY).min(last_list + LIST_EVERY);
+            let due = self.end.next_beat().min(last_list + LIST_EVERY);
             let Some(timeout) = link::rest(pacing.after_pass(now, busy, data, due)) else {
                 continue;
             };
             {
-                let _guards = self.bus.attach_all(&waitset)?;
+                let _guards = self.local.bus.attach_all(&waitset)?;
                 waitset
                     .wait_and_process_once_with_timeout(|_| CallbackProgression::Continue, timeout)
                     .map_err(|e| waitset_error(&e))?;
             }
             // before the channel is drained: whatever is pushed after this wakes the next wait
             wakes.clear();
-            self.bus.clear_wakeups()?;
+            self.local.bus.clear_wakeups()?;
         };
         drop(wake_guard);
         self.wakes = Some(wakes);
         if ending != Ending::Lost {
-            self.tx.send(true, &wire::goodbye_frame());
+            self.end.goodbye(&mut self.publisher);
         }
         Ok(ending)
     }
@@ -306,123 +356,42 @@ impl Joiner {
     /// The figures of the link, and closes it.
     pub fn finish(self) -> HostReport {
         let mut r = self.report;
-        r.state = Some(self.watch.state());
-        r.link.reconnects = self.watch.reconnects;
-        r.link.down_ms = self.watch.down_for.as_millis() as u64;
-        r.link.clock_offset_ns = self.clock.offset_ns();
-        r.link.best_rtt_ns = self.clock.best_rtt_ns().unwrap_or(0);
-        r.link.rtt_ns = Percentiles::of(&self.rtt);
-        r.link.one_way_in_ns = Percentiles::of(&self.one_way);
-        r.link.resent = self.out.resent;
-        r.link.duplicates = self.inc.duplicates;
-        r.link.frames_out = self.tx.frames_out;
+        self.end.report(&mut r);
         drop(self.frames);
-        drop(self.tx);
-        let _ = self.bus.close();
+        drop(self.publisher);
+        let _ = self.local.bus.close();
         let _ = self.session.close().wait();
         r
     }
 
     /// Handles one frame; true when the hub said goodbye.
     fn on_frame(&mut self, frame: &[u8], now: Instant) -> bool {
-        self.report.link.frames_in += 1;
-        let Ok(h) = wire::header(frame) else {
-            self.report.link.rejected += 1;
-            return false;
-        };
-        if let Some(LinkEvent::CameBack) = self.watch.heard(now) {
-            report::log_line!(
-                "qfleet join: the coordinator's host is back; resending what it missed"
-            );
-            let up = self.watch.state() == LinkState::Up;
-            self.tx.resend(up, &mut self.out, now, true);
+        let local = &mut self.local;
+        let put = |t, b: &[u8], shift| local.put(t, b, shift);
+        match self
+            .end
+            .on_frame(frame, now, monotonic_ns(), &mut self.publisher, put)
+        {
+            (Got::Goodbye { .. }, _) => true,
+            (_, true) => {
+                report::log_line!(
+                    "qfleet join: the coordinator's host is back; resending what it missed"
+                );
+                false
+            }
+            _ => false,
         }
-        match h.kind {
-            Kind::Heartbeat => {
-                let Ok(hb) = wire::read_heartbeat(&frame[HEADER..]) else {
-                    self.report.link.rejected += 1;
-                    return false;
-                };
-                let t = monotonic_ns();
-                if let Some(rtt) = self.clock.sample(hb.t_ns, hb.echo_ns, hb.hold_ns, t) {
-                    record(&mut self.rtt, rtt);
-                }
-                self.echo = (hb.t_ns, t);
-                if !self.out.ack(hb.acked, now) {
-                    self.report.link.rejected += 1;
-                }
-            }
-            Kind::Lossless => {
-                if self.pending.is_full() {
-                    // not taken, not acknowledged: the hub sends it again later
-                    self.report.link.capped += 1;
-                } else if self.inc.arrive(h.seq) == Arrival::Next {
-                    self.pending.push(frame);
-                }
-            }
-            Kind::Latest => {
-                let _ = self.put(h.topic, &frame[HEADER..]);
-            }
-            Kind::Goodbye => return true,
-        }
-        false
     }
 
     fn deliver_in_order(&mut self) -> bool {
-        let mut pending = std::mem::take(&mut self.pending);
-        let any = pending.deliver(|frame| match wire::header(frame) {
-            Ok(h) => self.put(h.topic, &frame[HEADER..]) != Some(false),
-            Err(_) => true,
-        });
-        self.pending = pending;
-        any
-    }
-
-    /// Writes a coordinator message into this host's bus: Some(true) sent, Some(false) try
-    /// again later, None dropped.
-    fn put(&mut self, topic: Topic, payload: &[u8]) -> Option<bool> {
-        match topic {
-            Topic::Control => self.put_as::<Control>(payload, 0),
-            Topic::Merged => self.put_as::<MergedHintBatch>(payload, 1),
-            Topic::Ack => self.put_as::<DiscoveryAck>(payload, 2),
-            Topic::Relay => self.put_as::<DiscoveryRelay>(payload, 3),
-            _ => {
-                self.report.link.rejected += 1;
-                None
-            }
-        }
-    }
-
-    fn put_as<T: ToRobot>(&mut self, payload: &[u8], slot: usize) -> Option<bool> {
-        let mut m = T::default();
-        if wire::read_into(payload, &mut m).is_err() {
-            self.report.link.rejected += 1;
-            return None;
-        }
-        m.shift(self.clock.to_local());
-        match T::outbox(&self.bus).send(&m) {
-            Ok(_) => {
-                self.wake[slot] = true;
-                let t = monotonic_ns();
-                let sent = m.send_ns();
-                if sent != 0 && sent <= t {
-                    record(&mut self.one_way, t - sent);
-                }
-                Some(true)
-            }
-            // nobody here to tell (the robots left): as the coordinator does, not an error
-            Err(BusError::NoSubscriber { .. }) => None,
-            Err(_) if T::TOPIC.delivery() == bus::bus_schema::Delivery::Lossless => Some(false),
-            Err(_) => {
-                self.report.link.dropped += 1;
-                None
-            }
-        }
+        let local = &mut self.local;
+        self.end
+            .deliver(monotonic_ns(), |t, b, shift| local.put(t, b, shift))
     }
 
     fn wake_robots(&mut self) {
-        let w = std::mem::take(&mut self.wake);
-        let b = &self.bus;
+        let w = std::mem::take(&mut self.local.wake);
+        let b = &self.local.bus;
         let r = [
             w[0].then(|| b.control.notify()),
             w[1].then(|| b.merged.notify()),
@@ -436,12 +405,16 @@ impl Joiner {
     /// (one reused frame buffer; lossless frames are kept in the resend window's reused
     /// buffers).
     fn forward_up(&mut self, now: Instant) -> Result<bool, BridgeError> {
-        let up_now = self.watch.state() == LinkState::Up;
-        let Joiner { bus, tx, out, .. } = self;
+        let Joiner {
+            local,
+            end,
+            publisher,
+            ..
+        } = self;
+        let bus = &local.bus;
         let mut sent = Sent {
-            tx,
-            out,
-            up: up_now,
+            end,
+            publisher,
             now,
             any: false,
             overflow: None,
@@ -463,17 +436,6 @@ impl Joiner {
         }
     }
 
-    fn heartbeat(&mut self) {
-        let hb = Heartbeat::at(
-            monotonic_ns(),
-            self.echo,
-            self.inc.acked(),
-            self.out.next_seq(),
-            self.gone.iter().copied().collect(),
-        );
-        self.tx.send(true, &wire::heartbeat_frame(&hb));
-    }
-
     /// Takes a listing of this host's robot nodes (the lister cleans up after dead ones): a
     /// robot seen before and not alive now is gone.
     fn robots_listed(&mut self, listing: Listing) -> Result<(), BridgeError> {
@@ -493,11 +455,44 @@ impl Joiner {
     }
 }
 
-/// Where [`up`] publishes: the link's sending end and lossless window, and what happened.
+impl Local {
+    /// Writes a coordinator message into this host's bus; `shift` moves its times onto this
+    /// host's clock.
+    fn put(&mut self, topic: Topic, payload: &[u8], shift: i64) -> Put {
+        match topic {
+            Topic::Control => self.put_as::<Control>(payload, shift, 0),
+            Topic::Merged => self.put_as::<MergedHintBatch>(payload, shift, 1),
+            Topic::Ack => self.put_as::<DiscoveryAck>(payload, shift, 2),
+            Topic::Relay => self.put_as::<DiscoveryRelay>(payload, shift, 3),
+            _ => Put::Rejected,
+        }
+    }
+
+    fn put_as<T: ToRobot>(&mut self, payload: &[u8], shift: i64, slot: usize) -> Put {
+        let mut m = T::default();
+        if crate::wire::read_into(payload, &mut m).is_err() {
+            return Put::Rejected;
+        }
+        m.shift(shift);
+        match T::outbox(&self.bus).send(&m) {
+            Ok(_) => {
+                self.wake[slot] = true;
+                Put::Done {
+                    sent_ns: m.send_ns(),
+                }
+            }
+            // nobody here to tell (the robots left): as the coordinator does, not an error
+            Err(BusError::NoSubscriber { .. }) => Put::Skipped,
+            Err(_) if T::TOPIC.delivery() == bus::bus_schema::Delivery::Lossless => Put::Later,
+            Err(_) => Put::Dropped,
+        }
+    }
+}
+
+/// Where [`up`] publishes: the link's end and publisher, and what happened.
 struct Sent<'a> {
-    tx: &'a mut Tx,
-    out: &'a mut Outgoing,
-    up: bool,
+    end: &'a mut LinkEnd,
+    publisher: &'a mut zenoh::pubsub::Publisher<'static>,
     now: Instant,
     any: bool,
     overflow: Option<crate::reliable::Overflow>,
@@ -510,8 +505,8 @@ fn up<T: FromRobot>(bus: &CoordinatorBus, sent: &mut Sent<'_>, mut seen: impl Fn
         seen(m);
         sent.any = true;
         if !lossless {
-            sent.tx.latest(sent.up, m);
-        } else if let Err(e) = sent.tx.lossless(sent.up, sent.out, m, sent.now) {
+            sent.end.send_latest(m, sent.publisher);
+        } else if let Err(e) = sent.end.send_lossless(m, sent.now, sent.publisher) {
             sent.overflow = Some(e);
         }
     });

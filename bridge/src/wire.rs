@@ -259,12 +259,16 @@ pub fn read_heartbeat(payload: &[u8]) -> Result<Heartbeat, FrameError> {
 /// A heartbeat frame.
 pub fn heartbeat_frame(hb: &Heartbeat) -> Vec<u8> {
     let mut out = Vec::with_capacity(HEADER + 96);
-    put_header(&mut out, Kind::Heartbeat, Topic::Register, 0);
-    // a plain struct of integers always serialises
-    if let Ok(json) = serde_json::to_vec(hb) {
-        out.extend_from_slice(&json);
-    }
+    write_heartbeat(&mut out, hb);
     out
+}
+
+/// Writes [`heartbeat_frame`]`(hb)` into `out` (cleared first).
+pub fn write_heartbeat(out: &mut Vec<u8>, hb: &Heartbeat) {
+    out.clear();
+    put_header(out, Kind::Heartbeat, Topic::Register, 0);
+    // a plain struct of integers always serialises
+    let _ = serde_json::to_writer(&mut *out, hb);
 }
 
 /// A goodbye frame.

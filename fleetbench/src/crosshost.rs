@@ -8,7 +8,9 @@
 //!   transport (the floor of anything built on Zenoh, and what moves it);
 //! - `xhost-loop`: the real update loop with robots on one host and the coordinator on the
 //!   other: robot 0's Q update → bridge → coordinator merge → bridge → applied at robot 1, timed
-//!   on the robots' host (one clock).
+//!   on the robots' host (one clock); the hosts join with the run's secret and every frame is
+//!   sealed, as `qfleet run --listen` does by default;
+//! - `xhost-loop-plain`: the same with frames unsealed (`--insecure-plain`): what sealing costs.
 //!
 //! With two CPUs or more, every row runs its measuring thread (host B's ping or robot, which
 //! busy-polls for the answer) alone on CPU 0 and every other thread of both hosts (Zenoh's,
@@ -31,12 +33,13 @@ use crate::report::{ProcessCpu, Row};
 use crate::spec::RoleSpec;
 
 /// The cross-host rows, in the order they run.
-pub const XHOST_LABELS: [&str; 5] = [
+pub const XHOST_LABELS: [&str; 6] = [
     "xhost-tcp",
     "xhost-zenoh",
     "xhost-zenoh-batched",
     "xhost-zenoh-lowlatency",
     "xhost-loop",
+    "xhost-loop-plain",
 ];
 
 const A_ADDR: &str = "10.77.0.1";
@@ -181,6 +184,26 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
         source,
     })?;
     let hist_path = dir.join("latency.bin");
+    // the run's join secret, in a file only root reads (never on a command line)
+    let secret_file = dir.join("join.secret");
+    let plain = label == "xhost-loop-plain";
+    {
+        use std::io::Write;
+        use std::os::unix::fs::OpenOptionsExt;
+        let secret = bridge::Secret::generate("bench-xhost")
+            .map_err(|e| BenchError::Input(e.to_string()))?;
+        let _ = std::fs::remove_file(&secret_file);
+        std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .mode(0o600)
+            .open(&secret_file)
+            .and_then(|mut f| f.write_all(secret.text().as_bytes()))
+            .map_err(|source| BenchError::Io {
+                what: format!("write {}", secret_file.display()),
+                source,
+            })?;
+    }
     let quiet_ms = plan.timeout_ms + plan.idle_ms + 5_000;
     let endpoint = format!("tcp/{A_ADDR}:7447");
     let bridge_spin_us = opts
@@ -200,7 +223,7 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
             ["tcp ping (host B)", "tcp echo (host A)"],
             crate::roles::xhost::PING_BYTES,
         ),
-        "xhost-loop" => (
+        "xhost-loop" | "xhost-loop-plain" => (
             RoleSpec::BridgedCoordinator {
                 inner: Box::new(RoleSpec::Coordinator {
                     run_id: bus::unique_run_id("bench-xhost"),
@@ -215,6 +238,8 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
                 express,
                 lowlatency,
                 bridge_spin_us,
+                secret_file: secret_file.clone(),
+                plain,
             },
             ["robots + bridge (host B)", "coordinator + bridge (host A)"],
             size_of::<QHintBatch>(),
@@ -262,6 +287,8 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
                 express,
                 lowlatency,
                 bridge_spin_us,
+                secret_file: secret_file.clone(),
+                plain,
             }
         }
         _ => RoleSpec::ZenohPing {

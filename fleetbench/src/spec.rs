@@ -187,6 +187,10 @@ pub enum RoleSpec {
         lowlatency: bool,
         /// µs the bridge keeps looking after a message moved (`bridge::Tuning::spin`).
         bridge_spin_us: u64,
+        /// The run's join secret, in a file (mode 0600) both hosts read.
+        secret_file: PathBuf,
+        /// Frames unsealed (`--insecure-plain`).
+        plain: bool,
     },
     /// Cross-host loop: the loop robots plus a joining bridge (measures).
     BridgedRobots {
@@ -200,6 +204,10 @@ pub enum RoleSpec {
         lowlatency: bool,
         /// µs the bridge keeps looking after a message moved (`bridge::Tuning::spin`).
         bridge_spin_us: u64,
+        /// The run's join secret, in a file (mode 0600) both hosts read.
+        secret_file: PathBuf,
+        /// Frames unsealed (`--insecure-plain`).
+        plain: bool,
     },
     /// A lightweight robot of the scale benchmark: emits hint batches as fast as the
     /// coordinator's buffer allows and applies the fleet's merged hints.

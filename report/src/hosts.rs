@@ -88,6 +88,10 @@ pub struct HostLink {
     /// the host's or were reported already.
     #[serde(default)]
     pub capped: u64,
+    /// Frames that did not open with the host's key (tampered, forged, another host's or a
+    /// stranger's) or that were replayed: dropped before anything in them was read.
+    #[serde(default)]
+    pub forged: u64,
 }
 
 /// One host of a run: its name, the robot ids it ran, and (for a joined host) the link to it.

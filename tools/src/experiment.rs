@@ -373,7 +373,7 @@ pub fn run_once(
 
 impl ExperimentCmd {
     /// Runs the command.
-    pub fn run(self) -> Result<()> {
+    pub fn run(mut self) -> Result<()> {
         let mut plan = load_plan(&self.file).context(Exit::BadInput)?;
         if let Some(s) = &self.sharing {
             plan.manifest.sharing = ShareMode::parse(s)
@@ -419,6 +419,8 @@ impl ExperimentCmd {
         }
         // a Foxglove port in use is bad input, found before any seed starts; one server for all
         let foxglove = self.watch.serve()?;
+        // one join secret for all seeds: it names the seeds' run-id prefix
+        self.remote.secret_label = Some(self.run_id.clone().unwrap_or_else(|| "exp".into()));
         let mut results = Vec::new();
         for &seed in &plan.manifest.seeds.clone() {
             let id = make_run_id(self.run_id.as_deref(), &format!("s{seed}"));

@@ -16,8 +16,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
 use bridge::join::{endpoint_host, every_interface, join_hint};
-use bridge::{Ending, Hub, HubOptions, HubReport, JoinRequest, RemotePlan, Tuning};
+use bridge::{Ending, Hub, HubOptions, HubReport, JoinRequest, RemotePlan, Secret, Tuning};
 use clap::Args;
+use contract::AgentArgs;
 use launcher::Exit;
 
 /// Options of `qfleet run` (and `experiment`) for robots on other hosts.
@@ -46,6 +47,72 @@ pub struct RemoteArgs {
     /// timeout, so the run still completes).
     #[arg(long, default_value_t = 15.0)]
     pub join_within: f64,
+    /// File holding the run's join secret (`qfleet-join-v1:RUN:HEX`), else the environment's
+    /// `QFLEET_JOIN_SECRET`, else a fresh one, printed and written into the out directory as
+    /// `join.secret` (mode 0600). Never on the command line.
+    #[arg(long, value_name = "FILE", requires = "listen")]
+    pub secret_file: Option<PathBuf>,
+    /// After the join, send frames unencrypted and unauthenticated (joins still prove the
+    /// secret); the joining host must say `--insecure-plain` too. For measuring only.
+    #[arg(long, requires = "listen")]
+    pub insecure_plain: bool,
+    /// What a fresh secret names: the run id (`qfleet run`) or an experiment's run-id prefix,
+    /// so one secret serves all its seeds.
+    #[arg(skip)]
+    pub secret_label: Option<String>,
+    /// The secret, once read or made (one for all seeds of an experiment).
+    #[arg(skip)]
+    pub secret: std::sync::OnceLock<Secret>,
+}
+
+/// The environment variable a join secret may come in (instead of `--secret-file`).
+pub const SECRET_ENV: &str = "QFLEET_JOIN_SECRET";
+
+/// The file a listening run writes its join secret into, in its out directory.
+pub const SECRET_FILE: &str = "join.secret";
+
+/// Reads a join secret from `file`, else from [`SECRET_ENV`]; None when neither is given. A
+/// file others may read is used, with a warning.
+pub fn read_secret(file: Option<&Path>) -> Result<Option<Secret>> {
+    use std::os::unix::fs::PermissionsExt;
+    let text = match file {
+        Some(f) => {
+            let meta = std::fs::metadata(f)
+                .with_context(|| format!("reading the join secret {}", f.display()))?;
+            if meta.permissions().mode() & 0o077 != 0 {
+                crate::term::warn(&format!(
+                    "warning: the join secret {} can be read by other users (chmod 600 it)",
+                    f.display()
+                ));
+            }
+            std::fs::read_to_string(f)
+                .with_context(|| format!("reading the join secret {}", f.display()))?
+        }
+        None => match std::env::var(SECRET_ENV) {
+            Ok(t) => t,
+            Err(_) => return Ok(None),
+        },
+    };
+    let what = file.map_or(SECRET_ENV.to_string(), |f| f.display().to_string());
+    Secret::parse(&text)
+        .map(Some)
+        .with_context(|| format!("reading the join secret from {what}"))
+}
+
+/// Writes `secret` into `dir/join.secret`, readable by this user only.
+pub fn write_secret(dir: &Path, secret: &Secret) -> Result<PathBuf> {
+    use std::io::Write;
+    use std::os::unix::fs::OpenOptionsExt;
+    let path = dir.join(SECRET_FILE);
+    let _ = std::fs::remove_file(&path);
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .mode(0o600)
+        .open(&path)
+        .with_context(|| format!("writing {}", path.display()))?;
+    writeln!(f, "{}", secret.text()).with_context(|| format!("writing {}", path.display()))?;
+    Ok(path)
 }
 
 /// How long after a host's deadline its silent robots may first count as hung: the hub's
@@ -121,9 +188,37 @@ impl RemoteArgs {
             hint_buffer: HINT_BUFFER,
             merged_buffer,
         };
-        if let Some(w) = listen_warning(listen) {
+        if let Some(w) = listen_warning(listen, self.insecure_plain) {
             crate::term::warn(&w);
         }
+        let secret = match self.secret.get() {
+            Some(s) => s.clone(),
+            None => {
+                let (s, fresh) = match read_secret(self.secret_file.as_deref())? {
+                    Some(s) => (s, false),
+                    None => {
+                        let label = self.secret_label.as_deref().unwrap_or(run_id);
+                        (Secret::generate(label)?, true)
+                    }
+                };
+                let _ = self.secret.set(s.clone());
+                if fresh {
+                    report::log_line!(
+                        "qfleet: join secret of this run (also in {}, mode 0600; the joining hosts need it as a file, `--secret-file`, or in {SECRET_ENV}, never on a command line): {}",
+                        out.join(SECRET_FILE).display(),
+                        s.text()
+                    );
+                }
+                s
+            }
+        };
+        if !secret.names(run_id) {
+            bail!(
+                "the join secret is for run {:?}, this run is {run_id:?}: give the run that id (--run-id), or no secret to get a fresh one",
+                secret.run_id()
+            );
+        }
+        write_secret(out, &secret)?;
         let hub = Hub::start(HubOptions {
             listen: listen.clone(),
             plan,
@@ -133,6 +228,8 @@ impl RemoteArgs {
             start_within,
             join_within,
             out: Some(out.to_path_buf()),
+            secret,
+            plain: self.insecure_plain,
         })
         .with_context(|| format!("listening for other hosts on {listen}"))?;
         Ok(Some(hub))
@@ -193,32 +290,26 @@ fn ship_files(cli: Vec<String>, files: &mut BTreeMap<String, String>) -> Result<
     Ok(out)
 }
 
-/// What to say before listening on `endpoint`: every interface or an address that is neither
-/// loopback nor private is reachable by strangers, and joins are not authenticated yet.
-pub fn listen_warning(endpoint: &str) -> Option<String> {
-    let host = endpoint_host(endpoint);
-    let ip: Option<std::net::IpAddr> = host.trim_matches(['[', ']']).parse().ok();
-    let private = |ip: &std::net::IpAddr| match ip {
-        std::net::IpAddr::V4(v4) => v4.is_loopback() || v4.is_private() || v4.is_link_local(),
-        std::net::IpAddr::V6(v6) => v6.is_loopback() || (v6.segments()[0] & 0xfe00) == 0xfc00,
-    };
-    if every_interface(host) {
+/// What to say before listening on `endpoint`: frames sent unencrypted (`plain`), and that the
+/// other hosts join with this host's own address when it listens on every interface.
+pub fn listen_warning(endpoint: &str, plain: bool) -> Option<String> {
+    if plain {
         return Some(format!(
-            "warning: listening on every interface ({}): anyone who reaches this host can ask to \
-             join while slots are open (joins are not authenticated yet: README \"Threat \
-             model\"); the other hosts join with this host's own address, e.g. `qfleet join {}`",
+            "warning: --insecure-plain: after the join, frames to and from {} cross the network \
+             unencrypted and unauthenticated: anyone on the path can read them and forge acks, \
+             goodbyes and messages (README \"Threat model, network side\"); for measuring only",
+            report::escape(endpoint)
+        ));
+    }
+    if every_interface(endpoint_host(endpoint)) {
+        return Some(format!(
+            "listening on every interface ({}): the other hosts join with this host's own \
+             address, e.g. `qfleet join {} --secret-file join.secret`",
             report::escape(endpoint),
             join_hint(endpoint)
         ));
     }
-    match ip {
-        Some(ip) if !private(&ip) => Some(format!(
-            "warning: listening on {}, an address that is neither loopback nor private: joins \
-             are not authenticated yet (README \"Threat model\")",
-            report::escape(endpoint)
-        )),
-        _ => None,
-    }
+    None
 }
 
 /// Stops the hub and writes `bridge.json` (the hub's report) into the run's directory; the
@@ -284,6 +375,19 @@ pub struct JoinCmd {
     /// Print this host's link figures as JSON on stdout.
     #[arg(long)]
     json: bool,
+    /// File holding the run's join secret (`join.secret` from the run's out directory on the
+    /// coordinator's host), else the environment's `QFLEET_JOIN_SECRET`. Never on the command
+    /// line.
+    #[arg(long, value_name = "FILE")]
+    secret_file: Option<PathBuf>,
+    /// The run to join: refused unless the secret and the coordinator's host name this run
+    /// (default: the run the secret names).
+    #[arg(long, value_name = "RUN_ID")]
+    run: Option<String>,
+    /// Accept a link whose frames are unencrypted (the coordinator's host runs
+    /// `--insecure-plain`).
+    #[arg(long)]
+    insecure_plain: bool,
     /// Testing only: claim another bus schema version in the join request.
     #[arg(long, hide = true)]
     schema_version_override: Option<u32>,
@@ -308,6 +412,24 @@ impl JoinCmd {
             .map_err(|_| anyhow!("--grace must be seconds >= 0, got {}", self.grace))
             .context(Exit::BadInput)?;
         bridge::link::check_endpoint(&self.endpoint).context(Exit::BadInput)?;
+        let secret = read_secret(self.secret_file.as_deref())
+            .context(Exit::BadInput)?
+            .ok_or_else(|| {
+                anyhow!(
+                    "a join needs the run's secret: --secret-file FILE (join.secret in the run's \
+                     out directory on the coordinator's host) or {SECRET_ENV}"
+                )
+            })
+            .context(Exit::BadInput)?;
+        if let Some(run) = &self.run
+            && run != secret.run_id()
+        {
+            return Err(anyhow!(
+                "the join secret is for run {:?}, not the run {run:?} asked for",
+                secret.run_id()
+            ))
+            .context(Exit::BadInput);
+        }
         // this host's directory, chosen here: never a path named after what the network sends
         let out_dir = launcher::out::OutDir::prepare(self.out.as_deref(), self.force, "join")
             .map_err(|e| match e {
@@ -326,8 +448,24 @@ impl JoinCmd {
             self.endpoint,
             self.robots
         );
-        let (session, plan, clock) =
-            bridge::request(&self.endpoint, &req, timeout, Tuning::default())?;
+        let joined = bridge::request(&self.endpoint, &req, &secret, timeout, Tuning::default())?;
+        let plan = &joined.plan;
+        if plan.plain && !self.insecure_plain {
+            return Err(anyhow!(
+                "the coordinator's host sends frames unencrypted (--insecure-plain there): join \
+                 with --insecure-plain to accept that"
+            ))
+            .context(Exit::BadInput);
+        }
+        if let Some(run) = &self.run
+            && *run != plan.run_id
+        {
+            return Err(anyhow!(
+                "the coordinator's host runs {:?}, not the run {run:?} asked for",
+                plan.run_id
+            ))
+            .context(Exit::BadInput);
+        }
         // everything from the network is checked before it names a file, a prefix or a process
         plan.check(self.robots)
             .map_err(|e| anyhow!(e))
@@ -357,18 +495,16 @@ impl JoinCmd {
             ctrlc::set_handler(move || s.store(true, Ordering::SeqCst))
                 .context("installing the Ctrl-C handler")?;
         }
-        let mut joiner = bridge::Joiner::new(session, plan, clock, &host, Tuning::default())?;
+        let mut joiner = bridge::Joiner::new(joined, &host, Tuning::default())?;
         let plan = joiner.plan().clone();
+        let robots = robot_options(&plan, &out).context(Exit::BadInput)?;
         let mut children: Vec<(u32, Child)> = Vec::new();
         let spawned = (|| -> Result<()> {
-            for (i, id) in plan.robot_ids.iter().enumerate() {
-                let args = plan.robot_command_line(i, &out).context(Exit::BadInput)?;
+            for (id, args) in plan.robot_ids.iter().zip(&robots) {
                 let log = std::fs::File::create(out.join(format!("robot-{id}.log")))
                     .with_context(|| format!("creating the log of robot {id}"))?;
                 let child = Command::new(&robot_bin)
-                    .args(args)
-                    .arg("--out")
-                    .arg(&out)
+                    .args(args.to_args())
                     .stdin(Stdio::null())
                     .stdout(Stdio::null())
                     .stderr(log)
@@ -462,6 +598,35 @@ fn stop_children(children: &mut [(u32, Child)], grace: Duration) -> Vec<u32> {
     failed
 }
 
+/// The options of every robot of `plan`, read as the robot-agent reads them (the process
+/// contract's [`AgentArgs`]): an option it does not know, a value it refuses, another run id or
+/// another robot id than the slot's is bad input before any robot starts; the robots write into
+/// `out`, whatever host A asked.
+fn robot_options(plan: &bridge::JoinPlan, out: &Path) -> Result<Vec<AgentArgs>> {
+    plan.robot_ids
+        .iter()
+        .enumerate()
+        .map(|(i, &id)| {
+            let words = plan.robot_command_line(i, out)?;
+            let mut a = AgentArgs::try_parse_args(&words).map_err(|e| {
+                anyhow!(
+                    "host A sent options robot {id} does not take: {}",
+                    report::escape(e.to_string().lines().next().unwrap_or_default())
+                )
+            })?;
+            if a.run_id != plan.run_id || a.robot_id != id {
+                bail!(
+                    "host A's options for robot {id} name run {} robot {}",
+                    report::escape(&a.run_id),
+                    a.robot_id
+                );
+            }
+            a.out = Some(out.to_path_buf());
+            Ok(a)
+        })
+        .collect()
+}
+
 /// The `hosts` lines of `qfleet run`'s human output: where each robot ran and what the link to
 /// each joined host did (nothing without `--remote-robots`).
 pub fn print_hosts(hub: &Option<HubReport>, local: u32) -> Result<()> {
@@ -481,7 +646,7 @@ pub fn print_hosts(hub: &Option<HubReport>, local: u32) -> Result<()> {
             .map(|s| serde_json::to_string(&s).unwrap_or_default())
             .unwrap_or_default();
         crate::term::out!(
-            "  host {:13} robots {:?}  link {}  reconnects {}  down {} ms  round trip p50 {:.1} µs p99.9 {:.1} µs  one-way in p50 {:.1} µs  resent {}  rejected {}  capped {}",
+            "  host {:13} robots {:?}  link {}  reconnects {}  down {} ms  round trip p50 {:.1} µs p99.9 {:.1} µs  one-way in p50 {:.1} µs  resent {}  rejected {}  capped {}  forged {}",
             report::escape(&h.host),
             h.robots,
             state.trim_matches('"'),
@@ -492,7 +657,8 @@ pub fn print_hosts(hub: &Option<HubReport>, local: u32) -> Result<()> {
             h.link.one_way_in_ns.p50 as f64 / 1e3,
             h.link.resent,
             h.link.rejected,
-            h.link.capped
+            h.link.capped,
+            h.link.forged
         )?;
     }
     for r in &hub.refused {
@@ -503,6 +669,12 @@ pub fn print_hosts(hub: &Option<HubReport>, local: u32) -> Result<()> {
             "  refused joins      {} in all ({} not kept)",
             hub.refused_total,
             hub.refused_total - hub.refused.len() as u64
+        )?;
+    }
+    if hub.unauthenticated > 0 {
+        crate::term::out!(
+            "  unauthenticated    {} join queries without a valid proof of the join secret (dropped)",
+            hub.unauthenticated
         )?;
     }
     if !hub.given_up.is_empty() || hub.foreign_frames > 0 || hub.expired_hosts > 0 {
@@ -521,26 +693,44 @@ mod tests {
     use super::*;
 
     #[test]
-    fn listening_everywhere_or_in_public_warns_and_the_hint_names_a_reachable_address() {
+    fn plain_frames_warn_and_the_hint_names_a_reachable_address() {
         for quiet in [
             "tcp/127.0.0.1:7447",
             "tcp/10.0.0.1:7447",
-            "tcp/192.168.1.5:1",
+            "tcp/8.8.8.8:7447",
             "tcp/[::1]:7447",
+            "tcp/hub.lan:7447",
         ] {
-            assert_eq!(listen_warning(quiet), None, "{quiet}");
+            // joins are authenticated and frames sealed: no address needs a warning
+            assert_eq!(listen_warning(quiet, false), None, "{quiet}");
             assert_eq!(join_hint(quiet), quiet);
+            let w = listen_warning(quiet, true).expect("plain frames always warn");
+            assert!(w.contains("unencrypted"), "{w}");
         }
-        let w = listen_warning("tcp/0.0.0.0:7447").expect("a warning");
+        let w = listen_warning("tcp/0.0.0.0:7447", false).expect("a note");
         assert!(
             w.contains("every interface") && w.contains("tcp/<this-host-address>:7447"),
             "{w}"
         );
         assert!(!w.contains("join tcp/0.0.0.0"), "{w}");
         assert_eq!(join_hint("tcp/[::]:9000"), "tcp/<this-host-address>:9000");
-        assert!(listen_warning("tcp/8.8.8.8:7447").is_some());
-        // a host name is not judged
-        assert_eq!(listen_warning("tcp/hub.lan:7447"), None);
+    }
+
+    #[test]
+    fn a_written_secret_is_private_and_reads_back() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = std::env::temp_dir().join(format!("qfleet-secret-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let s = Secret::generate("run-7").unwrap();
+        let path = write_secret(&dir, &s).unwrap();
+        let mode = std::fs::metadata(&path).unwrap().permissions().mode();
+        assert_eq!(mode & 0o777, 0o600);
+        assert_eq!(read_secret(Some(&path)).unwrap(), Some(s.clone()));
+        // written again (the next seed of an experiment): replaced, still private
+        write_secret(&dir, &s).unwrap();
+        std::fs::write(dir.join("bad"), "not a secret").unwrap();
+        assert!(read_secret(Some(&dir.join("bad"))).is_err());
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     fn remote(robots: u32, deadline_s: f64) -> RemoteArgs {
@@ -551,6 +741,10 @@ mod tests {
             link_down_ms: 500,
             start_within: 10.0,
             join_within: 15.0,
+            secret_file: None,
+            insecure_plain: false,
+            secret_label: None,
+            secret: Default::default(),
         }
     }
 

@@ -107,6 +107,8 @@ pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
             express,
             lowlatency,
             bridge_spin_us,
+            secret_file,
+            plain,
         } => xhost::bridged_coordinator(
             &inner,
             &listen,
@@ -115,6 +117,7 @@ pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
                 lowlatency,
                 spin: Duration::from_micros(bridge_spin_us),
             },
+            &xhost::Auth::read(&secret_file, plain)?,
         )?,
         RoleSpec::BridgedRobots {
             inner,
@@ -122,6 +125,8 @@ pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
             express,
             lowlatency,
             bridge_spin_us,
+            secret_file,
+            plain,
         } => xhost::bridged_robots(
             &inner,
             &endpoint,
@@ -130,6 +135,7 @@ pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
                 lowlatency,
                 spin: Duration::from_micros(bridge_spin_us),
             },
+            &xhost::Auth::read(&secret_file, plain)?,
         )?,
     };
     let line = serde_json::to_string(&report).map_err(|e| BenchError::Spec(e.to_string()))?;

@@ -215,11 +215,30 @@ pub fn zenoh_ping(
     r
 }
 
+/// How a loop row's hosts authenticate: the run's secret (read from a file both hosts are
+/// given, never from the command line) and whether frames travel unsealed.
+pub struct Auth {
+    /// The join secret.
+    pub secret: bridge::Secret,
+    /// `--insecure-plain`.
+    pub plain: bool,
+}
+
+impl Auth {
+    /// Reads the secret from `file`.
+    pub fn read(file: &std::path::Path, plain: bool) -> Result<Auth, BenchError> {
+        let text = std::fs::read_to_string(file).map_err(io("read the join secret"))?;
+        let secret = bridge::Secret::parse(&text).map_err(|e| BenchError::Input(e.to_string()))?;
+        Ok(Auth { secret, plain })
+    }
+}
+
 /// The coordinator of a loop row with a hub listening on `listen` for the robots' host.
 pub fn bridged_coordinator(
     inner: &RoleSpec,
     listen: &str,
     tuning: Tuning,
+    auth: &Auth,
 ) -> Result<ChildReport, BenchError> {
     let RoleSpec::Coordinator { run_id, robots, .. } = inner else {
         return Err(BenchError::Spec("not a coordinator spec".into()));
@@ -242,6 +261,8 @@ pub fn bridged_coordinator(
         start_within: bridge::DEFAULT_START_WITHIN,
         join_within: bridge::DEFAULT_JOIN_WITHIN,
         out: None,
+        secret: auth.secret.clone(),
+        plain: auth.plain,
     })
     .map_err(|e| BenchError::Input(e.to_string()))?;
     let r = super::fleet::coordinator(inner);
@@ -255,22 +276,27 @@ pub fn bridged_robots(
     inner: &RoleSpec,
     endpoint: &str,
     tuning: Tuning,
+    auth: &Auth,
 ) -> Result<ChildReport, BenchError> {
     let RoleSpec::LoopRobots { plan, .. } = inner else {
         return Err(BenchError::Spec("not a loop-robots spec".into()));
     };
     let timeout = Duration::from_millis(plan.timeout_ms);
     let req = JoinRequest::new("bench-robots".into(), 2, 0);
-    let (session, jplan, clock) = bridge::request(endpoint, &req, timeout, tuning)
+    let joined = bridge::request(endpoint, &req, &auth.secret, timeout, tuning)
         .map_err(|e| BenchError::Input(e.to_string()))?;
+    if joined.plan.plain != auth.plain {
+        return Err(BenchError::Input(
+            "the hub's link is not sealed as asked".into(),
+        ));
+    }
     let done = Arc::new(AtomicBool::new(false));
     let stop = Arc::new(AtomicBool::new(false));
     let (ready_tx, ready_rx) = std::sync::mpsc::channel();
     let serving = {
         let (done, stop) = (Arc::clone(&done), Arc::clone(&stop));
         std::thread::spawn(move || -> Result<(), String> {
-            let j = bridge::Joiner::new(session, jplan, clock, "bench-robots", tuning)
-                .map_err(|e| e.to_string());
+            let j = bridge::Joiner::new(joined, "bench-robots", tuning).map_err(|e| e.to_string());
             let _ = ready_tx.send(j.as_ref().map(|_| ()).map_err(Clone::clone));
             let mut j = j?;
             // iceoryx2 ports belong to the thread that made them: serve here
