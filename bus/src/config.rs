@@ -143,7 +143,7 @@ impl BusConfig {
     /// admits ([`Self::max_nodes`]). A robot sends its lossless final report and exits; from
     /// then on its sample lives only in the subscriber's "expired connection", of which
     /// iceoryx2 keeps 128 by default and silently discards the rest: 256 robots stopping
-    /// together lost up to half their reports (`bus/tests/lossless.rs` shows it with 160).
+    /// together lost up to half their reports (`bus/tests/lossless.rs` shows it with 140).
     pub fn iceoryx_config(&self) -> Result<Config, BusError> {
         self.validate()?;
         let mut config = iceoryx_config_for_prefix(&self.prefix())?;

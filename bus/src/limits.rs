@@ -18,9 +18,10 @@ use crate::BusError;
 /// logs, the node lister): a margin over the ~60 measured.
 pub const COORDINATOR_FILES_BASE: u64 = 128;
 
-/// File descriptors the coordinator holds per robot of the run (measured 16–19, see the module
-/// doc), with a margin.
-pub const COORDINATOR_FILES_PER_ROBOT: u64 = 20;
+/// File descriptors the coordinator holds per robot of the run (measured 16–19 with eleven
+/// topics, see the module doc; `robot/horizon` adds one more connection and data segment per
+/// robot), with a margin.
+pub const COORDINATOR_FILES_PER_ROBOT: u64 = 24;
 
 /// Open files the coordinator of a run of `robots` robots needs.
 pub fn coordinator_files(robots: u32) -> u64 {
