@@ -31,7 +31,35 @@ fn main() -> ExitCode {
     ExitCode::SUCCESS
 }
 
+/// Builds the workspace's binaries: the coordinator rows start the real `qfleet-coordinator`,
+/// which `cargo test` does not build by itself. The same selection as the end-to-end tests'
+/// (`tests/support`: every member, test targets and binaries), so cargo reuses what the test
+/// build made instead of resolving other features.
+fn build_the_binaries() {
+    let exe = std::env::current_exe().expect("test binary path");
+    let profile_dir = exe
+        .parent()
+        .and_then(std::path::Path::parent)
+        .expect("target/<profile>/deps/<test>");
+    let target_dir = profile_dir.parent().expect("target dir");
+    let profile = profile_dir
+        .file_name()
+        .and_then(|n| n.to_str())
+        .unwrap_or("debug");
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let mut cmd = std::process::Command::new(cargo);
+    cmd.current_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/.."))
+        .args(["build", "--workspace", "--bins", "--tests"])
+        .env("CARGO_TARGET_DIR", target_dir);
+    if profile != "debug" {
+        cmd.args(["--profile", profile]);
+    }
+    let status = cmd.status().expect("running cargo build");
+    assert!(status.success(), "building the qfleet binaries failed");
+}
+
 fn tiny_run_produces_every_row_and_leaves_nothing() {
+    build_the_binaries();
     let launcher = Launcher {
         program: std::env::current_exe().expect("test binary path"),
         args: Vec::new(),
