@@ -98,6 +98,10 @@ fn another_user_can_neither_read_nor_overwrite_any_file_of_a_run() {
             "300000",
             "--robots",
             "3",
+            // slow enough that the run is still learning when the test stops it: unpaced, an
+            // idle machine finished all 300 000 episodes (3.9 s) before the SIGTERM came
+            "--pace",
+            "200000",
         ],
     );
     let cfg = BusConfig::new(id.as_str(), robots).expect("config");

@@ -105,17 +105,10 @@ pub struct Messages {
     others: u64,
 }
 
-/// Whether `topic` carries a robot's own messages (which name it by `robot_id`).
+/// Whether `topic` carries a robot's own messages (which name it by `robot_id`): every
+/// robot→coordinator topic, `robot/horizon` included.
 fn robot_topic(topic: Topic) -> bool {
-    matches!(
-        topic,
-        Topic::Register
-            | Topic::RobotState
-            | Topic::Discovery
-            | Topic::Hints
-            | Topic::Report
-            | Topic::Intent
-    )
+    topic.direction() == bus_schema::names::Direction::RobotToCoordinator
 }
 
 impl Messages {
