@@ -342,20 +342,15 @@ fn a_map_on_dev_zero_or_a_fifo_is_refused_at_once() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Issue 27: `/dev/shm` filling up mid-run kills the run's processes with SIGBUS and no
-/// result is written. Reproduced (2026-12-03): in a private mount namespace with a 96 MiB
-/// tmpfs on `/dev/shm`, a `dd` that fills it right after `Start` (once the coordinator's first
-/// checkpoint exists) makes the launcher report "coordinator was killed by signal 7; robot-agent
-/// 1 was killed by signal 7; the coordinator wrote no result". (Filled 4 s later by hand, the
-/// same run survived: the segments touched by then were committed.) iceoryx2 0.10 zeroes a
-/// shared-memory segment it creates under a SIGBUS handler (iceoryx2-bb-posix
-/// `SharedMemoryBuilder::create`, `zero_memory`), but its dynamic storage is created with
-/// `zero_memory(false)` (iceoryx2-cal `dynamic_storage/posix_shared_memory.rs`): probably
-/// where pages are still first touched mid-run (not yet confirmed). Not fixed yet: ignored until the segments are committed
-/// at creation (posix_fallocate of the run's files in /dev/shm after each port is created) or
-/// a SIGBUS handler writes the result so far. Run it with `--ignored` to see the failure.
+/// Issue 27: `/dev/shm` filling up mid-run killed the run's processes with SIGBUS and no
+/// result was written: in a private mount namespace with a 96 MiB tmpfs on `/dev/shm`, a `dd`
+/// that fills it right after `Start` (once the coordinator's first checkpoint exists) made the
+/// launcher report "coordinator was killed by signal 7; robot-agent 1 was killed by signal 7;
+/// the coordinator wrote no result". iceoryx2 0.10 maps its dynamic storage lazily
+/// (`zero_memory(false)`), so pages were first touched mid-run. Every process now reserves the
+/// pages of the run's segments right after creating its ports (`bus::commit_run_shm`), so the
+/// same fill leaves the run to finish with its result.
 #[test]
-#[ignore = "issue 27: reproduces the SIGBUS of a full /dev/shm mid-run, not fixed yet"]
 fn a_dev_shm_filled_mid_run_neither_kills_the_run_nor_loses_its_result() {
     if !namespaces_work() {
         qfleet_suite::skip(
@@ -372,7 +367,7 @@ fn a_dev_shm_filled_mid_run_neither_kills_the_run_nor_loses_its_result() {
          \"$0\" \"$@\" > {result} & run=$!
          while [ ! -e {cp} ] && kill -0 $run 2>/dev/null; do sleep 0.05; done
          dd if=/dev/zero of=/dev/shm/fill bs=1M 2>/dev/null
-         echo \"shm avail $(df -k --output=avail /dev/shm | tail -1)\" >&2
+         echo \"shm avail $(df -k --output=avail /dev/shm | tail -1 | tr -d ' ')\" >&2
          wait $run",
         result = dir.join("result.json").display(),
         cp = out_dir.join("coordinator-checkpoint.json").display(),
@@ -410,4 +405,88 @@ fn a_dev_shm_filled_mid_run_neither_kills_the_run_nor_loses_its_result() {
     }
     assert!(out_dir.join("result.json").exists(), "result.json written");
     assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+}
+
+/// Issue 27, the other half: segments created *after* `/dev/shm` filled up (a robot killed
+/// mid-run and started again, with its new ports and connections) never kill a process with
+/// SIGBUS either: iceoryx2 refuses to create what it cannot zero, the coordinator's listings
+/// reserve the pages of what others created ([`bus::Committer`]) and end the run with what it
+/// has when they cannot; in every case the run's result is written and no process dies of a
+/// signal.
+#[test]
+fn a_robot_restarted_after_dev_shm_filled_up_is_an_error_never_a_sigbus() {
+    if !namespaces_work() {
+        qfleet_suite::skip(
+            "a_robot_restarted_after_dev_shm_filled_up_is_an_error_never_a_sigbus",
+            "needs root and mount namespaces (unshare -m)",
+        );
+        return;
+    }
+    let id = run_id("shm-full-restart");
+    let dir = scratch(&id);
+    let out_dir = dir.join("out");
+    let script = format!(
+        "mount -t tmpfs -o size=96m tmpfs /dev/shm || exit 90
+         \"$0\" \"$@\" > {result} & run=$!
+         while [ ! -e {cp} ] && kill -0 $run 2>/dev/null; do sleep 0.05; done
+         dd if=/dev/zero of=/dev/shm/fill bs=1M 2>/dev/null
+         echo \"shm avail $(df -k --output=avail /dev/shm | tail -1 | tr -d ' ')\" >&2
+         for p in $(pgrep -x robot-agent); do
+           if tr '\\0' ' ' < /proc/$p/cmdline | grep -q -- '{id}.*--robot-id 1 \\|--robot-id 1 .*{id}'; then
+             kill -9 $p && echo \"killed robot 1\" >&2
+           fi
+         done
+         wait $run",
+        result = dir.join("result.json").display(),
+        cp = out_dir.join("coordinator-checkpoint.json").display(),
+    );
+    let out = run_bounded(
+        Command::new("unshare")
+            .args(["-m", "--propagation", "private", "sh", "-c", &script])
+            .arg(bin("qfleet"))
+            .args(["run", "--json", "--run-id", &id, "--out"])
+            .arg(&out_dir)
+            .args([
+                "--map",
+                "builtin:paper-20",
+                "--episodes",
+                "1000000",
+                "--robots",
+                "2",
+                "--restart",
+                "on-failure",
+                "--max-restarts",
+                "1",
+                "--learner",
+                "improved",
+            ]),
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("shm avail 0") && err.contains("killed robot 1"),
+        "the tmpfs was filled and robot 1 killed: {}",
+        describe(&out)
+    );
+    assert!(
+        out.status.code().is_some_and(|c| c != 101) && !err.contains("signal 7"),
+        "an exit code, no SIGBUS, no panic: {}",
+        describe(&out)
+    );
+    let r: Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("result.json")).expect("the result on stdout"),
+    )
+    .expect("a result");
+    let robots = r["robots"].as_array().expect("robots");
+    assert_eq!(robots.len(), 2, "{r}");
+    assert_eq!(
+        robots[0]["status"], "finished",
+        "robot 0 was never touched: {r}"
+    );
+    assert!(out_dir.join("result.json").exists(), "result.json written");
+    for f in ["coordinator.log", "robot-0.log", "robot-1.log"] {
+        let log = std::fs::read_to_string(out_dir.join(f)).unwrap_or_default();
+        assert!(!log.contains("panicked"), "{f}: {log}");
+    }
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+    let _ = std::fs::remove_dir_all(&dir);
 }

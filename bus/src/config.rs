@@ -219,6 +219,7 @@ impl BusConfig {
                 }
             })?;
         files::restrict_run_files(&self.prefix())?;
+        crate::commit_run_shm(&self.prefix())?;
         Ok(node)
     }
 }

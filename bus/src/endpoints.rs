@@ -81,6 +81,8 @@ impl CoordinatorBus {
         let bus = Self::create_ports(config, node, r).map_err(|e| explain_no_space(config, e))?;
         // the services' files exist now: narrow them to this user before any robot starts
         restrict_run_files(&config.prefix())?;
+        // and their pages reserved: a /dev/shm filled later is never a SIGBUS here
+        crate::commit_run_shm(&config.prefix())?;
         Ok(bus)
     }
 
@@ -395,6 +397,7 @@ impl RobotBus {
             match Self::open_ports(&node, config, robot_id) {
                 Ok(ports) => {
                     restrict_run_files(&config.prefix())?;
+                    crate::commit_run_shm(&config.prefix())?;
                     return Ok(ports.with_node(node));
                 }
                 Err(_) if stop.load(Ordering::Relaxed) => return Err(BusError::Interrupted),

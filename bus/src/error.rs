@@ -244,6 +244,24 @@ pub enum BusError {
         have_mib: f64,
     },
 
+    /// `/dev/shm` could not reserve the pages of one of the run's segments (see `commit`): the
+    /// run stops here with a clear error instead of dying of SIGBUS when the page is touched.
+    #[error(
+        "no space in /dev/shm for the {bytes} bytes of {path} ({have} bytes free): free some \
+         (`df -h /dev/shm`, `qfleet clean`) or run fewer robots: {source}"
+    )]
+    ShmCommit {
+        /// The segment.
+        path: String,
+        /// Its size.
+        bytes: u64,
+        /// Free bytes of `/dev/shm` when it failed.
+        have: u64,
+        /// What `posix_fallocate` said.
+        #[source]
+        source: std::io::Error,
+    },
+
     /// The coordinator of the fleet would run out of file descriptors.
     #[error(
         "a run of {robots} robots needs ~{need} open files in its coordinator, and this system \

@@ -159,6 +159,7 @@
 #![deny(missing_docs)]
 
 mod clock;
+mod commit;
 mod config;
 mod endpoints;
 mod error;
@@ -175,6 +176,7 @@ pub use bus_schema;
 pub use iceoryx2;
 
 pub use clock::monotonic_ns;
+pub use commit::{Committed, Committer, commit_run_shm};
 pub use config::{
     BusConfig, MAX_BUFFER, MAX_ROBOTS, MERGED_SEGMENT_BUDGET, OBSERVER_SLOTS,
     iceoryx_config_for_prefix, merged_buffer_for, quiet_library_logs, unique_run_id,

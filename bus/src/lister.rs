@@ -25,7 +25,7 @@ use std::time::{Duration, Instant};
 use crossbeam::channel::{Receiver, TrySendError, bounded};
 
 use crate::liveness::{Liveness, NodeReport, check_nodes};
-use crate::{BusConfig, BusError};
+use crate::{BusConfig, BusError, Committer};
 
 /// Longest time between two full listings while the re-checks find nothing new.
 pub const FULL_EVERY: Duration = Duration::from_secs(1);
@@ -40,6 +40,10 @@ pub struct Listing {
     pub report: Result<NodeReport, BusError>,
     /// Whether this is a full listing (else a re-check of the last one's processes).
     pub full: bool,
+    /// A segment of the run whose pages `/dev/shm` could not reserve ([`crate::Committer`],
+    /// tried on every full listing): the first process to touch it would die of SIGBUS, so the
+    /// run should end now, with what it has.
+    pub shm: Option<BusError>,
 }
 
 /// What one process looks like in `/proc`.
@@ -173,6 +177,7 @@ impl Schedule {
             at: *at,
             report: Ok(report),
             full: false,
+            shm: None,
         })
     }
 }
@@ -209,6 +214,9 @@ impl Lister {
             .name(name.into())
             .spawn(move || {
                 let mut schedule = Schedule::new(FULL_EVERY);
+                // segments created after the start (a restarted robot's connections, an
+                // observer's ports) get their pages reserved here, within a full listing's time
+                let mut committer = Committer::new(&cfg.prefix());
                 while !stopped.load(Ordering::Relaxed) {
                     let at = Instant::now();
                     if ask.swap(false, Ordering::Relaxed) {
@@ -221,6 +229,7 @@ impl Lister {
                             at,
                             report,
                             full: true,
+                            shm: committer.pass().err(),
                         })
                     } else {
                         schedule.recheck(process_state)

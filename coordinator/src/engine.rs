@@ -125,6 +125,9 @@ pub(crate) struct Engine {
     out: PathBuf,
     began: SystemTime,
     cleaner: Option<JoinHandle<()>>,
+    /// Why the run must end now, if it must: a segment of the run whose pages `/dev/shm` could
+    /// not reserve ([`bus::Listing::shm`]); the serving loops end as if interrupted.
+    pub(crate) halt: Option<String>,
 }
 
 /// The node id of a sample's publisher.
@@ -219,7 +222,13 @@ impl Engine {
             out,
             began: SystemTime::now(),
             cleaner: None,
+            halt: None,
         }
+    }
+
+    /// Whether the run must end now (see [`Engine::halt`]), checked with the stop flag.
+    pub(crate) fn halted(&self) -> bool {
+        self.halt.is_some()
     }
 
     /// Fleet-table entries changed by merging, over the run (coordinators before this one
@@ -833,6 +842,15 @@ impl Engine {
         listing: Listing,
     ) -> Result<(), CoordError> {
         let listed_at = listing.at;
+        if let Some(e) = listing.shm
+            && self.halt.is_none()
+        {
+            report::log_line!(
+                "qfleet-coordinator: ending the run with the results it has (a process touching \
+                 that segment would die of SIGBUS): {e}"
+            );
+            self.halt = Some(e.to_string());
+        }
         let report = listing.report?;
         if report.dead().next().is_some() {
             self.clean_dead(bus.config());

@@ -428,7 +428,7 @@ pub(crate) fn execute(
                     }
                 }
             }
-            if stop.load(Ordering::Relaxed) {
+            if stop.load(Ordering::Relaxed) || engine.halted() {
                 break;
             }
             if start.elapsed() >= hang {
@@ -448,7 +448,7 @@ pub(crate) fn execute(
                 std::hint::spin_loop();
             }
         }
-        if stop.load(Ordering::Relaxed) {
+        if stop.load(Ordering::Relaxed) || engine.halted() {
             publish(bus, &world, tick, GridState::Ended, true)?;
             break GridEnd::Stopped;
         }

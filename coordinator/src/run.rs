@@ -341,7 +341,8 @@ fn drive(
         }
         None => engine.flush(bus, 0)?,
     }
-    let interrupted = interrupted || stop.load(std::sync::atomic::Ordering::Relaxed);
+    let interrupted =
+        interrupted || stop.load(std::sync::atomic::Ordering::Relaxed) || engine.halted();
     // a hung robot that does not drain its control buffer must not fail the run
     tolerate(bus.stop(ROBOT_ID_ALL))?;
     collect_reports(engine, bus, &lister, timeout)?;

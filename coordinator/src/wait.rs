@@ -107,7 +107,7 @@ pub(crate) fn serve(
             if std::mem::take(&mut peer_dead) {
                 lister.now();
             }
-            if stop.load(Ordering::Relaxed) {
+            if stop.load(Ordering::Relaxed) || engine.halted() {
                 return Ok(true);
             }
             if periodic(engine) {
