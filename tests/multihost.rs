@@ -617,21 +617,31 @@ struct Stranger {
     /// Idle TCP connections it opened, and how many host A closed within 5 s.
     idle_opened: u64,
     idle_closed: u64,
+    /// Zenoh sessions it opened to host A (its own and a flood of more), and how many of them
+    /// host A admitted as peers.
+    sessions_opened: u64,
+    sessions_admitted: u64,
 }
 
-/// The stranger itself: does nothing unless `QFLEET_STRANGER=ENDPOINT;RUN_ID` is set (then it
-/// is the copy of this test binary that the stranger test starts inside host B's namespace).
-/// A plain Zenoh peer on host A's endpoint: it subscribes to everything, asks the admin space
-/// who is there, asks to join without the secret (and floods the join key), opens idle TCP
-/// connections, and replays every frame it saw and forges goodbyes and heartbeats on the keys
-/// it saw.
+/// The stranger itself: does nothing unless `QFLEET_STRANGER=ENDPOINT;RUN_ID[;PASSWORD]` is set
+/// (then it is the copy of this test binary that the stranger test starts inside host B's
+/// namespace). A plain Zenoh peer on host A's endpoint, or, with `PASSWORD`, one that holds the
+/// run's Zenoh session password (as if it had leaked; the join secret it does not have): it
+/// opens a flood of sessions, subscribes to everything, asks the admin space who is there, asks
+/// to join without the secret (and floods the join key), opens idle TCP connections, and
+/// replays every frame it saw and forges goodbyes and heartbeats on the keys it saw.
 #[test]
 fn stranger_role() {
     use zenoh::Wait;
     let Ok(spec) = std::env::var("QFLEET_STRANGER") else {
         return;
     };
-    let (endpoint, run_id) = spec.split_once(';').expect("ENDPOINT;RUN_ID");
+    let mut parts = spec.split(';');
+    let (endpoint, run_id) = (
+        parts.next().expect("ENDPOINT"),
+        parts.next().expect("RUN_ID"),
+    );
+    let password = parts.next();
     let mut seen = Stranger::default();
     let addr = endpoint.trim_start_matches("tcp/");
     let idle: Vec<std::net::TcpStream> = (0..200)
@@ -647,7 +657,27 @@ fn stranger_role() {
     ] {
         c.insert_json5(k, &v).expect("config");
     }
+    if let Some(p) = password {
+        c.insert_json5("transport/auth/usrpwd/user", "\"qfleet\"")
+            .expect("user");
+        c.insert_json5("transport/auth/usrpwd/password", &format!("\"{p}\""))
+            .expect("password");
+    }
+    // a flood of sessions first (Zenoh's own limit is 1000 per host; the run's 512)
+    let flood: Vec<zenoh::Session> = (0..20)
+        .filter_map(|_| zenoh::open(c.clone()).wait().ok())
+        .collect();
     let s = zenoh::open(c).wait().expect("the stranger's session");
+    std::thread::sleep(Duration::from_millis(500));
+    seen.sessions_opened = flood.len() as u64 + 1;
+    seen.sessions_admitted = flood
+        .iter()
+        .chain([&s])
+        .filter(|x| x.info().peers_zid().wait().next().is_some())
+        .count() as u64;
+    for f in flood {
+        let _ = f.close().wait();
+    }
     let sub = s.declare_subscriber("**").wait().expect("subscribe");
     let plain = |b: &[u8]| {
         b.windows(run_id.len()).any(|w| w == run_id.as_bytes())
@@ -788,9 +818,28 @@ fn a_stranger_on_the_network_reads_nothing_forges_nothing_and_takes_no_slot() {
     );
     stranger.env("QFLEET_STRANGER", format!("{ENDPOINT};{id}"));
     let stranger = stranger.spawn().expect("spawn the stranger");
+    // and one that holds the session password (leaked), not the join secret
+    let password =
+        bridge::Secret::parse(&std::fs::read_to_string(&secret).expect("the secret file"))
+            .expect("a secret")
+            .session_password();
+    let mut insider = hosts.command(
+        Host::B,
+        &me,
+        &[
+            "stranger_role",
+            "--exact",
+            "--nocapture",
+            "--test-threads",
+            "1",
+        ],
+    );
+    insider.env("QFLEET_STRANGER", format!("{ENDPOINT};{id};{password}"));
+    let insider = insider.spawn().expect("spawn the insider");
     std::thread::sleep(Duration::from_millis(1500));
     let b = start_b(&hosts, 2, &db, &secret, &[]);
     let out_s = wait_bounded(stranger, LIMIT);
+    let out_i = wait_bounded(insider, LIMIT);
     let out_b = wait_bounded(b, LIMIT);
     let out_a = wait_bounded(a, LIMIT);
     assert!(out_a.status.success(), "host A: {}", describe(&out_a));
@@ -799,17 +848,35 @@ fn a_stranger_on_the_network_reads_nothing_forges_nothing_and_takes_no_slot() {
     let r = result(&da, &out_a);
     assert_complete(&r, 3);
     assert_eq!(host_b(&r)["robots"], serde_json::json!([1, 2]), "{r}");
-    // what the stranger got: frames, but no plaintext; no slot; no admin space
-    let text = String::from_utf8_lossy(&out_s.stdout);
-    let line = text
-        .lines()
-        .find_map(|l| l.split_once("STRANGER ").map(|(_, json)| json))
-        .unwrap_or_else(|| panic!("the stranger printed nothing: {}", describe(&out_s)));
-    let seen: Stranger = serde_json::from_str(line).expect("the stranger's JSON");
-    eprintln!("stranger: {seen:?}");
+    let seen_by = |out: &Output, who: &str| -> Stranger {
+        let text = String::from_utf8_lossy(&out.stdout);
+        let line = text
+            .lines()
+            .find_map(|l| l.split_once("STRANGER ").map(|(_, json)| json))
+            .unwrap_or_else(|| panic!("the {who} printed nothing: {}", describe(out)));
+        let seen: Stranger = serde_json::from_str(line).expect("the stranger's JSON");
+        eprintln!("{who}: {seen:?}");
+        seen
+    };
+    // the stranger without the secret gets no Zenoh session at all: nothing to read, nothing
+    // reaches host A, no session slot held, idle connections dropped
+    let seen = seen_by(&out_s, "stranger");
+    assert_eq!(
+        (seen.sessions_admitted, seen.samples, seen.admin_replies),
+        (0, 0, 0),
+        "{seen:?}"
+    );
+    assert!(seen.sessions_opened > 1, "{seen:?}");
+    assert!(seen.join_answers.is_empty(), "{seen:?}");
+    assert!(seen.idle_opened > 0, "{seen:?}");
+    assert_eq!(seen.idle_closed, seen.idle_opened, "{seen:?}");
+    // what the insider (session password, no join secret) got: frames, but no plaintext; no
+    // slot; no admin space
+    let seen = seen_by(&out_i, "insider");
+    assert!(seen.sessions_admitted > 0, "{seen:?}");
     assert!(
         seen.samples > 0,
-        "the stranger saw no frame at all: {seen:?}"
+        "the insider saw no frame at all: {seen:?}"
     );
     assert_eq!(seen.plaintext, 0, "{seen:?}");
     assert!(!seen.join_answers.is_empty(), "{seen:?}");

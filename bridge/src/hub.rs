@@ -120,7 +120,11 @@ pub struct Hub {
 impl Hub {
     /// Listens on `opts.listen` (an error at once if it cannot) and starts the hub thread.
     pub fn start(opts: HubOptions) -> Result<Hub, BridgeError> {
-        let session = link::listen(&opts.listen, opts.tuning)?;
+        let session = link::listen(
+            &opts.listen,
+            opts.tuning,
+            &link::SessionAuth::of(&opts.secret),
+        )?;
         let stop = Arc::new(AtomicBool::new(false));
         let flag = Arc::clone(&stop);
         let (waker, wakes) = wake_pair()?;

@@ -6,6 +6,7 @@
 //! joining host does not listen at all. Zenoh's own reliability (TCP) carries frames while a
 //! session lasts; what a broken session loses, [`crate::reliable`] resends.
 
+use std::path::{Path, PathBuf};
 use std::sync::mpsc::{Receiver, sync_channel};
 use std::time::{Duration, Instant};
 
@@ -61,6 +62,97 @@ pub unsafe fn prefer_runtime_threads() {
     }
 }
 
+/// Zenoh's user–password authentication for the run's sessions (issue 27): the hub's session
+/// accepts only a peer that answers its nonce with an HMAC of the password
+/// [`Secret::session_password`](crate::seal::Secret::session_password) derives from the join
+/// secret, so a stranger's TCP connection is closed at Zenoh's handshake: it never gets a
+/// session to subscribe, query or publish on, and cannot hold one of the session slots.
+/// Half-open connections are dropped after `accept_timeout` (1 s) as before.
+#[derive(Clone)]
+pub struct SessionAuth {
+    password: String,
+}
+
+impl std::fmt::Debug for SessionAuth {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("SessionAuth(<hidden>)")
+    }
+}
+
+/// The user name both hosts give Zenoh (the password is what counts).
+const SESSION_USER: &str = "qfleet";
+
+impl SessionAuth {
+    /// The authentication of the run `secret` is for.
+    pub fn of(secret: &crate::seal::Secret) -> Self {
+        SessionAuth {
+            password: secret.session_password(),
+        }
+    }
+
+    /// Sets the credentials this session presents; a listening one also gets the dictionary
+    /// file it checks peers against (Zenoh reads it when the session opens: the caller removes
+    /// it right after).
+    fn apply(&self, c: &mut zenoh::Config, dictionary: Option<&Path>) -> Result<(), BridgeError> {
+        let mut set = |k: &str, v: String| {
+            c.insert_json5(k, &v).map_err(|e| BridgeError::Zenoh {
+                what: format!("setting {k}"),
+                detail: crate::zenoh_text(&e),
+            })
+        };
+        set("transport/auth/usrpwd/user", json_str(SESSION_USER))?;
+        set("transport/auth/usrpwd/password", json_str(&self.password))?;
+        if let Some(d) = dictionary {
+            set(
+                "transport/auth/usrpwd/dictionary_file",
+                json_str(&d.display().to_string()),
+            )?;
+        }
+        Ok(())
+    }
+}
+
+fn json_str(s: &str) -> String {
+    serde_json::to_string(s).unwrap_or_default()
+}
+
+/// The listener's dictionary (`user:password`, one line) in a file only this user can read,
+/// removed when dropped.
+struct Dictionary(PathBuf);
+
+impl Dictionary {
+    fn write(auth: &SessionAuth) -> Result<Dictionary, BridgeError> {
+        use std::io::Write;
+        use std::os::unix::fs::OpenOptionsExt;
+        let mut nonce = [0u8; 8];
+        crate::seal::random(&mut nonce).map_err(|e| BridgeError::Thread(e.to_string()))?;
+        let path = std::env::temp_dir().join(format!(
+            "qfleet-zenoh-auth-{}-{}",
+            std::process::id(),
+            crate::seal::hex(&nonce)
+        ));
+        let io = |e: std::io::Error| BridgeError::Zenoh {
+            what: format!("writing the session dictionary {}", path.display()),
+            detail: e.to_string(),
+        };
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .mode(0o600)
+            .open(&path)
+            .map_err(io)?;
+        let d = Dictionary(path.clone());
+        writeln!(f, "{SESSION_USER}:{}", auth.password).map_err(io)?;
+        Ok(d)
+    }
+}
+
+impl Drop for Dictionary {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
+
 fn base_config(tuning: Tuning) -> Result<zenoh::Config, BridgeError> {
     let mut c = zenoh::Config::default();
     let mut set = |k: &str, v: &str| {
@@ -102,10 +194,17 @@ pub fn check_endpoint(endpoint: &str) -> Result<(), BridgeError> {
         })
 }
 
-/// A session listening on `endpoint` (the coordinator's host); fails at once if it cannot bind.
-pub fn listen(endpoint: &str, tuning: Tuning) -> Result<zenoh::Session, BridgeError> {
+/// A session listening on `endpoint` (the coordinator's host) that admits only peers holding
+/// `auth`; fails at once if it cannot bind.
+pub fn listen(
+    endpoint: &str,
+    tuning: Tuning,
+    auth: &SessionAuth,
+) -> Result<zenoh::Session, BridgeError> {
     check_endpoint(endpoint)?;
     let mut c = base_config(tuning)?;
+    let dictionary = Dictionary::write(auth)?;
+    auth.apply(&mut c, Some(&dictionary.0))?;
     let list = serde_json::to_string(&[endpoint]).unwrap_or_default();
     c.insert_json5("listen/endpoints", &list)
         .map_err(|e| BridgeError::Endpoint {
@@ -118,14 +217,17 @@ pub fn listen(endpoint: &str, tuning: Tuning) -> Result<zenoh::Session, BridgeEr
     })
 }
 
-/// A session connected to `endpoint` (a joining host), giving up after `timeout`.
+/// A session connected to `endpoint` (a joining host) presenting `auth`, giving up after
+/// `timeout`.
 pub fn connect(
     endpoint: &str,
     timeout: Duration,
     tuning: Tuning,
+    auth: &SessionAuth,
 ) -> Result<zenoh::Session, BridgeError> {
     check_endpoint(endpoint)?;
     let mut c = base_config(tuning)?;
+    auth.apply(&mut c, None)?;
     let list = serde_json::to_string(&[endpoint]).unwrap_or_default();
     let ms = timeout.as_millis().max(1).to_string();
     for (k, v) in [

@@ -99,7 +99,7 @@ pub fn request(
     timeout: Duration,
     tuning: Tuning,
 ) -> Result<Joined, BridgeError> {
-    let session = link::connect(endpoint, timeout, tuning)?;
+    let session = link::connect(endpoint, timeout, tuning, &link::SessionAuth::of(secret))?;
     let deadline = Instant::now() + timeout;
     let knocker = Knocker::new(secret.clone())?;
     loop {

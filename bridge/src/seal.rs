@@ -180,6 +180,14 @@ impl Secret {
                 .is_some_and(|rest| rest.starts_with('-'))
     }
 
+    /// The password both hosts give Zenoh's user–password authentication (see
+    /// [`crate::link::SessionAuth`]): derived from the secret, so only a holder of the secret
+    /// completes a Zenoh session with the run's host at all; the secret itself never leaves
+    /// this process (Zenoh sends only an HMAC of this password keyed by the acceptor's nonce).
+    pub fn session_password(&self) -> String {
+        hex(&self.mac(b"qfleet zenoh session v1").finalize().into_bytes())
+    }
+
     fn mac(&self, label: &[u8]) -> HmacSha256 {
         let mut m = <HmacSha256 as Mac>::new_from_slice(&self.key).expect("HMAC takes any key");
         m.update(label);

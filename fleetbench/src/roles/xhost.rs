@@ -116,6 +116,12 @@ fn finish(
 }
 
 const PING_KEY: &str = "qfleet/bench/ping";
+
+/// The floor's sessions authenticate as a run's do (a fixed bench secret: the handshake is
+/// the same, and it costs nothing per message).
+fn floor_auth() -> bridge::link::SessionAuth {
+    bridge::link::SessionAuth::of(&bridge::Secret::new("bench-floor", [7; 32]))
+}
 const PONG_KEY: &str = "qfleet/bench/pong";
 
 /// Zenoh pong: listens on `listen`, answers every ping on the pong key; an empty message ends.
@@ -124,8 +130,8 @@ pub fn zenoh_pong(
     tuning: Tuning,
     timeout: Duration,
 ) -> Result<ChildReport, BenchError> {
-    let session =
-        bridge::link::listen(listen, tuning).map_err(|e| BenchError::Input(e.to_string()))?;
+    let session = bridge::link::listen(listen, tuning, &floor_auth())
+        .map_err(|e| BenchError::Input(e.to_string()))?;
     let publisher = bridge::link::publisher(&session, PONG_KEY.into(), tuning)
         .map_err(|e| BenchError::Input(e.to_string()))?;
     let sub = session
@@ -159,7 +165,7 @@ pub fn zenoh_ping(
     hist_path: &Path,
 ) -> Result<ChildReport, BenchError> {
     let timeout = Duration::from_millis(plan.timeout_ms);
-    let session = bridge::link::connect(endpoint, timeout, tuning)
+    let session = bridge::link::connect(endpoint, timeout, tuning, &floor_auth())
         .map_err(|e| BenchError::Input(e.to_string()))?;
     let publisher = bridge::link::publisher(&session, PING_KEY.into(), tuning)
         .map_err(|e| BenchError::Input(e.to_string()))?;
