@@ -256,11 +256,19 @@ fn a_full_disk_under_out_is_an_error_naming_what_was_kept_never_a_panic() {
                 "4",
             ],
         )
+        .args(["--restart", "on-failure"])
         .arg("--out")
         .arg(&out_dir),
     );
     kill_run(&id);
     assert_eq!(code(&out), Some(1), "{}", describe(&out));
+    // a robot that reported but could not write its files is not restarted: it would learn
+    // again only to fail the same way
+    assert!(
+        !stderr(&out).contains("restarting"),
+        "finished robots were restarted: {}",
+        describe(&out)
+    );
     let err = stderr(&out);
     assert!(
         err.contains(&format!("kept in {}", out_dir.display())),

@@ -4,11 +4,13 @@
 //!
 //! Exit codes (the same for runs and experiments):
 //! - 0: the run (every phase) completed and every robot reported;
-//! - 1: a runtime failure (the bus, a thread, writing the result);
+//! - 1: a runtime failure (the bus, a thread);
 //! - 2: bad input (an option value, the map, the scenario, the learner options);
 //! - 3: a robot was refused at registration (schema or map mismatch);
 //! - 4: the run completed, but some robot was lost or sent no report (in some phase, for an
 //!   experiment; a hung robot is reported as `hung` and does not change the exit code);
+//! - 5: its files could not be written (a full `--out` disk): the result went to the launcher
+//!   on stdout as a `result <json>` line; the launcher does not restart it;
 //! - 130: interrupted by a signal (a partial result is written when the run had started).
 
 use std::process::ExitCode;

@@ -75,9 +75,11 @@ pub enum CoordError {
 
 impl CoordError {
     /// The process exit code for this error: 2 bad input, 130 interrupted, 3 a robot refused,
-    /// 1 any other failure.
+    /// 5 its files not written (the result went to the launcher on stdout: a restart would
+    /// only fail the same way), 1 any other failure.
     pub fn exit_code(&self) -> u8 {
         match self {
+            CoordError::Write(_) => 5,
             CoordError::Option { .. }
             | CoordError::Task(_)
             | CoordError::Plan(_)

@@ -258,12 +258,15 @@ fn start(
 
 /// Whether a process ended in a way a restart can cure: killed by a signal or crashed. Not a
 /// clean exit, nor bad input (2) or a refusal (3), which would only repeat; nor a coordinator
-/// that ended the run with lost robots (4) or stopped early (130).
+/// that ended the run with lost robots (4) or stopped early (130); nor a process that could
+/// not write its result files (5: a robot reported first, a coordinator sent its result on
+/// stdout; running again would end the same way).
 fn restartable(kind: Kind, status: ExitStatus) -> bool {
     match (status.code(), kind) {
         (None, _) => true,
         (Some(0 | 2 | 3 | 130), _) => false,
         (Some(4), Kind::Coordinator) => false,
+        (Some(5), _) => false,
         (Some(_), _) => true,
     }
 }
@@ -584,6 +587,11 @@ mod tests {
         assert!(restartable(Kind::Robot(0), code(101)));
         assert!(restartable(Kind::Robot(0), code(4)));
         assert!(!restartable(Kind::Coordinator, code(4)));
+        assert!(!restartable(Kind::Robot(0), code(5)), "files not written");
+        assert!(
+            !restartable(Kind::Coordinator, code(5)),
+            "files not written"
+        );
         for c in [0, 2, 3, 130] {
             assert!(!restartable(Kind::Robot(0), code(c)), "{c}");
             assert!(!restartable(Kind::Coordinator, code(c)), "{c}");

@@ -78,6 +78,10 @@ pub const EXIT_FAILURE: u8 = 1;
 pub const EXIT_BAD_INPUT: u8 = 2;
 /// Exit code: the coordinator refused this robot.
 pub const EXIT_REFUSED: u8 = 3;
+/// Exit code: the robot's result files could not be written (its final report, if it had
+/// one, reached the coordinator): a restart would learn again only to fail the same way, so
+/// the launcher does not restart it.
+pub const EXIT_UNWRITTEN: u8 = 5;
 /// Exit code: interrupted by SIGINT/SIGTERM before the run started (128 + SIGINT).
 pub const EXIT_INTERRUPTED: u8 = 130;
 
@@ -93,10 +97,8 @@ impl AgentError {
             | AgentError::RobotId { .. } => EXIT_BAD_INPUT,
             AgentError::Refused(_) => EXIT_REFUSED,
             AgentError::Interrupted => EXIT_INTERRUPTED,
-            AgentError::Goal { .. }
-            | AgentError::Bus(_)
-            | AgentError::Output(_)
-            | AgentError::Hist(_) => EXIT_FAILURE,
+            AgentError::Output(_) => EXIT_UNWRITTEN,
+            AgentError::Goal { .. } | AgentError::Bus(_) | AgentError::Hist(_) => EXIT_FAILURE,
         }
     }
 }
@@ -127,6 +129,7 @@ mod tests {
             EXIT_FAILURE,
             EXIT_BAD_INPUT,
             EXIT_REFUSED,
+            EXIT_UNWRITTEN,
             EXIT_INTERRUPTED,
         ];
         for (i, a) in codes.iter().enumerate() {

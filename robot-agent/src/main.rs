@@ -4,9 +4,11 @@
 //! Exit codes:
 //! - 0: the robot ran its plan to the coordinator's `Stop`, or was stopped by SIGINT/SIGTERM
 //!   after the run started and reported cleanly;
-//! - 1: a runtime failure (bus error, no coordinator within `--timeout`, results not written);
+//! - 1: a runtime failure (bus error, no coordinator within `--timeout`);
 //! - 2: bad input (an option, the map, a learner parameter);
 //! - 3: the coordinator refused this robot (schema version, map, id);
+//! - 5: its result files could not be written (a final report still went to the coordinator
+//!   first); the launcher does not restart it;
 //! - 130: interrupted by SIGINT/SIGTERM before the coordinator started the run.
 
 use std::process::ExitCode;
