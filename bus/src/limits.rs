@@ -134,6 +134,42 @@ pub fn memory_estimate(cells: u64, processes: u64) -> u64 {
     processes.saturating_mul(MEMORY_BASE.saturating_add(cells.saturating_mul(MEMORY_PER_CELL)))
 }
 
+/// A run that would not fit in the memory available: a launcher refuses it before any
+/// process starts (unless told `--ignore-memory`) rather than let the OOM killer choose.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error(
+    "not enough memory: {robots} robot(s) and the coordinator on a map of {cells} cells need \
+     ~{} MiB, {} MiB are available; run fewer robots or a smaller map, or pass \
+     --ignore-memory",
+    need >> 20,
+    have >> 20
+)]
+pub struct MemoryShortage {
+    /// Robots of this host.
+    pub robots: u64,
+    /// Cells of the map.
+    pub cells: u64,
+    /// Estimated need ([`memory_estimate`]), bytes.
+    pub need: u64,
+    /// Available ([`mem_available`]), bytes.
+    pub have: u64,
+}
+
+/// Checks that `robots` robots and a coordinator on a map of `cells` cells fit in `available`
+/// bytes (`None`: unknown, passes).
+pub fn check_memory(cells: u64, robots: u64, available: Option<u64>) -> Result<(), MemoryShortage> {
+    let need = memory_estimate(cells, robots.saturating_add(1));
+    match available {
+        Some(have) if need > have => Err(MemoryShortage {
+            robots,
+            cells,
+            need,
+            have,
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// `MemAvailable` of a `/proc/meminfo` text, bytes.
 pub fn mem_available_in(meminfo: &str) -> Option<u64> {
     let line = meminfo.lines().find(|l| l.starts_with("MemAvailable:"))?;
@@ -158,6 +194,19 @@ mod memory_tests {
         // a small map costs little more than the base
         assert!(memory_estimate(20 * 20, 5) < 5 * (MEMORY_BASE + (1 << 20)));
         assert_eq!(memory_estimate(u64::MAX, 2), u64::MAX);
+    }
+
+    #[test]
+    fn a_run_is_refused_only_when_its_estimate_exceeds_what_is_available() {
+        let cells = 2048 * 2048;
+        let e = check_memory(cells, 32, Some(1 << 30)).unwrap_err();
+        assert_eq!(e.need, memory_estimate(cells, 33));
+        assert!(e.to_string().contains("--ignore-memory"), "{e}");
+        assert!(
+            check_memory(cells, 32, Some(e.need)).is_ok(),
+            "exactly enough fits"
+        );
+        assert!(check_memory(cells, 32, None).is_ok(), "unknown passes");
     }
 
     #[test]

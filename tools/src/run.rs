@@ -351,20 +351,9 @@ impl RunCmd {
         )?)?;
         // every local process holds tables the size of the map: refuse what cannot fit (issue
         // 27: 32 robots on suite:maze-2048-1 need ~4.5 GB) rather than let the OOM killer choose
-        let cells = (task.grid.width() * task.grid.height()) as u64;
-        let need = bus::limits::memory_estimate(cells, u64::from(self.robots) + 1);
-        if !self.ignore_memory
-            && let Some(have) = bus::limits::mem_available()
-            && need > have
-        {
-            return Err(anyhow!(
-                "not enough memory: {} robot(s) and the coordinator on a map of {cells} cells \
-                 need ~{} MiB, {} MiB are available; run fewer robots or a smaller map, or pass \
-                 --ignore-memory",
-                self.robots,
-                need >> 20,
-                have >> 20
-            ));
+        if !self.ignore_memory {
+            let cells = (task.grid.width() * task.grid.height()) as u64;
+            bus::limits::check_memory(cells, u64::from(self.robots), bus::limits::mem_available())?;
         }
         Ok((task, cfg, grace, time_limit, run_id))
     }
