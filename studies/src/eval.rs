@@ -6,6 +6,7 @@
 //! defaults are chosen, [`Half::Heldout`] where figures are reported.
 
 use crate::Progress;
+use crate::files::{self, WriteError};
 use crossbeam::channel;
 use planner::grid::GridError;
 use planner::suite::{self, Family, Split, SuiteTask};
@@ -86,14 +87,8 @@ pub enum EvalError {
     #[error(transparent)]
     Learner(#[from] ConfigError),
     /// A file could not be written.
-    #[error("writing {}", path.display())]
-    Write {
-        /// The file or directory.
-        path: PathBuf,
-        /// Why.
-        #[source]
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    Write(#[from] WriteError),
     /// The results could not be encoded as JSON.
     #[error("encoding results.json")]
     Json(#[from] serde_json::Error),
@@ -109,13 +104,6 @@ impl EvalError {
                 | EvalError::NotADirectory(_)
                 | EvalError::NoMaps
         )
-    }
-}
-
-fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> EvalError + '_ {
-    move |source| EvalError::Write {
-        path: path.to_path_buf(),
-        source,
     }
 }
 
@@ -416,21 +404,22 @@ pub struct Evaluated {
 }
 
 /// The suite's tasks that `opts` selects, generated and (when the directory exists) MovingAI.
-fn suite_tasks(opts: &EvalOptions, progress: &mut dyn Progress) -> Result<Vec<SuiteTask>, EvalError> {
+fn suite_tasks(
+    opts: &EvalOptions,
+    progress: &mut dyn Progress,
+) -> Result<Vec<SuiteTask>, EvalError> {
     let want = |f: Family| opts.families.is_empty() || opts.families.contains(&f);
     let mut tasks: Vec<SuiteTask> = Vec::new();
     for &size in &opts.sizes {
         for family in Family::GENERATED.into_iter().filter(|f| want(*f)) {
             for i in 0..opts.maps as usize {
-                tasks.push(
-                    suite::generate(family, size, i, opts.suite_seed).map_err(|source| {
-                        EvalError::Generate {
-                            family,
-                            size,
-                            source,
-                        }
-                    })?,
-                );
+                tasks.push(suite::generate(family, size, i, opts.suite_seed).map_err(
+                    |source| EvalError::Generate {
+                        family,
+                        size,
+                        source,
+                    },
+                )?);
             }
         }
     }
@@ -536,7 +525,7 @@ pub fn eval(opts: &EvalOptions, progress: &mut dyn Progress) -> Result<Evaluated
     progress.finish();
     let names: Vec<&str> = configs.iter().map(|c| c.name).collect();
     let table = render(&records, &names, opts.seeds, episodes, opts.split);
-    std::fs::create_dir_all(&opts.out).map_err(write_err(&opts.out))?;
+    files::create_dir(&opts.out)?;
     let report = EvalReport {
         episodes,
         seeds: opts.seeds,
@@ -556,9 +545,9 @@ pub fn eval(opts: &EvalOptions, progress: &mut dyn Progress) -> Result<Evaluated
     // through a JSON value, as the file always was: the same key order whatever serde_json's
     // features
     let json = serde_json::to_string(&serde_json::to_value(&report)?)?;
-    std::fs::write(&results_json, json).map_err(write_err(&results_json))?;
+    files::write(&results_json, json)?;
     let table_md = opts.out.join("table.md");
-    std::fs::write(&table_md, &table).map_err(write_err(&table_md))?;
+    files::write(&table_md, &table)?;
     Ok(Evaluated {
         report,
         table,

@@ -1,6 +1,7 @@
 //! One learner on one task (`qfleet learn`): the run's summary as a [`LearnResult`], and with
 //! an out directory its per-episode CSV, the summary as JSON and two figures.
 
+use crate::files::{self, WriteError, writing};
 use crate::plots::{self, PlotError, Series};
 use planner::task::Task;
 use planner::{ConfigError, EpisodeRecord, Learner, LearnerConfig, Summary};
@@ -29,14 +30,8 @@ pub enum LearnError {
     #[error(transparent)]
     Config(#[from] ConfigError),
     /// A file of the out directory could not be written.
-    #[error("writing {}", path.display())]
-    Write {
-        /// The file or directory.
-        path: PathBuf,
-        /// Why.
-        #[source]
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    Write(#[from] WriteError),
     /// A figure could not be drawn.
     #[error(transparent)]
     Plot(#[from] PlotError),
@@ -49,13 +44,6 @@ impl LearnError {
     /// Whether the input was refused before anything ran (the CLI's exit code 2).
     pub fn is_bad_input(&self) -> bool {
         matches!(self, LearnError::Config(_))
-    }
-
-    fn write(path: &Path) -> impl FnOnce(std::io::Error) -> LearnError + '_ {
-        move |source| LearnError::Write {
-            path: path.to_path_buf(),
-            source,
-        }
     }
 }
 
@@ -129,11 +117,11 @@ pub fn learn(opts: &LearnOptions) -> Result<LearnResult, LearnError> {
         elapsed,
     );
     if let Some(dir) = &opts.out {
-        std::fs::create_dir_all(dir).map_err(LearnError::write(dir))?;
+        files::create_dir(dir)?;
         write_episodes_csv(&dir.join("episodes.csv"), &records)?;
         let summary_json = dir.join("summary.json");
         let text = serde_json::to_string_pretty(&result)?;
-        std::fs::write(&summary_json, text).map_err(LearnError::write(&summary_json))?;
+        files::write(&summary_json, text)?;
         let steps: Vec<f64> = records.iter().map(|r| r.steps as f64).collect();
         plots::line_chart(
             &dir.join("steps.svg"),
@@ -211,11 +199,12 @@ impl LearnResult {
 
 /// Writes the per-episode CSV file.
 pub fn write_episodes_csv(path: &Path, records: &[EpisodeRecord]) -> Result<(), LearnError> {
-    let f = std::fs::File::create(path).map_err(LearnError::write(path))?;
+    let f = std::fs::File::create(path).map_err(writing(path))?;
     let mut w = std::io::BufWriter::new(f);
     planner::metrics::write_episodes_csv(&mut w, records)
         .and_then(|()| w.flush())
-        .map_err(LearnError::write(path))
+        .map_err(writing(path))?;
+    Ok(())
 }
 
 #[cfg(test)]

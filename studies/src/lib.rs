@@ -10,6 +10,7 @@
 //! the fleet runs of a sweep through [`sweep::Fleet`], both implemented by the caller.
 
 pub mod eval;
+pub mod files;
 pub mod learn;
 pub mod plots;
 pub mod progress;

@@ -84,12 +84,14 @@ pub fn line_chart(
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(60)
-        .build_cartesian_2d(0f64..(n - 1) as f64, (ymin..ymax).log_scale()).map_err(at(path))?;
+        .build_cartesian_2d(0f64..(n - 1) as f64, (ymin..ymax).log_scale())
+        .map_err(at(path))?;
     chart
         .configure_mesh()
         .x_desc(x_label)
         .y_desc(y_label)
-        .draw().map_err(at(path))?;
+        .draw()
+        .map_err(at(path))?;
     for (i, s) in series.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
         chart
@@ -100,7 +102,8 @@ pub fn line_chart(
                     .filter(|(_, v)| **v > 0.0)
                     .map(|(x, v)| (x as f64, *v)),
                 color.stroke_width(2),
-            )).map_err(at(path))?
+            ))
+            .map_err(at(path))?
             .label(s.label)
             .legend(move |(x, y)| {
                 PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
@@ -110,7 +113,8 @@ pub fn line_chart(
         .configure_series_labels()
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
-        .draw().map_err(at(path))?;
+        .draw()
+        .map_err(at(path))?;
     root.present().map_err(at(path))?;
     Ok(())
 }
@@ -132,31 +136,38 @@ pub fn paths_on_grid(
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 18))
         .margin(20)
-        .build_cartesian_2d(0f64..w as f64, h as f64..0f64).map_err(at(path))?;
-    chart.draw_series((0..grid.len()).filter_map(|i| {
-        let c = grid.cell(i);
-        (!grid.is_free(c)).then(|| {
-            Rectangle::new(
-                [
-                    (c.x as f64, c.y as f64),
-                    (c.x as f64 + 1.0, c.y as f64 + 1.0),
-                ],
-                RGBColor(60, 60, 60).filled(),
+        .build_cartesian_2d(0f64..w as f64, h as f64..0f64)
+        .map_err(at(path))?;
+    chart
+        .draw_series((0..grid.len()).filter_map(|i| {
+            let c = grid.cell(i);
+            (!grid.is_free(c)).then(|| {
+                Rectangle::new(
+                    [
+                        (c.x as f64, c.y as f64),
+                        (c.x as f64 + 1.0, c.y as f64 + 1.0),
+                    ],
+                    RGBColor(60, 60, 60).filled(),
+                )
+            })
+        }))
+        .map_err(at(path))?;
+    chart
+        .draw_series((0..=w).map(|x| {
+            PathElement::new(
+                vec![(x as f64, 0.0), (x as f64, h as f64)],
+                RGBColor(220, 220, 220),
             )
-        })
-    })).map_err(at(path))?;
-    chart.draw_series((0..=w).map(|x| {
-        PathElement::new(
-            vec![(x as f64, 0.0), (x as f64, h as f64)],
-            RGBColor(220, 220, 220),
-        )
-    })).map_err(at(path))?;
-    chart.draw_series((0..=h).map(|y| {
-        PathElement::new(
-            vec![(0.0, y as f64), (w as f64, y as f64)],
-            RGBColor(220, 220, 220),
-        )
-    })).map_err(at(path))?;
+        }))
+        .map_err(at(path))?;
+    chart
+        .draw_series((0..=h).map(|y| {
+            PathElement::new(
+                vec![(0.0, y as f64), (w as f64, y as f64)],
+                RGBColor(220, 220, 220),
+            )
+        }))
+        .map_err(at(path))?;
     let centre = |c: &Cell| (c.x as f64 + 0.5, c.y as f64 + 0.5);
     for (i, (label, cells)) in paths.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
@@ -168,25 +179,29 @@ pub fn paths_on_grid(
                     .map(|c| (centre(c).0 + off, centre(c).1 + off))
                     .collect::<Vec<_>>(),
                 color.stroke_width(3),
-            ))).map_err(at(path))?
+            )))
+            .map_err(at(path))?
             .label(format!("{label} ({} moves)", cells.len().saturating_sub(1)))
             .legend(move |(x, y)| {
                 PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(3))
             });
     }
     let r = (cell_px / 3).max(2);
-    chart.draw_series(
-        [(start, GREEN), (goal, RED)]
-            .into_iter()
-            .map(|(c, col)| Circle::new(centre(&c), r, col.filled())),
-    ).map_err(at(path))?;
+    chart
+        .draw_series(
+            [(start, GREEN), (goal, RED)]
+                .into_iter()
+                .map(|(c, col)| Circle::new(centre(&c), r, col.filled())),
+        )
+        .map_err(at(path))?;
     if !paths.is_empty() {
         chart
             .configure_series_labels()
             .position(SeriesLabelPosition::LowerLeft)
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
-            .draw().map_err(at(path))?;
+            .draw()
+            .map_err(at(path))?;
     }
     root.present().map_err(at(path))?;
     Ok(())
@@ -225,7 +240,8 @@ pub fn percentile_chart(
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(70)
-        .build_cartesian_2d((1.0f64..xmax).log_scale(), (ymin..ymax).log_scale()).map_err(at(path))?;
+        .build_cartesian_2d((1.0f64..xmax).log_scale(), (ymin..ymax).log_scale())
+        .map_err(at(path))?;
     chart
         .configure_mesh()
         .x_desc("percentile")
@@ -234,7 +250,8 @@ pub fn percentile_chart(
             let p = format!("{:.4}", 100.0 * (1.0 - 1.0 / x));
             format!("{}%", p.trim_end_matches('0').trim_end_matches('.'))
         })
-        .draw().map_err(at(path))?;
+        .draw()
+        .map_err(at(path))?;
     for (i, s) in series.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
         chart
@@ -244,7 +261,8 @@ pub fn percentile_chart(
                     .filter(|(_, v)| *v > 0.0)
                     .map(|(p, v)| (nines(*p), *v)),
                 color.stroke_width(2),
-            )).map_err(at(path))?
+            ))
+            .map_err(at(path))?
             .label(s.label)
             .legend(move |(x, y)| {
                 PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
@@ -255,7 +273,8 @@ pub fn percentile_chart(
         .position(SeriesLabelPosition::UpperLeft)
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
-        .draw().map_err(at(path))?;
+        .draw()
+        .map_err(at(path))?;
     root.present().map_err(at(path))?;
     Ok(())
 }

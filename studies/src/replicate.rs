@@ -5,6 +5,7 @@
 //! the paper's figures beside ours as mean ± sd, whichever way the comparison falls.
 
 use crate::Progress;
+use crate::files::{self, WriteError};
 use crate::plots::{self, PlotError, Series};
 use crossbeam::channel;
 use planner::map::{self, MapError};
@@ -57,14 +58,8 @@ pub enum ReplicateError {
         map: String,
     },
     /// A file could not be written.
-    #[error("writing {}", path.display())]
-    Write {
-        /// The file or directory.
-        path: PathBuf,
-        /// Why.
-        #[source]
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    Write(#[from] WriteError),
     /// A figure could not be drawn.
     #[error(transparent)]
     Plot(#[from] PlotError),
@@ -80,13 +75,6 @@ impl ReplicateError {
             self,
             ReplicateError::Map(_) | ReplicateError::Task(_) | ReplicateError::NoMaps
         )
-    }
-}
-
-fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> ReplicateError + '_ {
-    move |source| ReplicateError::Write {
-        path: path.to_path_buf(),
-        source,
     }
 }
 
@@ -526,7 +514,7 @@ pub fn replicate(
             });
         }
 
-        std::fs::create_dir_all(&opts.out).map_err(write_err(&opts.out))?;
+        files::create_dir(&opts.out)?;
         for (mr, t) in maps_out.iter().zip(&tasks) {
             let series: Vec<Series> = mr
                 .variants
@@ -572,10 +560,9 @@ pub fn replicate(
         // features
         let json = serde_json::to_value(&report)?;
         let results = opts.out.join("results.json");
-        std::fs::write(&results, serde_json::to_string_pretty(&json)?)
-            .map_err(write_err(&results))?;
+        files::write(&results, serde_json::to_string_pretty(&json)?)?;
         let table_md = opts.out.join("table.md");
-        std::fs::write(&table_md, &table).map_err(write_err(&table_md))?;
+        files::write(&table_md, &table)?;
         Ok(Replicated {
             report,
             json,
@@ -702,8 +689,17 @@ mod tests {
         let m = &done.report.maps[0];
         assert_eq!(m.variants.len(), 3);
         assert!(m.paper.is_some());
-        assert!(done.table.contains("| paper-10 | max steps |"), "{}", done.table);
-        for f in ["results.json", "table.md", "steps-paper-10.svg", "path-paper-10.svg"] {
+        assert!(
+            done.table.contains("| paper-10 | max steps |"),
+            "{}",
+            done.table
+        );
+        for f in [
+            "results.json",
+            "table.md",
+            "steps-paper-10.svg",
+            "path-paper-10.svg",
+        ] {
             assert!(out.join(f).is_file(), "{f}");
         }
         let text = std::fs::read_to_string(out.join("results.json")).unwrap();

@@ -20,6 +20,7 @@ use qfleet_args::{ArgsError, Plan, ShareMode};
 use report::ExperimentResult;
 use serde::{Deserialize, Serialize};
 
+use crate::files::{self, WriteError};
 use crate::plots::{PALETTE, PlotError, at};
 
 /// The two rules of Q-hint sharing a sweep compares (`APPLY/MERGE`, or `auto`: the ones that
@@ -110,14 +111,8 @@ pub enum SweepError<E: std::error::Error + 'static> {
         source: E,
     },
     /// A file could not be written.
-    #[error("writing {}", path.display())]
-    Write {
-        /// The file or directory.
-        path: PathBuf,
-        /// Why.
-        #[source]
-        source: std::io::Error,
-    },
+    #[error(transparent)]
+    Write(#[from] WriteError),
     /// The plot could not be drawn.
     #[error(transparent)]
     Plot(#[from] PlotError),
@@ -153,15 +148,6 @@ pub enum ReplotError {
         /// Why.
         #[source]
         source: serde_json::Error,
-    },
-    /// The plot's directory could not be made.
-    #[error("writing {}", path.display())]
-    Write {
-        /// The directory.
-        path: PathBuf,
-        /// Why.
-        #[source]
-        source: std::io::Error,
     },
     /// The plot could not be drawn.
     #[error(transparent)]
@@ -360,11 +346,7 @@ pub fn sweep<R: ShareRules, F: Fleet<R>>(
     for s in &opts.sharing {
         modes.push(ShareMode::parse(s).ok_or_else(|| SweepError::Mode(s.clone()))?);
     }
-    let write = |path: &Path| {
-        let path = path.to_path_buf();
-        move |source| SweepError::Write { path, source }
-    };
-    std::fs::create_dir_all(&opts.out).map_err(write(&opts.out))?;
+    files::create_dir(&opts.out)?;
     let mut rows: Vec<Row> = Vec::new();
     let mut skipped = Vec::new();
     for file in &opts.files {
@@ -449,7 +431,8 @@ pub fn sweep<R: ShareRules, F: Fleet<R>>(
                             }
                         }
                     };
-                    let _ = std::fs::write(dir.join("result.json"), serde_json::to_string_pretty(&r)?);
+                    let _ =
+                        std::fs::write(dir.join("result.json"), serde_json::to_string_pretty(&r)?);
                     let Some((own, merged)) = cell.add(&r) else {
                         continue;
                     };
@@ -502,11 +485,11 @@ pub fn sweep<R: ShareRules, F: Fleet<R>>(
     }
     let md = markdown(&rows, &skipped);
     let md_path = opts.out.join("sweep.md");
-    std::fs::write(&md_path, &md).map_err(write(&md_path))?;
+    files::write(&md_path, &md)?;
     let json_path = opts.out.join("sweep.json");
-    std::fs::write(&json_path, serde_json::to_string_pretty(&rows)?).map_err(write(&json_path))?;
+    files::write(&json_path, serde_json::to_string_pretty(&rows)?)?;
     if let Some(dir) = svg.parent() {
-        std::fs::create_dir_all(dir).map_err(write(dir))?;
+        files::create_dir(dir)?;
     }
     plot(&svg, &rows)?;
     Ok(Swept {
@@ -619,19 +602,22 @@ fn plot(path: &Path, rows: &[Row]) -> Result<(), PlotError> {
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(55)
-        .build_cartesian_2d(-0.2f64..xmax + 0.2, 0f64..ymax).map_err(at(path))?;
+        .build_cartesian_2d(-0.2f64..xmax + 0.2, 0f64..ymax)
+        .map_err(at(path))?;
     chart
         .configure_mesh()
         .x_desc("robots N")
         .y_desc("speedup (median env steps per robot)")
         .x_labels(((xmax as usize) + 1).max(2))
         .x_label_formatter(&|x| format!("{}", 2f64.powf(x.round()) as u32))
-        .draw().map_err(at(path))?;
+        .draw()
+        .map_err(at(path))?;
     chart
         .draw_series(LineSeries::new(
             [(-0.2, 2.5), (xmax + 0.2, 2.5)],
             BLACK.mix(0.3),
-        )).map_err(at(path))?
+        ))
+        .map_err(at(path))?
         .label("2.5× (= 40% of the steps)")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], BLACK.mix(0.3)));
     let mut sizes: Vec<f64> = rows.iter().map(|r| f64::from(r.robots).log2()).collect();
@@ -653,17 +639,21 @@ fn plot(path: &Path, rows: &[Row]) -> Result<(), PlotError> {
             .map(|w| PathElement::new(vec![w[0], w[1]], c.stroke_width(2)))
             .collect();
         chart
-            .draw_series(segs).map_err(at(path))?
+            .draw_series(segs)
+            .map_err(at(path))?
             .label(label.clone())
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2)));
-        chart.draw_series(pts.iter().map(|p| Circle::new(*p, 4, c.filled()))).map_err(at(path))?;
+        chart
+            .draw_series(pts.iter().map(|p| Circle::new(*p, 4, c.filled())))
+            .map_err(at(path))?;
     }
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperLeft)
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
-        .draw().map_err(at(path))?;
+        .draw()
+        .map_err(at(path))?;
     root.present().map_err(at(path))?;
     Ok(())
 }
@@ -784,13 +774,21 @@ mod tests {
         };
         let swept = sweep(&options(vec![manifest], &out), &mut fleet).unwrap();
         assert_eq!(fleet.ids, ["n1s1", "n1s1r1", "n2s1"]);
-        assert!(fleet.notes[0].contains("failed (bus gone); retrying"), "{:?}", fleet.notes);
+        assert!(
+            fleet.notes[0].contains("failed (bus gone); retrying"),
+            "{:?}",
+            fleet.notes
+        );
         let [lone, two] = &swept.rows[..] else {
             panic!("{:?}", swept.rows)
         };
         assert_eq!((lone.retries, lone.speedup), (1, Some(1.0)));
         assert_eq!((two.retries, two.speedup, two.pace), (0, Some(2.0), None));
-        assert!(swept.markdown.contains("| paper-30 | 2 |"), "{}", swept.markdown);
+        assert!(
+            swept.markdown.contains("| paper-30 | 2 |"),
+            "{}",
+            swept.markdown
+        );
         for f in ["sweep.md", "sweep.json", "speedup.svg"] {
             assert!(out.join(f).is_file(), "{f}");
         }

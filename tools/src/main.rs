@@ -79,9 +79,16 @@ pub fn catch_interrupts() -> anyhow::Result<()> {
 
 /// A study's error as the CLI reports it: with [`Exit::BadInput`] (exit code 2) when the
 /// study refused its input, a failure (exit code 1) otherwise.
-pub fn classify<E: std::error::Error + Send + Sync + 'static>(e: E, bad_input: bool) -> anyhow::Error {
+pub fn classify<E: std::error::Error + Send + Sync + 'static>(
+    e: E,
+    bad_input: bool,
+) -> anyhow::Error {
     let e = anyhow::Error::new(e);
-    if bad_input { e.context(Exit::BadInput) } else { e }
+    if bad_input {
+        e.context(Exit::BadInput)
+    } else {
+        e
+    }
 }
 
 /// The figures of a fleet run (`qfleet run --out`), drawn by [`studies::runplots`].
