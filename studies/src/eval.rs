@@ -14,7 +14,7 @@ use planner::{ConfigError, EpsilonReading, Extras, Learner, LearnerConfig, Polic
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// Which half of the suite to run.

@@ -15,7 +15,7 @@ use planner::{
 };
 use serde::{Deserialize, Deserializer, Serialize};
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// What to replicate and where to write it.
@@ -669,6 +669,7 @@ fn render_table(maps: &[MapResult], seeds: u32, episodes: u32) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::Path;
 
     fn options(maps: &[&str], out: &Path) -> ReplicateOptions {
         ReplicateOptions {
