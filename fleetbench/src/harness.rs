@@ -276,7 +276,7 @@ fn write_open_map(dir: &Path, cells: usize) -> Result<String, BenchError> {
 
 /// A started child process, its stdout collected by a thread.
 pub(crate) struct Child {
-    role: String,
+    role: &'static str,
     child: std::process::Child,
     stdout: Option<std::thread::JoinHandle<String>>,
 }
@@ -298,13 +298,13 @@ impl Child {
                 Ok(None) => {
                     self.kill();
                     return Err(BenchError::Child {
-                        role: self.role.clone(),
+                        role: self.role.to_string(),
                         detail: format!("still running after {timeout:?}; killed"),
                     });
                 }
                 Err(e) => {
                     return Err(BenchError::Child {
-                        role: self.role.clone(),
+                        role: self.role.to_string(),
                         detail: format!("cannot wait for it: {e}"),
                     });
                 }
@@ -317,7 +317,7 @@ impl Child {
             .unwrap_or_default();
         if !status.success() {
             return Err(BenchError::Child {
-                role: self.role.clone(),
+                role: self.role.to_string(),
                 detail: format!("{status} (its error is on stderr above)"),
             });
         }
@@ -325,11 +325,11 @@ impl Child {
             .lines()
             .find_map(|l| l.strip_prefix(REPORT_PREFIX))
             .ok_or_else(|| BenchError::Child {
-                role: self.role.clone(),
+                role: self.role.to_string(),
                 detail: "exited without a report line".into(),
             })?;
         serde_json::from_str(line).map_err(|e| BenchError::Child {
-            role: self.role.clone(),
+            role: self.role.to_string(),
             detail: format!("unreadable report: {e}"),
         })
     }
@@ -353,19 +353,22 @@ fn spawn(launcher: &Launcher, spec: &RoleSpec) -> Result<Child, BenchError> {
     spawn_on(launcher, spec, None)
 }
 
+/// Starts the child process of `spec` (pinned to `cpus` when given) as the launcher starts a
+/// run's processes ([`launcher::spawn::bind_to_launcher`]): in its own process group and
+/// killed by the kernel when this process dies, so a benchmark killed mid-row leaves no role
+/// process behind.
 pub(crate) fn spawn_on(
     launcher: &Launcher,
     spec: &RoleSpec,
     cpus: Option<&str>,
 ) -> Result<Child, BenchError> {
     let json = serde_json::to_string(spec).map_err(|e| BenchError::Spec(e.to_string()))?;
-    let role = json.split('"').nth(3).unwrap_or("child").to_string();
     let mut cmd = Command::new(&launcher.program);
     match cpus {
         Some(c) => cmd.env(crate::cpu::CPUS_ENV, c),
         None => cmd.env_remove(crate::cpu::CPUS_ENV),
     };
-    let mut child = cmd
+    let mut child = launcher::spawn::bind_to_launcher(&mut cmd)
         .args(&launcher.args)
         .arg("--role")
         .arg(json)
@@ -385,7 +388,7 @@ pub(crate) fn spawn_on(
         })
     });
     Ok(Child {
-        role,
+        role: spec.role(),
         child,
         stdout,
     })

@@ -239,6 +239,29 @@ pub enum RoleSpec {
     },
 }
 
+impl RoleSpec {
+    /// The role's name, as its JSON tag spells it (`raw-pong`, `coordinator`, …): names the
+    /// child process in the harness's errors.
+    pub fn role(&self) -> &'static str {
+        match self {
+            RoleSpec::RawPong { .. } => "raw-pong",
+            RoleSpec::RawPing { .. } => "raw-ping",
+            RoleSpec::Coordinator { .. } => "coordinator",
+            RoleSpec::LoopRobots { .. } => "loop-robots",
+            RoleSpec::UdsServer { .. } => "uds-server",
+            RoleSpec::UdsClient { .. } => "uds-client",
+            RoleSpec::Crossbeam { .. } => "crossbeam",
+            RoleSpec::TcpEcho { .. } => "tcp-echo",
+            RoleSpec::TcpPing { .. } => "tcp-ping",
+            RoleSpec::ZenohPong { .. } => "zenoh-pong",
+            RoleSpec::ZenohPing { .. } => "zenoh-ping",
+            RoleSpec::BridgedCoordinator { .. } => "bridged-coordinator",
+            RoleSpec::BridgedRobots { .. } => "bridged-robots",
+            RoleSpec::ScaleRobot { .. } => "scale-robot",
+        }
+    }
+}
+
 /// What a child reports on its one `FLEETBENCH-REPORT` stdout line.
 #[derive(Debug, Clone, Default, Serialize, Deserialize, PartialEq)]
 pub struct ChildReport {
@@ -263,4 +286,135 @@ pub struct ChildReport {
     pub merged_seen: u64,
     /// Coordinator: Q-updates merged per second over its active time (its own figure).
     pub merged_per_s: f64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One spec of every role (the match in [`RoleSpec::role`] makes a new role add a name).
+    fn every_role() -> Vec<RoleSpec> {
+        let plan = Plan {
+            warmup: 1,
+            samples: 2,
+            idle_ms: 3,
+            timeout_ms: 4,
+            min_window_ms: 5,
+        };
+        let (run_id, p) = (String::from("r"), PathBuf::from("h"));
+        let coordinator = RoleSpec::Coordinator {
+            run_id: run_id.clone(),
+            robots: 2,
+            wait: WaitStrategy::Spin,
+            spin_us: 0,
+            map: "m".into(),
+            out: p.clone(),
+            timeout_s: 1.0,
+        };
+        let robots = RoleSpec::LoopRobots {
+            run_id: run_id.clone(),
+            map: "m".into(),
+            notify: true,
+            plan,
+            peer_pid: 1,
+            hist_path: p.clone(),
+        };
+        vec![
+            RoleSpec::RawPong {
+                run_id: run_id.clone(),
+                event: true,
+                timeout_ms: 1,
+            },
+            RoleSpec::RawPing {
+                run_id: run_id.clone(),
+                event: true,
+                plan,
+                peer_pid: 1,
+                hist_path: p.clone(),
+            },
+            coordinator.clone(),
+            robots.clone(),
+            RoleSpec::UdsServer {
+                path: p.clone(),
+                spin: false,
+                cells: 1,
+                timeout_ms: 1,
+            },
+            RoleSpec::UdsClient {
+                path: p.clone(),
+                spin: false,
+                cells: 1,
+                plan,
+                peer_pid: 1,
+                hist_path: p.clone(),
+            },
+            RoleSpec::Crossbeam {
+                plan,
+                hist_path: p.clone(),
+            },
+            RoleSpec::TcpEcho {
+                addr: "a".into(),
+                timeout_ms: 1,
+            },
+            RoleSpec::TcpPing {
+                addr: "a".into(),
+                plan,
+                peer_pid: 1,
+                hist_path: p.clone(),
+            },
+            RoleSpec::ZenohPong {
+                listen: "l".into(),
+                express: true,
+                lowlatency: false,
+                timeout_ms: 1,
+            },
+            RoleSpec::ZenohPing {
+                endpoint: "e".into(),
+                express: true,
+                lowlatency: false,
+                plan,
+                peer_pid: 1,
+                hist_path: p.clone(),
+            },
+            RoleSpec::BridgedCoordinator {
+                inner: Box::new(coordinator),
+                listen: "l".into(),
+                express: true,
+                lowlatency: false,
+                bridge_spin_us: 0,
+                secret_file: p.clone(),
+                plain: false,
+            },
+            RoleSpec::BridgedRobots {
+                inner: Box::new(robots),
+                endpoint: "e".into(),
+                express: true,
+                lowlatency: false,
+                bridge_spin_us: 0,
+                secret_file: p.clone(),
+                plain: false,
+            },
+            RoleSpec::ScaleRobot {
+                run_id,
+                map: "m".into(),
+                robot_id: 0,
+                robots: 2,
+                batch: 1,
+                duration_ms: 1,
+                in_flight: 1,
+                notify_gap_us: 0,
+                timeout_ms: 1,
+                peer_pid: None,
+                hist_path: p,
+            },
+        ]
+    }
+
+    #[test]
+    fn a_role_is_named_as_its_json_tag() {
+        for spec in every_role() {
+            let json = serde_json::to_value(&spec).unwrap();
+            assert_eq!(json["role"], spec.role(), "{json}");
+        }
+    }
 }

@@ -1,5 +1,6 @@
 //! `qfleet`: learn grid paths with the paper's Q-learners, replicate its results, and run fleets.
 
+mod bar;
 mod bench;
 mod clean;
 mod eval;
@@ -8,11 +9,9 @@ mod join;
 mod launch;
 mod learn;
 mod live;
-mod plots;
 mod replay;
 mod replicate;
 mod run;
-mod runplots;
 mod sweep;
 mod table;
 mod term;
@@ -76,6 +75,28 @@ pub fn catch_interrupts() -> anyhow::Result<()> {
         .get_or_init(|| ctrlc::set_handler(request_stop).map_err(|e| e.to_string()))
         .clone()
         .map_err(|e| anyhow::anyhow!("installing the Ctrl-C handler: {e}"))
+}
+
+/// A study's error as the CLI reports it: with [`Exit::BadInput`] (exit code 2) when the
+/// study refused its input, a failure (exit code 1) otherwise.
+pub fn classify<E: std::error::Error + Send + Sync + 'static>(
+    e: E,
+    bad_input: bool,
+) -> anyhow::Error {
+    let e = anyhow::Error::new(e);
+    if bad_input {
+        e.context(Exit::BadInput)
+    } else {
+        e
+    }
+}
+
+/// The figures of a fleet run (`qfleet run --out`), drawn by [`studies::runplots`].
+mod runplots {
+    /// Writes them; an error keeps its causes (the run prints it as a warning).
+    pub fn write(out: &std::path::Path) -> anyhow::Result<Vec<std::path::PathBuf>> {
+        Ok(studies::runplots::write(out)?)
+    }
 }
 
 fn main() {

@@ -1,9 +1,31 @@
-//! SVG figures: steps per episode (like the paper's learning curves) and paths drawn on the grid.
+//! SVG figures: steps per episode (like the paper's learning curves), paths drawn on the grid
+//! and latency distributions.
 
-use anyhow::{Context, Result};
 use planner::{Cell, Grid};
 use plotters::prelude::*;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+/// A figure that could not be drawn or written.
+#[derive(Debug, thiserror::Error)]
+#[error("writing {}", path.display())]
+pub struct PlotError {
+    /// The SVG file.
+    pub path: PathBuf,
+    /// What plotters reported.
+    #[source]
+    pub source: DrawingAreaErrorKind<std::io::Error>,
+}
+
+/// The result of drawing one figure.
+pub type Result<T> = std::result::Result<T, PlotError>;
+
+/// Names the file a plotters error was about.
+pub fn at(path: &Path) -> impl Fn(DrawingAreaErrorKind<std::io::Error>) -> PlotError + '_ {
+    move |source| PlotError {
+        path: path.to_path_buf(),
+        source,
+    }
+}
 
 /// Colours of successive series.
 pub const PALETTE: [RGBColor; 12] = [
@@ -56,18 +78,20 @@ pub fn line_chart(
         .max(0.5)
         * 0.7;
     let root = SVGBackend::new(path, (900, 520)).into_drawing_area();
-    root.fill(&WHITE)?;
+    root.fill(&WHITE).map_err(at(path))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 20))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(60)
-        .build_cartesian_2d(0f64..(n - 1) as f64, (ymin..ymax).log_scale())?;
+        .build_cartesian_2d(0f64..(n - 1) as f64, (ymin..ymax).log_scale())
+        .map_err(at(path))?;
     chart
         .configure_mesh()
         .x_desc(x_label)
         .y_desc(y_label)
-        .draw()?;
+        .draw()
+        .map_err(at(path))?;
     for (i, s) in series.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
         chart
@@ -78,7 +102,8 @@ pub fn line_chart(
                     .filter(|(_, v)| **v > 0.0)
                     .map(|(x, v)| (x as f64, *v)),
                 color.stroke_width(2),
-            ))?
+            ))
+            .map_err(at(path))?
             .label(s.label)
             .legend(move |(x, y)| {
                 PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
@@ -88,9 +113,9 @@ pub fn line_chart(
         .configure_series_labels()
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
-        .draw()?;
-    root.present()
-        .with_context(|| format!("writing {}", path.display()))?;
+        .draw()
+        .map_err(at(path))?;
+    root.present().map_err(at(path))?;
     Ok(())
 }
 
@@ -107,35 +132,42 @@ pub fn paths_on_grid(
     let cell_px = (720 / w.max(h)).clamp(2, 40);
     let root = SVGBackend::new(path, ((w * cell_px + 40) as u32, (h * cell_px + 90) as u32))
         .into_drawing_area();
-    root.fill(&WHITE)?;
+    root.fill(&WHITE).map_err(at(path))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 18))
         .margin(20)
-        .build_cartesian_2d(0f64..w as f64, h as f64..0f64)?;
-    chart.draw_series((0..grid.len()).filter_map(|i| {
-        let c = grid.cell(i);
-        (!grid.is_free(c)).then(|| {
-            Rectangle::new(
-                [
-                    (c.x as f64, c.y as f64),
-                    (c.x as f64 + 1.0, c.y as f64 + 1.0),
-                ],
-                RGBColor(60, 60, 60).filled(),
+        .build_cartesian_2d(0f64..w as f64, h as f64..0f64)
+        .map_err(at(path))?;
+    chart
+        .draw_series((0..grid.len()).filter_map(|i| {
+            let c = grid.cell(i);
+            (!grid.is_free(c)).then(|| {
+                Rectangle::new(
+                    [
+                        (c.x as f64, c.y as f64),
+                        (c.x as f64 + 1.0, c.y as f64 + 1.0),
+                    ],
+                    RGBColor(60, 60, 60).filled(),
+                )
+            })
+        }))
+        .map_err(at(path))?;
+    chart
+        .draw_series((0..=w).map(|x| {
+            PathElement::new(
+                vec![(x as f64, 0.0), (x as f64, h as f64)],
+                RGBColor(220, 220, 220),
             )
-        })
-    }))?;
-    chart.draw_series((0..=w).map(|x| {
-        PathElement::new(
-            vec![(x as f64, 0.0), (x as f64, h as f64)],
-            RGBColor(220, 220, 220),
-        )
-    }))?;
-    chart.draw_series((0..=h).map(|y| {
-        PathElement::new(
-            vec![(0.0, y as f64), (w as f64, y as f64)],
-            RGBColor(220, 220, 220),
-        )
-    }))?;
+        }))
+        .map_err(at(path))?;
+    chart
+        .draw_series((0..=h).map(|y| {
+            PathElement::new(
+                vec![(0.0, y as f64), (w as f64, y as f64)],
+                RGBColor(220, 220, 220),
+            )
+        }))
+        .map_err(at(path))?;
     let centre = |c: &Cell| (c.x as f64 + 0.5, c.y as f64 + 0.5);
     for (i, (label, cells)) in paths.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
@@ -147,28 +179,31 @@ pub fn paths_on_grid(
                     .map(|c| (centre(c).0 + off, centre(c).1 + off))
                     .collect::<Vec<_>>(),
                 color.stroke_width(3),
-            )))?
+            )))
+            .map_err(at(path))?
             .label(format!("{label} ({} moves)", cells.len().saturating_sub(1)))
             .legend(move |(x, y)| {
                 PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(3))
             });
     }
     let r = (cell_px / 3).max(2);
-    chart.draw_series(
-        [(start, GREEN), (goal, RED)]
-            .into_iter()
-            .map(|(c, col)| Circle::new(centre(&c), r, col.filled())),
-    )?;
+    chart
+        .draw_series(
+            [(start, GREEN), (goal, RED)]
+                .into_iter()
+                .map(|(c, col)| Circle::new(centre(&c), r, col.filled())),
+        )
+        .map_err(at(path))?;
     if !paths.is_empty() {
         chart
             .configure_series_labels()
             .position(SeriesLabelPosition::LowerLeft)
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
-            .draw()?;
+            .draw()
+            .map_err(at(path))?;
     }
-    root.present()
-        .with_context(|| format!("writing {}", path.display()))?;
+    root.present().map_err(at(path))?;
     Ok(())
 }
 
@@ -199,13 +234,14 @@ pub fn percentile_chart(
         .max(1e-3)
         * 0.7;
     let root = SVGBackend::new(path, (900, 520)).into_drawing_area();
-    root.fill(&WHITE)?;
+    root.fill(&WHITE).map_err(at(path))?;
     let mut chart = ChartBuilder::on(&root)
         .caption(title, ("sans-serif", 20))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(70)
-        .build_cartesian_2d((1.0f64..xmax).log_scale(), (ymin..ymax).log_scale())?;
+        .build_cartesian_2d((1.0f64..xmax).log_scale(), (ymin..ymax).log_scale())
+        .map_err(at(path))?;
     chart
         .configure_mesh()
         .x_desc("percentile")
@@ -214,7 +250,8 @@ pub fn percentile_chart(
             let p = format!("{:.4}", 100.0 * (1.0 - 1.0 / x));
             format!("{}%", p.trim_end_matches('0').trim_end_matches('.'))
         })
-        .draw()?;
+        .draw()
+        .map_err(at(path))?;
     for (i, s) in series.iter().enumerate() {
         let color = PALETTE[i % PALETTE.len()];
         chart
@@ -224,7 +261,8 @@ pub fn percentile_chart(
                     .filter(|(_, v)| *v > 0.0)
                     .map(|(p, v)| (nines(*p), *v)),
                 color.stroke_width(2),
-            ))?
+            ))
+            .map_err(at(path))?
             .label(s.label)
             .legend(move |(x, y)| {
                 PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
@@ -235,8 +273,8 @@ pub fn percentile_chart(
         .position(SeriesLabelPosition::UpperLeft)
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
-        .draw()?;
-    root.present()
-        .with_context(|| format!("writing {}", path.display()))?;
+        .draw()
+        .map_err(at(path))?;
+    root.present().map_err(at(path))?;
     Ok(())
 }

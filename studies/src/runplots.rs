@@ -2,24 +2,47 @@
 //! the latency distribution of every measured path (`latency-*.hgrm`) and every robot's steps
 //! per episode (`robot-<id>-episodes.csv`).
 
-use crate::plots::{self, Percentiles, Series};
-use anyhow::{Context, Result};
+use crate::plots::{self, Percentiles, PlotError, Series};
 use std::path::{Path, PathBuf};
 
+/// Why a run's figures were not drawn.
+#[derive(Debug, thiserror::Error)]
+pub enum RunPlotsError {
+    /// The out directory or one of its files could not be read.
+    #[error("reading {}", path.display())]
+    Read {
+        /// The directory or file.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A figure could not be drawn.
+    #[error(transparent)]
+    Plot(#[from] PlotError),
+}
+
+fn read(path: &Path) -> impl FnOnce(std::io::Error) -> RunPlotsError + '_ {
+    move |source| RunPlotsError::Read {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
 /// Writes `latency.svg` and `steps.svg` into a run's out directory; returns the files written.
-pub fn write(out: &Path) -> Result<Vec<PathBuf>> {
+pub fn write(out: &Path) -> Result<Vec<PathBuf>, RunPlotsError> {
     let mut written = Vec::new();
     let mut dists: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
     let mut curves: Vec<(u32, Vec<f64>)> = Vec::new();
-    let entries = std::fs::read_dir(out).with_context(|| format!("reading {}", out.display()))?;
+    let entries = std::fs::read_dir(out).map_err(read(out))?;
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
         if let Some(label) = name
             .strip_prefix("latency-")
             .and_then(|n| n.strip_suffix(".hgrm"))
         {
-            let text =
-                std::fs::read_to_string(e.path()).with_context(|| format!("reading {name}"))?;
+            let path = e.path();
+            let text = std::fs::read_to_string(&path).map_err(read(&path))?;
             let points = parse_hgrm(&text);
             if !points.is_empty() {
                 dists.push((label.to_string(), points));
@@ -29,8 +52,8 @@ pub fn write(out: &Path) -> Result<Vec<PathBuf>> {
             .and_then(|n| n.strip_suffix("-episodes.csv"))
         {
             let Ok(id) = id.parse::<u32>() else { continue };
-            let text =
-                std::fs::read_to_string(e.path()).with_context(|| format!("reading {name}"))?;
+            let path = e.path();
+            let text = std::fs::read_to_string(&path).map_err(read(&path))?;
             curves.push((id, parse_steps(&text)));
         }
     }
