@@ -2,7 +2,10 @@
 //! coordinator's look-ahead. Agents are planned one after another from the current
 //! configuration; each avoids the vertices and edges reserved by the agents planned before it
 //! and then holds its goal forever. An agent whose search fails (node budget, horizon, or no
-//! way around) simply has no plan. Every table is sized once; replanning allocates nothing.
+//! way around) simply has no plan. [`Planner::refine`] then improves the plan by large
+//! neighbourhood search (MAPF-LNS): a few agents forget their paths and are replanned, the
+//! result kept only when cheaper. Every table is sized once; replanning and refining allocate
+//! nothing.
 
 use crate::pibt::NIL;
 use std::cmp::Reverse;
@@ -16,13 +19,12 @@ pub(crate) struct Planner {
     horizon: usize,
     /// Who reserved (t, v), at `t * cells + v`.
     res: Vec<u32>,
-    /// Indices set in `res`, to clear them.
-    touched: Vec<u32>,
     /// From which time a cell is held forever (an agent resting on its goal, a hung robot).
     hold: Vec<u32>,
     /// Who holds a cell forever (see `hold`).
     holder: Vec<u32>,
-    /// The last time index any plan passes a cell (NIL = never).
+    /// An upper bound of the last time index any plan passes a cell (NIL = never); exact after
+    /// [`Planner::plan`]'s first pass, possibly stale (too late) after refinement removed paths.
     last: Vec<u32>,
     /// Whether a plan may step away from its goal (raise its distance) when it could wait.
     pub voluntary_detours: bool,
@@ -36,7 +38,25 @@ pub(crate) struct Planner {
     pub cells_of: Vec<u32>,
     /// Per agent: the time index it arrives for good, NIL = no plan.
     pub arrive: Vec<u32>,
+    /// The refinement's neighbourhood (agents replanned together).
+    nb: Vec<u32>,
+    /// Whether an agent is in `nb`.
+    in_nb: Vec<bool>,
+    /// The neighbourhood's paths before replanning them (from the start time on).
+    saved: Vec<u32>,
+    /// The neighbourhood's arrival times before replanning them.
+    saved_arrive: Vec<u32>,
+    /// The refinement's random state (xorshift64).
+    rng: u64,
+    /// Refinement steps that lowered the plan's cost.
+    pub improved: u32,
+    /// A copy of `cells_of` and `arrive` ([`Planner::save`]).
+    kept_cells: Vec<u32>,
+    kept_arrive: Vec<u32>,
 }
+
+/// Agents replanned together in one refinement step (MAPF-LNS's neighbourhood size).
+const NEIGHBOURHOOD: usize = 8;
 
 impl Planner {
     /// Tables for `agents` agents on `cells` cells with plans up to `horizon` ticks.
@@ -46,7 +66,6 @@ impl Planner {
             cells,
             horizon,
             res: vec![NIL; slots],
-            touched: Vec::with_capacity(agents * (horizon + 3)),
             hold: vec![NIL; cells],
             holder: vec![NIL; cells],
             voluntary_detours: false,
@@ -62,7 +81,46 @@ impl Planner {
             }),
             cells_of: vec![NIL; agents * (horizon + 1)],
             arrive: vec![NIL; agents],
+            nb: Vec::with_capacity(NEIGHBOURHOOD),
+            in_nb: vec![false; agents],
+            saved: vec![NIL; NEIGHBOURHOOD * (horizon + 1)],
+            saved_arrive: vec![NIL; NEIGHBOURHOOD],
+            rng: 0x2545_f491_4f6c_dd1d,
+            improved: 0,
+            kept_cells: vec![NIL; agents * (horizon + 1)],
+            kept_arrive: vec![NIL; agents],
         }
+    }
+
+    /// Keeps a copy of the current plan.
+    pub fn save(&mut self) {
+        self.kept_cells.copy_from_slice(&self.cells_of);
+        self.kept_arrive.copy_from_slice(&self.arrive);
+    }
+
+    /// Makes the plan kept by [`Planner::save`] the current one again.
+    pub fn restore(&mut self) {
+        self.clear();
+        self.cells_of.copy_from_slice(&self.kept_cells);
+        self.arrive.copy_from_slice(&self.kept_arrive);
+        for a in 0..self.arrive.len() {
+            if self.arrive[a] != NIL {
+                self.reserve_path(a, 0);
+            }
+        }
+    }
+
+    /// Seeds the refinement's tie-breaking.
+    pub fn seed(&mut self, seed: u64) {
+        self.rng = seed | 1;
+    }
+
+    /// A pseudo-random number below `n` (n > 0).
+    fn below(&mut self, n: usize) -> usize {
+        self.rng ^= self.rng << 13;
+        self.rng ^= self.rng >> 7;
+        self.rng ^= self.rng << 17;
+        ((self.rng >> 32) as usize) % n
     }
 
     /// The planned cell of `agent` at time index `t` (staying on its goal after arriving), or
@@ -77,23 +135,64 @@ impl Planner {
 
     /// Forgets every plan and reservation.
     fn clear(&mut self) {
-        for &i in &self.touched {
-            let i = i as usize;
-            self.res[i] = NIL;
-            let v = i % self.cells;
-            self.hold[v] = NIL;
-            self.holder[v] = NIL;
-            self.last[v] = NIL;
+        for a in 0..self.arrive.len() {
+            self.unreserve(a, 0);
         }
-        self.touched.clear();
+        self.last.fill(NIL);
         self.arrive.fill(NIL);
+    }
+
+    /// Reserves agent `a`'s planned cells from time index `t0` to its arrival, and its goal
+    /// from then on.
+    fn reserve_path(&mut self, a: usize, t0: usize) {
+        let h = self.horizon + 1;
+        let end = self.arrive[a] as usize;
+        for t in t0..=end {
+            let v = self.cells_of[a * h + t];
+            self.reserve(a, t, v);
+        }
+        let g = self.cells_of[a * h + end] as usize;
+        self.hold[g] = end as u32;
+        self.holder[g] = a as u32;
+    }
+
+    /// Takes back what [`Planner::reserve_path`] reserved for agent `a` from `t0` on (nothing
+    /// without a plan); `last` stays an upper bound.
+    fn unreserve(&mut self, a: usize, t0: usize) {
+        let end = self.arrive[a];
+        if end == NIL {
+            return;
+        }
+        let h = self.horizon + 1;
+        for t in t0..=end as usize {
+            let i = t * self.cells + self.cells_of[a * h + t] as usize;
+            if self.res[i] == a as u32 {
+                self.res[i] = NIL;
+            }
+        }
+        let g = self.cells_of[a * h + end as usize] as usize;
+        if self.holder[g] == a as u32 {
+            self.hold[g] = NIL;
+            self.holder[g] = NIL;
+        }
+    }
+
+    /// Whether an agent other than `who` is planned on `v` after time index `t`.
+    fn passes_after(&self, v: u32, t: usize, who: u32) -> bool {
+        let l = self.last[v as usize];
+        if l == NIL || l as usize <= t {
+            return false;
+        }
+        (t + 1..=(l as usize).min(self.horizon)).any(|u| {
+            let r = self.res[u * self.cells + v as usize];
+            r != NIL && r != who
+        })
     }
 
     /// Marks (t, v) as used by `agent`.
     fn reserve(&mut self, agent: usize, t: usize, v: u32) {
         let i = t * self.cells + v as usize;
         self.res[i] = agent as u32;
-        self.touched.push(i as u32);
         let l = &mut self.last[v as usize];
         if *l == NIL || (*l as usize) < t {
             *l = t as u32;
@@ -142,7 +241,6 @@ impl Planner {
             if p != NIL && fixed[i] {
                 self.hold[p as usize] = 0;
                 self.holder[p as usize] = i as u32;
-                self.touched.push(p);
                 self.arrive[i] = 0;
                 self.cells_of[i * h] = p;
             }
@@ -153,36 +251,221 @@ impl Planner {
             if pos[a] == NIL || fixed[a] || spent >= total_budget {
                 continue;
             }
-            let (found, n) = self.astar(pos[a], goal[a], nbr, &dist[a], node_budget);
+            let (found, n) = self.astar(a, pos[a], 0, goal[a], nbr, &dist[a], node_budget, NIL);
             spent += u64::from(n);
-            let Some(t_end) = found else { continue };
-            // walk back from (t_end, goal), writing the path
-            let mut v = goal[a];
-            for t in (0..=t_end).rev() {
-                self.cells_of[a * h + t] = v;
-                self.reserve(a, t, v);
-                if t > 0 {
-                    let m = self.parent[t * self.cells + v as usize];
-                    v = back(nbr, v, m);
-                }
+            if found {
+                self.reserve_path(a, 0);
             }
-            self.hold[goal[a] as usize] = t_end as u32;
-            self.holder[goal[a] as usize] = a as u32;
-            self.touched.push(goal[a]);
-            self.arrive[a] = t_end as u32;
         }
         spent
     }
 
-    /// Space-time A* for one agent; the arrival time index and the expansions spent.
+    /// The cost refinement counts for agent `a`: its arrival, or a penalty without a plan.
+    fn cost(&self, a: usize) -> u64 {
+        match self.arrive[a] {
+            NIL => 4 * (self.horizon as u64 + 1),
+            t => u64::from(t),
+        }
+    }
+
+    /// Large neighbourhood search (Li et al., "Anytime Multi-Agent Path Finding via Large
+    /// Neighborhood Search", IJCAI 2021) on the plan from time index `t0` on: a few agents
+    /// (one of the most delayed and agents planned across its shortest path) forget their
+    /// paths and are replanned one after another in a random order; the new paths are kept
+    /// only when their summed arrival is lower. Spends about `budget` A* expansions; agents
+    /// already arrived by `t0` and fixed ones are never touched. Returns the expansions spent.
+    #[allow(clippy::too_many_arguments)]
+    pub fn refine(
+        &mut self,
+        t0: usize,
+        pos: &[u32],
+        fixed: &[bool],
+        goal: &[u32],
+        nbr: &[[u32; 4]],
+        dist: &[Vec<u32>],
+        node_budget: u32,
+        budget: u64,
+    ) -> u64 {
+        let h = self.horizon + 1;
+        let n = self.arrive.len();
+        let mut spent = 0u64;
+        if t0 > self.horizon || n == 0 {
+            return 0;
+        }
+        while spent < budget {
+            // where each agent starts: its plan's cell at t0, else (unplanned, t0 = 0) its cell
+            let start = |p: &Planner, a: usize| {
+                if p.arrive[a] == NIL {
+                    pos[a]
+                } else {
+                    p.cells_of[a * h + t0.min(p.arrive[a] as usize)]
+                }
+            };
+            let eligible = |p: &Planner, a: usize| {
+                pos[a] != NIL && !fixed[a] && (p.arrive[a] == NIL || p.arrive[a] as usize > t0)
+            };
+            // the seed: an unplanned agent, else the most delayed of a few drawn at random
+            let mut seed = NIL;
+            let mut seed_delay = 0u64;
+            for _ in 0..4 {
+                let a = self.below(n);
+                if !eligible(self, a) {
+                    continue;
+                }
+                let d = self
+                    .cost(a)
+                    .saturating_sub(t0 as u64 + u64::from(dist[a][start(self, a) as usize]));
+                if d > seed_delay {
+                    seed = a as u32;
+                    seed_delay = d;
+                }
+            }
+            spent += 4;
+            if seed == NIL {
+                continue;
+            }
+            self.nb.clear();
+            self.nb.push(seed);
+            self.in_nb[seed as usize] = true;
+            // agents planned on the seed's shortest path (ties broken at random)
+            let s = seed as usize;
+            let mut v = start(self, s);
+            while v != goal[s] && self.nb.len() < NEIGHBOURHOOD {
+                let mut best = NIL;
+                let mut ties = 0;
+                for &u in &nbr[v as usize] {
+                    if u != NIL && dist[s][u as usize] < dist[s][v as usize] {
+                        ties += 1;
+                        if self.below(ties) == 0 {
+                            best = u;
+                        }
+                    }
+                }
+                if best == NIL {
+                    break;
+                }
+                v = best;
+                spent += 1;
+                let l = self.last[v as usize];
+                let top = if l == NIL {
+                    t0
+                } else {
+                    (l as usize).min(self.horizon)
+                };
+                for t in t0..=top {
+                    let r = self.res[t * self.cells + v as usize];
+                    if r != NIL && !self.in_nb[r as usize] && eligible(self, r as usize) {
+                        self.in_nb[r as usize] = true;
+                        self.nb.push(r);
+                        if self.nb.len() == NEIGHBOURHOOD {
+                            break;
+                        }
+                    }
+                }
+                spent += top.saturating_sub(t0) as u64 / 16;
+                let g = self.holder[v as usize];
+                if g != NIL
+                    && self.nb.len() < NEIGHBOURHOOD
+                    && !self.in_nb[g as usize]
+                    && eligible(self, g as usize)
+                {
+                    self.in_nb[g as usize] = true;
+                    self.nb.push(g);
+                }
+            }
+            // forget their paths, remembering them
+            let mut before = 0u64;
+            for k in 0..self.nb.len() {
+                let a = self.nb[k] as usize;
+                before += self.cost(a);
+                self.saved_arrive[k] = self.arrive[a];
+                if self.arrive[a] != NIL {
+                    let end = self.arrive[a] as usize;
+                    self.saved[k * h + t0..=k * h + end]
+                        .copy_from_slice(&self.cells_of[a * h + t0..=a * h + end]);
+                    self.unreserve(a, t0);
+                }
+            }
+            // replan them in a random order
+            let m = self.nb.len();
+            for k in (1..m).rev() {
+                let j = self.below(k + 1);
+                self.nb.swap(k, j);
+                self.saved_arrive.swap(k, j);
+                for t in t0..h {
+                    self.saved.swap(k * h + t, j * h + t);
+                }
+            }
+            let mut after = 0u64;
+            // the fewest ticks the agents not yet replanned could take
+            let from = |p: &Planner, k: usize| {
+                if p.saved_arrive[k] == NIL {
+                    pos[p.nb[k] as usize]
+                } else {
+                    p.saved[k * h + t0]
+                }
+            };
+            let mut rest: u64 = (0..m)
+                .map(|k| t0 as u64 + u64::from(dist[self.nb[k] as usize][from(self, k) as usize]))
+                .sum();
+            for k in 0..m {
+                let a = self.nb[k] as usize;
+                let s = from(self, k);
+                rest -= t0 as u64 + u64::from(dist[a][s as usize]);
+                // arriving later than this cannot make the neighbourhood cheaper
+                let Some(bound) = before.checked_sub(1 + after + rest) else {
+                    break;
+                };
+                let bound = bound.min(u64::from(NIL - 1)) as u32;
+                let (found, e) = self.astar(a, s, t0, goal[a], nbr, &dist[a], node_budget, bound);
+                spent += u64::from(e);
+                if found {
+                    self.reserve_path(a, t0);
+                }
+                after += self.cost(a);
+                if after >= before {
+                    break;
+                }
+            }
+            if after < before {
+                self.improved += 1;
+            } else {
+                // put the old paths back
+                for k in 0..m {
+                    let a = self.nb[k] as usize;
+                    self.unreserve(a, t0);
+                    self.arrive[a] = self.saved_arrive[k];
+                    if self.arrive[a] != NIL {
+                        let end = self.arrive[a] as usize;
+                        self.cells_of[a * h + t0..=a * h + end]
+                            .copy_from_slice(&self.saved[k * h + t0..=k * h + end]);
+                        self.reserve_path(a, t0);
+                    }
+                }
+            }
+            for k in 0..m {
+                self.in_nb[self.nb[k] as usize] = false;
+            }
+        }
+        spent
+    }
+
+    /// Space-time A* for agent `a` from `start` at time index `t0`: on success its path is in
+    /// `cells_of` from `t0` to `arrive[a]` (not yet reserved); `arrive[a]` is NIL on failure.
+    /// Returns whether it found one and the expansions spent.
+    #[allow(clippy::too_many_arguments)]
     fn astar(
         &mut self,
+        a: usize,
         start: u32,
+        t0: usize,
         goal: u32,
         nbr: &[[u32; 4]],
         dist: &[u32],
         node_budget: u32,
-    ) -> (Option<usize>, u32) {
+        max_arrive: u32,
+    ) -> (bool, u32) {
+        self.arrive[a] = NIL;
         self.generation = self.generation.wrapping_add(1);
         if self.generation == 0 {
             self.stamp.fill(0);
@@ -190,17 +473,32 @@ impl Planner {
         }
         let gen_ = self.generation;
         self.heap.clear();
-        self.stamp[start as usize] = gen_;
-        self.heap.push((Reverse(dist[start as usize]), 0, start));
+        self.stamp[t0 * self.cells + start as usize] = gen_;
+        self.heap
+            .push((Reverse(t0 as u32 + dist[start as usize]), t0 as u32, start));
         let mut expanded = 0u32;
-        while let Some((_, t, v)) = self.heap.pop() {
+        while let Some((Reverse(f), t, v)) = self.heap.pop() {
+            if f > max_arrive {
+                return (false, expanded);
+            }
             let t = t as usize;
-            if v == goal && (self.last[v as usize] == NIL || (self.last[v as usize] as usize) < t) {
-                return (Some(t), expanded);
+            if v == goal && !self.passes_after(v, t, a as u32) {
+                // walk back from (t, goal), writing the path
+                let h = self.horizon + 1;
+                let mut u = goal;
+                for s in (t0..=t).rev() {
+                    self.cells_of[a * h + s] = u;
+                    if s > t0 {
+                        let m = self.parent[s * self.cells + u as usize];
+                        u = back(nbr, u, m);
+                    }
+                }
+                self.arrive[a] = t as u32;
+                return (true, expanded);
             }
             expanded += 1;
             if expanded > node_budget {
-                return (None, expanded);
+                return (false, expanded);
             }
             let nt = t + 1;
             if nt > self.horizon {
@@ -240,7 +538,7 @@ impl Planner {
                 self.heap.push((Reverse(nt as u32 + du), nt as u32, u));
             }
         }
-        (None, expanded)
+        (false, expanded)
     }
 }
 
@@ -252,4 +550,127 @@ fn back(nbr: &[[u32; 4]], v: u32, m: u8) -> u32 {
     // the opposite slot: up <-> down (0 <-> 2), right <-> left (1 <-> 3)
     let opposite = (m as usize - 1 + 2) % 4;
     nbr[v as usize][opposite]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::instance::Instance;
+    use crate::moves::Move;
+    use planner::{Cell, Grid};
+
+    /// A 14×14 grid with scattered walls and 24 agents, and its neighbour table.
+    fn setup(seed: u64) -> (Instance, Vec<[u32; 4]>) {
+        let (w, h) = (14usize, 14usize);
+        let mut x = seed | 1;
+        let mut next = move |n: usize| {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 33) as usize % n
+        };
+        let free: Vec<bool> = (0..w * h).map(|_| next(100) >= 15).collect();
+        let grid = Grid::new(w, h, free).unwrap();
+        let cells: Vec<Cell> = (0..grid.len())
+            .map(|i| grid.cell(i))
+            .filter(|c| grid.is_free(*c))
+            .collect();
+        loop {
+            let (mut s, mut g) = (Vec::new(), Vec::new());
+            while s.len() < 24 {
+                let (a, b) = (cells[next(cells.len())], cells[next(cells.len())]);
+                if !s.contains(&a) && !g.contains(&b) {
+                    s.push(a);
+                    g.push(b);
+                }
+            }
+            if let Ok(inst) = Instance::new(grid.clone(), s, g) {
+                let nbr = (0..grid.len())
+                    .map(|i| {
+                        let mut out = [NIL; 4];
+                        for (k, m) in Move::STEPS.into_iter().enumerate() {
+                            if grid.is_free(grid.cell(i))
+                                && let Some(n) = m.apply(&grid, grid.cell(i))
+                            {
+                                out[k] = grid.index(n) as u32;
+                            }
+                        }
+                        out
+                    })
+                    .collect();
+                return (inst, nbr);
+            }
+        }
+    }
+
+    /// Every planned path starts on the agent's cell, moves to neighbours, ends on its goal,
+    /// and no two plans meet on a cell or swap (an arrived agent holds its goal).
+    fn assert_valid(p: &Planner, pos: &[u32], goal: &[u32], nbr: &[[u32; 4]]) {
+        let n = pos.len();
+        for a in 0..n {
+            if p.arrive[a] == NIL {
+                continue;
+            }
+            assert_eq!(p.at(a, 0), pos[a]);
+            assert_eq!(p.at(a, p.arrive[a] as usize), goal[a]);
+            for t in 1..=p.horizon + 1 {
+                let (u, v) = (p.at(a, t - 1), p.at(a, t));
+                assert!(
+                    u == v || nbr[u as usize].contains(&v),
+                    "agent {a} jumps at {t}"
+                );
+            }
+        }
+        for t in 0..=p.horizon + 1 {
+            for a in 0..n {
+                for b in a + 1..n {
+                    if p.arrive[a] == NIL || p.arrive[b] == NIL {
+                        continue;
+                    }
+                    assert_ne!(p.at(a, t), p.at(b, t), "agents {a}, {b} meet at {t}");
+                    if t > 0 {
+                        let swap = p.at(a, t) == p.at(b, t - 1) && p.at(b, t) == p.at(a, t - 1);
+                        assert!(!swap, "agents {a}, {b} swap at {t}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn refining_keeps_every_plan_valid_and_never_raises_its_cost() {
+        for seed in 1..=6u64 {
+            let (inst, nbr) = setup(seed);
+            let n = inst.agents();
+            let idx = |c: Cell| inst.grid().index(c) as u32;
+            let pos: Vec<u32> = inst.starts().iter().map(|&c| idx(c)).collect();
+            let goal: Vec<u32> = inst.goals().iter().map(|&c| idx(c)).collect();
+            let dist = inst.dist_tables();
+            let fixed = vec![false; n];
+            let mut order: Vec<u32> = (0..n as u32).collect();
+            order.sort_by_key(|&i| dist[i as usize][pos[i as usize] as usize]);
+            let mut p = Planner::new(n, inst.grid().len(), 80, 5000);
+            p.voluntary_detours = true;
+            p.seed(seed);
+            p.plan(&order, &pos, &goal, &fixed, &nbr, dist, 5000, 1 << 20);
+            assert_valid(&p, &pos, &goal, &nbr);
+            let cost = |p: &Planner| (0..n).map(|a| p.cost(a)).sum::<u64>();
+            let before = cost(&p);
+            p.save();
+            p.refine(0, &pos, &fixed, &goal, &nbr, dist, 2000, 200_000);
+            assert_valid(&p, &pos, &goal, &nbr);
+            assert!(cost(&p) <= before, "seed {seed}: {} > {before}", cost(&p));
+            // refining from a later time keeps the prefix and stays valid
+            let prefix: Vec<u32> = (0..n).map(|a| p.at(a, 3)).collect();
+            p.refine(3, &pos, &fixed, &goal, &nbr, dist, 2000, 100_000);
+            assert_valid(&p, &pos, &goal, &nbr);
+            assert_eq!((0..n).map(|a| p.at(a, 3)).collect::<Vec<_>>(), prefix);
+            // and a kept plan comes back exactly
+            let after = cost(&p);
+            p.restore();
+            assert_valid(&p, &pos, &goal, &nbr);
+            assert_eq!(cost(&p), before);
+            assert!(after <= before);
+        }
+    }
 }
