@@ -342,6 +342,33 @@ fn a_map_on_dev_zero_or_a_fifo_is_refused_at_once() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A `qfleet run --json --run-id ID --out DIR/out ARGS` in a private mount namespace whose
+/// `/dev/shm` is a 96 MiB tmpfs that `dd` fills right after `Start` (once the coordinator's
+/// first checkpoint exists), then runs `after_fill` (shell); the result on stdout goes to
+/// `DIR/result.json`. Prints `shm avail 0` on stderr once the tmpfs is full.
+fn run_with_dev_shm_filled(id: &str, dir: &Path, args: &[&str], after_fill: &str) -> Output {
+    let out_dir = dir.join("out");
+    let script = format!(
+        "mount -t tmpfs -o size=96m tmpfs /dev/shm || exit 90
+         \"$0\" \"$@\" > {result} & run=$!
+         while [ ! -e {cp} ] && kill -0 $run 2>/dev/null; do sleep 0.05; done
+         dd if=/dev/zero of=/dev/shm/fill bs=1M 2>/dev/null
+         echo \"shm avail $(df -k --output=avail /dev/shm | tail -1 | tr -d ' ')\" >&2
+         {after_fill}
+         wait $run",
+        result = dir.join("result.json").display(),
+        cp = out_dir.join("coordinator-checkpoint.json").display(),
+    );
+    run_bounded(
+        Command::new("unshare")
+            .args(["-m", "--propagation", "private", "sh", "-c", &script])
+            .arg(bin("qfleet"))
+            .args(["run", "--json", "--run-id", id, "--out"])
+            .arg(&out_dir)
+            .args(args),
+    )
+}
+
 /// Issue 27: `/dev/shm` filling up mid-run killed the run's processes with SIGBUS and no
 /// result was written: in a private mount namespace with a 96 MiB tmpfs on `/dev/shm`, a `dd`
 /// that fills it right after `Start` (once the coordinator's first checkpoint exists) made the
@@ -362,32 +389,20 @@ fn a_dev_shm_filled_mid_run_neither_kills_the_run_nor_loses_its_result() {
     let id = run_id("shm-full");
     let dir = scratch(&id);
     let out_dir = dir.join("out");
-    let script = format!(
-        "mount -t tmpfs -o size=96m tmpfs /dev/shm || exit 90
-         \"$0\" \"$@\" > {result} & run=$!
-         while [ ! -e {cp} ] && kill -0 $run 2>/dev/null; do sleep 0.05; done
-         dd if=/dev/zero of=/dev/shm/fill bs=1M 2>/dev/null
-         echo \"shm avail $(df -k --output=avail /dev/shm | tail -1 | tr -d ' ')\" >&2
-         wait $run",
-        result = dir.join("result.json").display(),
-        cp = out_dir.join("coordinator-checkpoint.json").display(),
-    );
-    let out = run_bounded(
-        Command::new("unshare")
-            .args(["-m", "--propagation", "private", "sh", "-c", &script])
-            .arg(bin("qfleet"))
-            .args(["run", "--json", "--run-id", &id, "--out"])
-            .arg(&out_dir)
-            .args([
-                "--map",
-                "builtin:paper-20",
-                "--episodes",
-                "300000",
-                "--robots",
-                "2",
-                "--learner",
-                "improved",
-            ]),
+    let out = run_with_dev_shm_filled(
+        &id,
+        &dir,
+        &[
+            "--map",
+            "builtin:paper-20",
+            "--episodes",
+            "300000",
+            "--robots",
+            "2",
+            "--learner",
+            "improved",
+        ],
+        "",
     );
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{}", describe(&out));
@@ -409,10 +424,11 @@ fn a_dev_shm_filled_mid_run_neither_kills_the_run_nor_loses_its_result() {
 
 /// Issue 27, the other half: segments created *after* `/dev/shm` filled up (a robot killed
 /// mid-run and started again, with its new ports and connections) never kill a process with
-/// SIGBUS either: iceoryx2 refuses to create what it cannot zero, the coordinator's listings
-/// reserve the pages of what others created ([`bus::Committer`]) and end the run with what it
-/// has when they cannot; in every case the run's result is written and no process dies of a
-/// signal.
+/// SIGBUS either: iceoryx2 refuses to create what it cannot zero, the others' pages are
+/// reserved when they are made ([`bus::commit_run_shm`], and the coordinator's listings,
+/// [`bus::Committer`], which end the run with what it has when they cannot): the restarted
+/// robot fails with "no space in /dev/shm …" and is reported lost, the run's result is
+/// written and no process dies of a signal.
 #[test]
 fn a_robot_restarted_after_dev_shm_filled_up_is_an_error_never_a_sigbus() {
     if !namespaces_work() {
@@ -425,41 +441,31 @@ fn a_robot_restarted_after_dev_shm_filled_up_is_an_error_never_a_sigbus() {
     let id = run_id("shm-full-restart");
     let dir = scratch(&id);
     let out_dir = dir.join("out");
-    let script = format!(
-        "mount -t tmpfs -o size=96m tmpfs /dev/shm || exit 90
-         \"$0\" \"$@\" > {result} & run=$!
-         while [ ! -e {cp} ] && kill -0 $run 2>/dev/null; do sleep 0.05; done
-         dd if=/dev/zero of=/dev/shm/fill bs=1M 2>/dev/null
-         echo \"shm avail $(df -k --output=avail /dev/shm | tail -1 | tr -d ' ')\" >&2
-         for p in $(pgrep -x robot-agent); do
+    let kill_robot_1 = format!(
+        "for p in $(pgrep -x robot-agent); do
            if tr '\\0' ' ' < /proc/$p/cmdline | grep -q -- '{id}.*--robot-id 1 \\|--robot-id 1 .*{id}'; then
              kill -9 $p && echo \"killed robot 1\" >&2
            fi
-         done
-         wait $run",
-        result = dir.join("result.json").display(),
-        cp = out_dir.join("coordinator-checkpoint.json").display(),
+         done"
     );
-    let out = run_bounded(
-        Command::new("unshare")
-            .args(["-m", "--propagation", "private", "sh", "-c", &script])
-            .arg(bin("qfleet"))
-            .args(["run", "--json", "--run-id", &id, "--out"])
-            .arg(&out_dir)
-            .args([
-                "--map",
-                "builtin:paper-20",
-                "--episodes",
-                "1000000",
-                "--robots",
-                "2",
-                "--restart",
-                "on-failure",
-                "--max-restarts",
-                "1",
-                "--learner",
-                "improved",
-            ]),
+    let out = run_with_dev_shm_filled(
+        &id,
+        &dir,
+        &[
+            "--map",
+            "builtin:paper-20",
+            "--episodes",
+            "1000000",
+            "--robots",
+            "2",
+            "--restart",
+            "on-failure",
+            "--max-restarts",
+            "1",
+            "--learner",
+            "improved",
+        ],
+        &kill_robot_1,
     );
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(

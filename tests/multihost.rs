@@ -804,38 +804,30 @@ fn a_stranger_on_the_network_reads_nothing_forges_nothing_and_takes_no_slot() {
     );
     // the stranger first: its joins, floods and idle connections come before the real host's
     std::thread::sleep(Duration::from_millis(1500));
-    let me = std::env::current_exe().expect("this test binary");
-    let mut stranger = hosts.command(
-        Host::B,
-        &me,
-        &[
-            "stranger_role",
-            "--exact",
-            "--nocapture",
-            "--test-threads",
-            "1",
-        ],
-    );
-    stranger.env("QFLEET_STRANGER", format!("{ENDPOINT};{id}"));
-    let stranger = stranger.spawn().expect("spawn the stranger");
+    // a copy of this test binary in host B's namespace runs [`stranger_role`] with `spec`
+    let spawn_stranger = |spec: String| -> Child {
+        let me = std::env::current_exe().expect("this test binary");
+        let mut c = hosts.command(
+            Host::B,
+            &me,
+            &[
+                "stranger_role",
+                "--exact",
+                "--nocapture",
+                "--test-threads",
+                "1",
+            ],
+        );
+        c.env("QFLEET_STRANGER", spec);
+        c.spawn().expect("spawn the stranger")
+    };
+    let stranger = spawn_stranger(format!("{ENDPOINT};{id}"));
     // and one that holds the session password (leaked), not the join secret
     let password =
         bridge::Secret::parse(&std::fs::read_to_string(&secret).expect("the secret file"))
             .expect("a secret")
             .session_password();
-    let mut insider = hosts.command(
-        Host::B,
-        &me,
-        &[
-            "stranger_role",
-            "--exact",
-            "--nocapture",
-            "--test-threads",
-            "1",
-        ],
-    );
-    insider.env("QFLEET_STRANGER", format!("{ENDPOINT};{id};{password}"));
-    let insider = insider.spawn().expect("spawn the insider");
+    let insider = spawn_stranger(format!("{ENDPOINT};{id};{password}"));
     std::thread::sleep(Duration::from_millis(1500));
     let b = start_b(&hosts, 2, &db, &secret, &[]);
     let out_s = wait_bounded(stranger, LIMIT);
