@@ -475,6 +475,17 @@ impl ExperimentCmd {
             };
             if !self.json {
                 out!("{}", crate::table::experiment_table(&r))?;
+                // a shared world: each phase's execution, as a MAPF user reads it
+                for ph in &r.phases {
+                    if let Some(g) = &ph.grid {
+                        out!(
+                            "phase {} ({}) on the shared grid: {}",
+                            ph.phase,
+                            ph.name,
+                            g.line()
+                        )?;
+                    }
+                }
             }
             results.push(r);
         }
