@@ -358,37 +358,59 @@ fn validate_phase(
     assert_eq!(paths[0].len() as u64, c.makespan + 1);
 }
 
-#[test]
-fn a_two_phase_shared_world_experiment_arrives_in_both_phases_without_a_conflict() {
-    let dir = scratch("grid-exp");
-    let out = dir.join("out");
-    let id = run_id("grid-exp");
+/// Runs `qfleet experiment --json` on `manifest` into `out`; its one result.
+fn shared_experiment(tag: &str, manifest: &Path, out: &Path) -> Value {
+    let id = run_id(tag);
     let o = run_bounded(
         Command::new(bin("qfleet"))
             .args(["experiment", "--json", "--run-id", &id, "--out"])
-            .arg(&out)
-            .arg(example_manifest()),
+            .arg(out)
+            .arg(manifest),
     );
     assert!(o.status.success(), "{}", describe(&o));
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
     let v: Value = serde_json::from_slice(&o.stdout).unwrap();
-    let r = &v[0];
+    v[0].clone()
+}
+
+#[test]
+fn a_two_phase_shared_world_experiment_arrives_in_both_phases_without_a_conflict() {
+    let dir = scratch("grid-exp");
+    let grid = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/grid");
+    let m = Map::parse(&std::fs::read_to_string(grid.join("warehouse.map")).unwrap());
+    let text = std::fs::read_to_string(grid.join("warehouse.scen")).unwrap();
+    let lines = mapf_check::scen_pairs(&text, 6);
+    // the example: every phase from the scenario's starts, phase 1 to the next robot's goal
+    let out = dir.join("out");
+    let r = shared_experiment("grid-exp", &example_manifest(), &out);
     let phases = r["phases"].as_array().unwrap();
     assert_eq!(phases.len(), 2, "{r}");
-    let seed_dir = out.join("seed-1");
-    let scen_file = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/grid/warehouse.scen");
-    let map_file = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/grid/warehouse.map");
-    let m = Map::parse(&std::fs::read_to_string(map_file).unwrap());
-    let lines = mapf_check::scen_pairs(&std::fs::read_to_string(scen_file).unwrap(), 6);
-    // phase 0: the scenario's pairs; phase 1: from phase 0's goals to the next robot's goal
-    let phase1: Vec<(mapf_check::Xy, mapf_check::Xy)> =
-        (0..6).map(|i| (lines[i].1, lines[(i + 1) % 6].1)).collect();
-    validate_phase(&seed_dir, &m, &lines, &phases[0]);
-    validate_phase(&seed_dir, &m, &phase1, &phases[1]);
+    let next: Vec<(mapf_check::Xy, mapf_check::Xy)> =
+        (0..6).map(|i| (lines[i].0, lines[(i + 1) % 6].1)).collect();
+    validate_phase(&out.join("seed-1"), &m, &lines, &phases[0]);
+    validate_phase(&out.join("seed-1"), &m, &next, &phases[1]);
     // robots learned each phase's goal: goal ids are per robot, rotated in phase 1
     for (i, rp) in phases[1]["robots"].as_array().unwrap().iter().enumerate() {
         assert_eq!(rp["goal"].as_u64(), Some(((i + 1) % 6) as u64), "{rp}");
     }
-    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+    // phase_start = "previous": phase 1 goes from where phase 0 left the robots (its goals)
+    let manifest = dir.join("previous.toml");
+    let example = std::fs::read_to_string(example_manifest()).unwrap();
+    let previous = example
+        .replacen(
+            "world = \"shared\"",
+            "world = \"shared\"\nphase_start = \"previous\"",
+            1,
+        )
+        .replace("\"warehouse.", &format!("\"{}/warehouse.", grid.display()));
+    std::fs::write(&manifest, previous).unwrap();
+    let out = dir.join("out-previous");
+    let r = shared_experiment("grid-exp-prev", &manifest, &out);
+    let phases = r["phases"].as_array().unwrap();
+    let onward: Vec<(mapf_check::Xy, mapf_check::Xy)> =
+        (0..6).map(|i| (lines[i].1, lines[(i + 1) % 6].1)).collect();
+    validate_phase(&out.join("seed-1"), &m, &lines, &phases[0]);
+    validate_phase(&out.join("seed-1"), &m, &onward, &phases[1]);
 }
 
 /// A manifest on the room map of these tests (`room.map` beside it) with `body` after the map.

@@ -41,8 +41,7 @@
 //! # One shared grid
 //! `world = "shared"` (default `"separate"`) puts the robots on one grid: in every phase they
 //! learn their goals (each from its manifest start), then the coordinator moves them there
-//! among each other, tick by tick (the MAPF execution of `qfleet run --world shared`). Phase 0
-//! goes from the manifest's starts, phase k from where phase k − 1 left the robots. Every
+//! among each other, tick by tick (the MAPF execution of `qfleet run --world shared`). Every
 //! robot has its own start and goal:
 //!
 //! ```toml
@@ -57,7 +56,9 @@
 //! rotate = 1                  # robot i takes robot i+1's goal: goals stay distinct
 //! ```
 //!
-//! Each phase is checked as a MAPF instance before anything starts ([`crate::phases`]): two
+//! Every robot learns every phase from its manifest start; each phase's execution starts
+//! there too, unless `phase_start = "previous"`: then phase k goes from where phase k − 1 left
+//! the robots ([`PhaseStart`]). Each phase is checked as a MAPF instance before anything starts ([`crate::phases`]): two
 //! robots on one start, two robots on one goal in a phase (a policy that gives two robots one
 //! goal), a goal on a wall or walled in, a goal on the robot's own manifest start, more robots
 //! than [`mapf::MAX_AGENTS`] — each an error naming the phase, the robots and the cell.
@@ -69,7 +70,7 @@ use planner::task::{self, Task};
 use planner::{Cell, EpsilonReading, LearnerKind, QScale, Schedule};
 use serde::Deserialize;
 
-use crate::phases::{PhaseProblem, check_phases};
+use crate::phases::{PhaseProblem, PhaseStart, check_phases};
 use crate::{LearnerArgs, MapArgs, ShareMode, World};
 
 /// Most robots a manifest may ask for (the bus's limit).
@@ -123,6 +124,7 @@ pub enum AssignPolicy {
 struct RawManifest {
     name: Option<String>,
     world: Option<World>,
+    phase_start: Option<PhaseStart>,
     map: RawMap,
     #[serde(default)]
     goals: Vec<RawGoal>,
@@ -249,6 +251,8 @@ pub struct Manifest {
     pub name: String,
     /// Separate copies of the map, or one shared grid (each phase a MAPF execution).
     pub world: World,
+    /// Shared grid: where each phase's execution starts.
+    pub phase_start: PhaseStart,
     /// Where the manifest came from (for messages and relative paths).
     pub source_name: String,
     /// Map spec as written: `builtin:…`, `suite:…` or a path.
@@ -348,6 +352,13 @@ pub fn parse_manifest(source: &str, text: &str) -> Result<Manifest, ManifestErro
                 "{robots} robots on one shared grid; it takes at most {}",
                 mapf::MAX_AGENTS
             ),
+        ));
+    }
+    if !shared && raw.phase_start.is_some() {
+        return Err(err(
+            s,
+            "phase_start",
+            "only with world = \"shared\" (where a phase's execution on the grid starts)",
         ));
     }
     if shared && raw.map.scen_index.is_some() {
@@ -624,6 +635,7 @@ pub fn parse_manifest(source: &str, text: &str) -> Result<Manifest, ManifestErro
     Ok(Manifest {
         name: raw.name.unwrap_or_else(|| source.to_string()),
         world,
+        phase_start: raw.phase_start.unwrap_or_default(),
         source_name: source.to_string(),
         map: raw.map.source,
         scen: raw.map.scen,
@@ -772,7 +784,10 @@ impl Manifest {
                 .collect();
             assignment.push(row);
         }
-        if shared && let Err(e) = check_phases(&m.grid, &starts, &goal_cells, &assignment) {
+        if shared
+            && let Err(e) =
+                check_phases(&m.grid, &starts, &goal_cells, &assignment, self.phase_start)
+        {
             let phase = &self.phases[e.phase.min(self.phases.len() - 1)];
             let how = match &e.problem {
                 PhaseProblem::Instance(mapf::InstanceError::SharedGoal { .. }) => {
@@ -1105,6 +1120,18 @@ rotate = 1
         );
         let x = e(&SHARED.replace("\"shared\"", "\"sharde\""));
         assert!(x.reason.contains("sharde"), "{x}");
+        // every phase goes from the starts, unless the manifest says from where the last ended
+        assert_eq!(
+            parse_manifest("m.toml", SHARED).unwrap().phase_start,
+            PhaseStart::Starts
+        );
+        let prev = SHARED.replace("episodes = 20", "episodes = 20\nphase_start = \"previous\"");
+        let m = parse_manifest("m.toml", &prev).unwrap();
+        assert_eq!(m.phase_start, PhaseStart::Previous);
+        let p = m.resolve(Path::new(".")).unwrap();
+        assert_eq!(p.assignment, vec![vec![0, 1], vec![1, 0]]);
+        let x = e(&GOOD.replace("name = \"t\"", "name = \"t\"\nphase_start = \"previous\""));
+        assert_eq!(x.path, "phase_start");
     }
 
     #[test]

@@ -1,8 +1,10 @@
-//! The phases of an experiment on one shared grid (`world = "shared"`), each a MAPF instance:
-//! phase 0 goes from the manifest's starts, phase k from where phase k − 1 left the robots —
-//! their goals of phase k − 1 when every robot arrived, which is what is planned and checked
-//! here. Every robot learns every phase from its manifest start (its process's start), so no
-//! robot may have that cell as a phase's goal.
+//! The phases of an experiment on one shared grid (`world = "shared"`), each a MAPF instance
+//! from the phase's starts to its goals. Every robot learns every phase from its manifest start
+//! (the start its process was started with), so no robot may have that cell as a phase's goal.
+//! Where a phase's execution starts is the manifest's choice ([`PhaseStart`]): by default from
+//! the manifest's starts again (where the robots learned from), or from where the phase before
+//! left the robots — their goals of phase k − 1 when every robot arrived, which is what is
+//! planned and checked here.
 //!
 //! [`check_phases`] checks every phase with [`mapf::Instance::new`], the same rules as a plain
 //! run's instance (no second copy of them): two robots on one start, two robots on one goal, a
@@ -12,6 +14,21 @@
 
 use mapf::{Instance, InstanceError};
 use planner::{Cell, Grid};
+use serde::{Deserialize, Serialize};
+
+/// Where each phase's execution on a shared grid starts (manifest `phase_start`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum PhaseStart {
+    /// From the manifest's starts, every phase: the cells the robots learn every phase from,
+    /// so their learned values lead them from there (the default).
+    #[default]
+    Starts,
+    /// From where the phase before left the robots (phase 0: the manifest's starts): a fleet
+    /// that goes on from goal to goal. Robots still learn from their manifest start, so from
+    /// elsewhere they move by values learned for another part of the map.
+    Previous,
+}
 
 /// What is wrong with one phase of a shared grid.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -97,17 +114,19 @@ pub fn phase_goals(goal_cells: &[Cell], row: &[usize]) -> Option<Vec<Cell>> {
     row.iter().map(|&g| goal_cells.get(g).copied()).collect()
 }
 
-/// Where phase `p` starts as planned: the manifest's starts for phase 0, the goals of phase
-/// `p − 1` after it (every robot arrived); `None` if the plan does not fit.
+/// Where phase `p` starts as planned: the manifest's starts for phase 0 and with
+/// [`PhaseStart::Starts`], else the goals of phase `p − 1` (every robot arrived); `None` if
+/// the plan does not fit.
 pub fn planned_starts(
     starts: &[Cell],
     goal_cells: &[Cell],
     assignment: &[Vec<usize>],
     p: usize,
+    from: PhaseStart,
 ) -> Option<Vec<Cell>> {
-    match p {
-        0 => Some(starts.to_vec()),
-        _ => phase_goals(goal_cells, assignment.get(p - 1)?),
+    match (p, from) {
+        (0, _) | (_, PhaseStart::Starts) => Some(starts.to_vec()),
+        (_, PhaseStart::Previous) => phase_goals(goal_cells, assignment.get(p - 1)?),
     }
 }
 
@@ -119,6 +138,7 @@ pub fn check_phases(
     starts: &[Cell],
     goal_cells: &[Cell],
     assignment: &[Vec<usize>],
+    from: PhaseStart,
 ) -> Result<(), PhaseError> {
     let shape = |phase: usize, why: &str| PhaseError {
         phase,
@@ -130,7 +150,7 @@ pub fn check_phases(
         if goals.len() != starts.len() {
             return Err(shape(phase, "one goal per robot"));
         }
-        let from = planned_starts(starts, goal_cells, assignment, phase)
+        let from = planned_starts(starts, goal_cells, assignment, phase, from)
             .ok_or_else(|| shape(phase, "a goal index out of range"))?;
         if let Some((robot, &cell)) = starts
             .iter()
@@ -156,6 +176,8 @@ mod tests {
     use super::*;
     use planner::map::parse_ascii;
 
+    const S: PhaseStart = PhaseStart::Starts;
+
     fn c(x: u16, y: u16) -> Cell {
         Cell::new(x, y)
     }
@@ -170,16 +192,26 @@ mod tests {
         let goals = [c(2, 2), c(0, 2), c(2, 0)];
         let assignment = vec![vec![0, 1], vec![1, 2]];
         let starts = [c(0, 0), c(1, 0)];
+        let prev = PhaseStart::Previous;
         assert_eq!(
-            planned_starts(&starts, &goals, &assignment, 0),
+            planned_starts(&starts, &goals, &assignment, 0, prev),
             Some(starts.to_vec())
         );
         assert_eq!(
-            planned_starts(&starts, &goals, &assignment, 1),
+            planned_starts(&starts, &goals, &assignment, 1, prev),
             Some(vec![c(2, 2), c(0, 2)])
         );
-        assert_eq!(planned_starts(&starts, &goals, &assignment, 3), None);
-        assert_eq!(check_phases(&grid(), &starts, &goals, &assignment), Ok(()));
+        assert_eq!(planned_starts(&starts, &goals, &assignment, 3, prev), None);
+        assert_eq!(
+            check_phases(&grid(), &starts, &goals, &assignment, prev),
+            Ok(())
+        );
+        // by default every phase goes from the manifest's starts
+        assert_eq!(
+            planned_starts(&starts, &goals, &assignment, 1, PhaseStart::Starts),
+            Some(starts.to_vec())
+        );
+        assert_eq!(PhaseStart::default(), PhaseStart::Starts);
     }
 
     #[test]
@@ -189,6 +221,7 @@ mod tests {
             &[c(0, 0), c(0, 0)],
             &[c(2, 2), c(0, 2)],
             &[vec![0, 1]],
+            S,
         )
         .unwrap_err();
         assert_eq!(e.phase, 0);
@@ -203,6 +236,7 @@ mod tests {
             &[c(0, 0), c(1, 0)],
             &goals,
             &[vec![0, 1], vec![1, 1]],
+            PhaseStart::Previous,
         )
         .unwrap_err();
         assert_eq!(e.phase, 1);
@@ -215,12 +249,12 @@ mod tests {
 
     #[test]
     fn a_walled_in_goal_is_refused_with_robot_and_cells() {
-        let e = check_phases(&grid(), &[c(0, 0)], &[c(4, 0)], &[vec![0]]).unwrap_err();
+        let e = check_phases(&grid(), &[c(0, 0)], &[c(4, 0)], &[vec![0]], S).unwrap_err();
         assert_eq!(
             e.to_string(),
             "phase 0: robot 0: goal (4,0) cannot be reached from (0,0) (walled in)"
         );
-        let e = check_phases(&grid(), &[c(0, 0)], &[c(3, 0)], &[vec![0]]).unwrap_err();
+        let e = check_phases(&grid(), &[c(0, 0)], &[c(3, 0)], &[vec![0]], S).unwrap_err();
         assert_eq!(e.to_string(), "phase 0: robot 0: goal (3,0) is on a wall");
     }
 
@@ -229,7 +263,7 @@ mod tests {
         // robots swap in phase 0 and come back in phase 1: each would learn from its own goal
         let starts = [c(0, 0), c(2, 2)];
         let goals = [c(0, 0), c(2, 2)];
-        let e = check_phases(&grid(), &starts, &goals, &[vec![1, 0], vec![0, 1]]).unwrap_err();
+        let e = check_phases(&grid(), &starts, &goals, &[vec![1, 0], vec![0, 1]], S).unwrap_err();
         assert_eq!(e.phase, 1);
         assert!(matches!(
             e.problem,
@@ -243,7 +277,7 @@ mod tests {
         let cells: Vec<Cell> = (0..400u16).map(|i| c(i % 20, i / 20)).collect();
         let n = mapf::MAX_AGENTS + 1;
         let goals: Vec<Cell> = cells[n..].iter().chain(&cells[..n]).copied().collect();
-        let e = check_phases(&open, &cells[..n], &goals[..n], &[(0..n).collect()]).unwrap_err();
+        let e = check_phases(&open, &cells[..n], &goals[..n], &[(0..n).collect()], S).unwrap_err();
         assert_eq!(
             e.to_string(),
             format!("phase 0: {n} robots; a shared grid takes at most 256")

@@ -14,7 +14,7 @@ use std::path::Path;
 use planner::map::GridMap;
 use planner::{Cell, Rewards};
 use qfleet_args::World;
-use qfleet_args::phases::{self, PhaseError};
+use qfleet_args::phases::{self, PhaseError, PhaseStart};
 use serde::{Deserialize, Serialize};
 
 /// One goal of a plan.
@@ -46,6 +46,10 @@ pub struct ExperimentPlan {
     /// moving to their goals among each other (plans written before worlds existed: separate).
     #[serde(default)]
     pub world: World,
+    /// On a shared grid, where each phase's execution starts: the starts, or where the phase
+    /// before left the robots.
+    #[serde(default)]
+    pub phase_start: PhaseStart,
     /// Fleet size: robot ids `0..robots`.
     pub robots: u32,
     /// Sharing mode, as the robots' `--share` word (for the result).
@@ -113,6 +117,7 @@ impl ExperimentPlan {
             name: m.name.clone(),
             seed,
             world: m.world,
+            phase_start: m.phase_start,
             robots: m.robots,
             sharing: m.sharing.as_cli().into(),
             timeout_s: m.timeout_s,
@@ -226,8 +231,14 @@ impl ExperimentPlan {
             ));
         }
         if self.world == World::Shared {
-            phases::check_phases(g, &self.starts, &self.goal_cells(), &self.assignment)
-                .map_err(PlanError::Phase)?;
+            phases::check_phases(
+                g,
+                &self.starts,
+                &self.goal_cells(),
+                &self.assignment,
+                self.phase_start,
+            )
+            .map_err(PlanError::Phase)?;
         }
         Ok(map)
     }
@@ -242,10 +253,17 @@ impl ExperimentPlan {
         phases::phase_goals(&self.goal_cells(), self.assignment.get(p)?)
     }
 
-    /// Where phase `p` starts on a shared grid as planned: the starts for phase 0, the goals
-    /// of phase `p − 1` after it (see [`qfleet_args::phases`]).
+    /// Where phase `p` starts on a shared grid as planned: the starts, or with
+    /// [`PhaseStart::Previous`] the goals of phase `p − 1` after phase 0 (see
+    /// [`qfleet_args::phases`]).
     pub fn planned_starts(&self, p: usize) -> Option<Vec<Cell>> {
-        phases::planned_starts(&self.starts, &self.goal_cells(), &self.assignment, p)
+        phases::planned_starts(
+            &self.starts,
+            &self.goal_cells(),
+            &self.assignment,
+            p,
+            self.phase_start,
+        )
     }
 
     /// Reads a plan file (JSON of an [`ExperimentPlan`]).
@@ -279,6 +297,7 @@ mod tests {
             name: "t".into(),
             seed: 1,
             world: World::Separate,
+            phase_start: PhaseStart::Starts,
             robots: 2,
             sharing: "both".into(),
             timeout_s: 10.0,
@@ -346,6 +365,9 @@ mod tests {
             episodes: 5,
         });
         p.check().unwrap();
+        assert_eq!(p.planned_starts(1), Some(p.starts.clone()));
+        p.phase_start = PhaseStart::Previous;
+        p.check().unwrap();
         assert_eq!(
             p.planned_starts(1),
             Some(vec![Cell::new(9, 9), Cell::new(0, 9)])
@@ -360,8 +382,10 @@ mod tests {
         // a plan without `world` (written before worlds existed) is a separate one
         let mut v = serde_json::to_value(plan()).unwrap();
         v.as_object_mut().unwrap().remove("world");
+        v.as_object_mut().unwrap().remove("phase_start");
         let old: ExperimentPlan = serde_json::from_value(v).unwrap();
         assert_eq!(old.world, World::Separate);
+        assert_eq!(old.phase_start, PhaseStart::Starts);
         // two robots on one goal in phase 1: refused with the phase
         p.assignment[1] = vec![1, 1];
         match p.check() {

@@ -20,12 +20,12 @@
 //!
 //! 5. On a shared grid (`world: "shared"` in the plan): the coordinator executes the phase as
 //!    a plain run's execution ([`grid::execute`], the same engine): `Execute`, then tick by
-//!    tick from where the phase before left the robots (phase 0: the plan's starts) to this
-//!    phase's goals. The phase's result carries the grid section and the paths go to
-//!    `paths-phase-<p>.txt`. Robots learn every phase from their start in the plan (the cell
-//!    their process was started with); their ranking answers for any cell of the map (its
-//!    learned values, and its own map distance where it never tried a move), so an execution
-//!    may start elsewhere.
+//!    tick from the plan's starts to this phase's goals, or with `phase_start: "previous"`
+//!    from where the phase before left the robots. The phase's result carries the grid section
+//!    and the paths go to `paths-phase-<p>.txt`. Robots learn every phase from their start in
+//!    the plan (the cell their process was started with); their ranking answers for any cell
+//!    of the map (its learned values, and its own map distance where it never tried a move),
+//!    so an execution may start elsewhere.
 //!
 //! After the last phase: `Stop` to all.
 //!
@@ -62,6 +62,7 @@ use bus::Lister;
 pub use contract::plan::ExperimentPlan;
 use mapf::Instance;
 use qfleet_args::World;
+use qfleet_args::phases::PhaseStart;
 use report::GridResult;
 pub use report::run::{ExperimentResult, GoalPhase, PhaseResult, RobotPhase};
 use sharing::FleetTable;
@@ -344,7 +345,10 @@ fn execute_phase(
         return Err(unfit(format!("phase {p} has no goal per robot")));
     };
     let grid = &ctx.map.grid;
-    let from = cp.grid_starts(planned.clone());
+    let from = match plan.phase_start {
+        PhaseStart::Starts => planned.clone(),
+        PhaseStart::Previous => cp.grid_starts(planned.clone()),
+    };
     let instance = match Instance::new(grid.clone(), from, goals.clone()) {
         Ok(i) => i,
         // where the last phase left the robots does not make an instance (a robot lost there
