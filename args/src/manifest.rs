@@ -1162,20 +1162,39 @@ rotate = 1
 
     #[test]
     fn shared_world_options_that_do_not_fit_name_the_field() {
-        let x = e(&SHARED.replace("count = 2", "count = 257"));
-        assert_eq!(x.path, "robots.count");
-        assert!(x.reason.contains("shared grid"), "{x}");
-        let x = e(&SHARED.replace("goals = [[9, 9], [0, 9]]", "goals = [[9, 9]]"));
-        assert_eq!(x.path, "robots.goals");
-        let x = e(&SHARED.replace("[robots]", "[[goals]]\ncell = [1, 1]\n[robots]"));
-        assert_eq!(x.path, "robots.goals");
-        let x = e(&SHARED.replace("goals = [[9, 9], [0, 9]]", "goals = [[9, 9], [0]]"));
-        assert_eq!(x.path, "robots.goals[1]");
-        let x = e(&SHARED.replace(
-            "source = \"builtin:paper-10\"",
-            "source = \"m.map\"\nscen = \"m.scen\"\nscen_index = 2",
-        ));
-        assert_eq!(x.path, "map.scen_index");
+        let scen_index = "source = \"m.map\"\nscen = \"m.scen\"\nscen_index = 2";
+        let cases: [(&str, &str, &str); 5] = [
+            ("count = 2", "count = 257", "robots.count"),
+            (
+                "goals = [[9, 9], [0, 9]]",
+                "goals = [[9, 9]]",
+                "robots.goals",
+            ),
+            (
+                "[robots]",
+                "[[goals]]\ncell = [1, 1]\n[robots]",
+                "robots.goals",
+            ),
+            (
+                "goals = [[9, 9], [0, 9]]",
+                "goals = [[9, 9], [0]]",
+                "robots.goals[1]",
+            ),
+            (
+                "source = \"builtin:paper-10\"",
+                scen_index,
+                "map.scen_index",
+            ),
+        ];
+        for (from, to, path) in cases {
+            let x = e(&SHARED.replace(from, to));
+            assert_eq!(x.path, path, "{to}: {x}");
+        }
+        assert!(
+            e(&SHARED.replace("count = 2", "count = 257"))
+                .reason
+                .contains("shared grid")
+        );
     }
 
     fn resolve_err(text: &str) -> ManifestError {

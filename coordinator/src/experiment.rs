@@ -38,9 +38,12 @@
 //! so the phase ends as if nothing happened. The fleet tables start empty again (the robots
 //! keep what they learned); the counts of earlier coordinators are carried in the checkpoint.
 //! On a shared grid a finished phase's grid result is in the checkpoint with it, and so is
-//! where it left the robots; a phase whose execution was under way is executed again from
-//! where the phase before left them (its half-done moves are not kept: the grid is the
-//! coordinator's own record, so nothing else remembers them).
+//! where it left the robots; a phase whose execution was under way is executed again from its
+//! starts (with `phase_start: "previous"`, where the phase before left the robots, from the
+//! checkpoint). Its half-done moves are not kept: the grid is the coordinator's own record.
+//! A robot still in the old execution answers the new grants only once their tick passes the
+//! last one it answered (`robot_agent`'s execution loop keeps it), so it is hung for the first
+//! ticks of the new one: an obstacle that waits, a known limit.
 
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
@@ -323,8 +326,9 @@ fn drive(
     })
 }
 
-/// Executes phase `p` on the shared grid (see the module docs): from where the last phase
-/// done left the robots (`cp`) to the phase's goals; its result and where it left the robots.
+/// Executes phase `p` on the shared grid (see the module docs): from the plan's starts, or
+/// where the last phase done left the robots (`cp`), to the phase's goals; its result and
+/// where it left the robots.
 fn execute_phase(
     ctx: &Ctx<'_>,
     cp: &Checkpoint,
