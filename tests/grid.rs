@@ -500,4 +500,22 @@ fn a_shared_world_manifest_that_cannot_run_is_refused_before_anything_starts() {
             "{name}: a seed directory was made"
         );
     }
+    // a shared grid runs on one host: robots of other hosts are refused before anything starts
+    let o = run_bounded(
+        Command::new(bin("qfleet"))
+            .args([
+                "experiment",
+                "--remote-robots",
+                "1",
+                "--listen",
+                "tcp/127.0.0.1:1",
+            ])
+            .arg(example_manifest()),
+    );
+    assert_eq!(o.status.code(), Some(2), "{}", describe(&o));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("runs on one host"),
+        "{}",
+        describe(&o)
+    );
 }

@@ -1152,9 +1152,10 @@ rotate = 1
         assert_eq!(m.world, World::Shared);
         let p = m.resolve(&dir).unwrap();
         let scen = map::load_scen(&dir.join("warehouse.scen")).unwrap();
-        for r in 0..6 {
-            assert_eq!(p.starts[r], scen[r].start, "robot {r}");
-            assert_eq!(p.goal_cells[r], scen[r].goal, "robot {r}");
+        assert_eq!(p.starts.len(), 6);
+        for (r, line) in scen.iter().take(6).enumerate() {
+            assert_eq!(p.starts[r], line.start, "robot {r}");
+            assert_eq!(p.goal_cells[r], line.goal, "robot {r}");
         }
         assert_eq!(p.assignment[0], [0, 1, 2, 3, 4, 5]);
         assert_eq!(p.assignment[1], [1, 2, 3, 4, 5, 0]);
