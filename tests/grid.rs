@@ -324,3 +324,198 @@ fn two_robots_that_must_swap_in_a_corridor_end_unsolvable_not_hung() {
     assert!(g["ticks"].as_u64().unwrap() < 1000, "{g}");
     assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
 }
+
+// ---- experiments on one shared grid (`world = "shared"` in a manifest) ----
+
+/// The repository's example manifest of a two-phase shared-grid experiment.
+fn example_manifest() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/grid/warehouse-two-phases.toml")
+}
+
+/// Checks phase `phase`'s paths file of an experiment against its own (start, goal) pairs.
+fn validate_phase(
+    seed_dir: &Path,
+    map: &Map,
+    pairs: &[(mapf_check::Xy, mapf_check::Xy)],
+    phase: &Value,
+) {
+    let p = phase["phase"].as_u64().unwrap();
+    let g = &phase["grid"];
+    assert_eq!(g["paths_file"], format!("paths-phase-{p}.txt"), "{g}");
+    let text = std::fs::read_to_string(seed_dir.join(format!("paths-phase-{p}.txt"))).unwrap();
+    let paths = mapf_check::parse_paths(&text);
+    let c = mapf_check::check(map, pairs, &paths);
+    assert_eq!(
+        (c.vertex, c.swap, c.illegal, c.bad_start, c.not_arrived),
+        (0, 0, 0, 0, 0),
+        "phase {p}: {c:?}"
+    );
+    assert_eq!(g["conflicts"], 0, "{g}");
+    assert_eq!(g["all_arrived"], true, "phase {p}: {g}");
+    assert_eq!(g["sum_of_costs"].as_u64(), Some(c.sum_of_costs), "{g}");
+    assert_eq!(g["makespan"].as_u64(), Some(c.makespan), "{g}");
+    assert_eq!(g["lower_bound"].as_u64(), Some(c.lower_bound), "{g}");
+    assert_eq!(paths[0].len() as u64, c.makespan + 1);
+}
+
+/// Runs `qfleet experiment --json` on `manifest` into `out`; its one result.
+fn shared_experiment(tag: &str, manifest: &Path, out: &Path) -> Value {
+    let id = run_id(tag);
+    let o = run_bounded(
+        Command::new(bin("qfleet"))
+            .args(["experiment", "--json", "--run-id", &id, "--out"])
+            .arg(out)
+            .arg(manifest),
+    );
+    assert!(o.status.success(), "{}", describe(&o));
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    v[0].clone()
+}
+
+#[test]
+fn a_two_phase_shared_world_experiment_arrives_in_both_phases_without_a_conflict() {
+    let dir = scratch("grid-exp");
+    let grid = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/grid");
+    let m = Map::parse(&std::fs::read_to_string(grid.join("warehouse.map")).unwrap());
+    let text = std::fs::read_to_string(grid.join("warehouse.scen")).unwrap();
+    let lines = mapf_check::scen_pairs(&text, 6);
+    // the example: every phase from the scenario's starts, phase 1 to the next robot's goal
+    let out = dir.join("out");
+    let r = shared_experiment("grid-exp", &example_manifest(), &out);
+    let phases = r["phases"].as_array().unwrap();
+    assert_eq!(phases.len(), 2, "{r}");
+    let next: Vec<(mapf_check::Xy, mapf_check::Xy)> =
+        (0..6).map(|i| (lines[i].0, lines[(i + 1) % 6].1)).collect();
+    validate_phase(&out.join("seed-1"), &m, &lines, &phases[0]);
+    validate_phase(&out.join("seed-1"), &m, &next, &phases[1]);
+    // robots learned each phase's goal: goal ids are per robot, rotated in phase 1
+    for (i, rp) in phases[1]["robots"].as_array().unwrap().iter().enumerate() {
+        assert_eq!(rp["goal"].as_u64(), Some(((i + 1) % 6) as u64), "{rp}");
+    }
+    // phase_start = "previous": phase 1 goes from where phase 0 left the robots (its goals)
+    let manifest = dir.join("previous.toml");
+    let example = std::fs::read_to_string(example_manifest()).unwrap();
+    let previous = example
+        .replacen(
+            "world = \"shared\"",
+            "world = \"shared\"\nphase_start = \"previous\"",
+            1,
+        )
+        .replace("\"warehouse.", &format!("\"{}/warehouse.", grid.display()));
+    std::fs::write(&manifest, previous).unwrap();
+    let out = dir.join("out-previous");
+    let r = shared_experiment("grid-exp-prev", &manifest, &out);
+    let phases = r["phases"].as_array().unwrap();
+    let onward: Vec<(mapf_check::Xy, mapf_check::Xy)> =
+        (0..6).map(|i| (lines[i].1, lines[(i + 1) % 6].1)).collect();
+    validate_phase(&out.join("seed-1"), &m, &lines, &phases[0]);
+    validate_phase(&out.join("seed-1"), &m, &onward, &phases[1]);
+}
+
+/// A manifest on the room map of these tests (`room.map` beside it) with `body` after the map.
+fn room_manifest(dir: &Path, name: &str, body: &str) -> PathBuf {
+    room(dir, &ROOM_PAIRS);
+    let file = dir.join(format!("{name}.toml"));
+    let text = format!(
+        "world = \"shared\"\nepisodes = 20\n[map]\nsource = \"room.map\"\nscen = \"room.scen\"\n{body}"
+    );
+    std::fs::write(&file, text).unwrap();
+    file
+}
+
+#[test]
+fn a_shared_world_manifest_that_cannot_run_is_refused_before_anything_starts() {
+    let dir = scratch("grid-exp-bad");
+    // (4, 2) is a wall of the room; (11, 4) below is walled in by the extra wall written below
+    let cases: [(&str, &str, &[&str]); 7] = [
+        (
+            "one start",
+            "[robots]\ncount = 2\nstarts = [[0, 0], [0, 0]]\ngoals = [[5, 0], [7, 0]]\n",
+            &["phases[0]", "robots 0 and 1 both start at (0,0)"],
+        ),
+        (
+            "one goal in a phase",
+            "[robots]\ncount = 3\n[[phases]]\n[[phases]]\npolicy = \"fixed\"\nassign = [2, 2, 2]\n",
+            &["phases[1]", "robots 0 and 1 both have their goal at (11,0)"],
+        ),
+        (
+            "walled in",
+            "[robots]\ncount = 2\nstarts = [[0, 0], [1, 0]]\ngoals = [[11, 3], [5, 0]]\n",
+            &["phases[0]", "robot 0: goal (11,3) cannot be reached"],
+        ),
+        (
+            "on a wall",
+            "[robots]\ncount = 2\nstarts = [[0, 0], [1, 0]]\ngoals = [[4, 2], [5, 0]]\n",
+            &["robot 0: goal (4,2) is on a wall"],
+        ),
+        (
+            "a policy gives two robots one goal",
+            "[[goals]]\ncell = [9, 6]\n[robots]\ncount = 2\nstarts = [[0, 0], [1, 0]]\n",
+            &[
+                "phases[0]",
+                "robots 0 and 1 both have their goal at (9,6)",
+                "round-robin",
+            ],
+        ),
+        (
+            "more robots than a grid takes",
+            "[robots]\ncount = 257\n",
+            &["robots.count", "at most 256"],
+        ),
+        (
+            "a goal on the learning start",
+            "[robots]\ncount = 2\nstarts = [[0, 0], [1, 0]]\ngoals = [[5, 0], [1, 0]]\n",
+            &["robot 1's goal (1,0) is its start"],
+        ),
+    ];
+    for (name, body, needles) in cases {
+        let file = room_manifest(&dir, "bad", body);
+        if name == "walled in" {
+            // wall (11, 3) in: (10, 3), (11, 2) and (11, 4) blocked
+            let walled = ROOM.replace(
+                "....@@@@....\n............\n............\n....@@@@....\n",
+                "....@@@@...@\n..........@.\n...........@\n....@@@@....\n",
+            );
+            std::fs::write(dir.join("room.map"), walled).unwrap();
+        }
+        let id = run_id("grid-exp-bad");
+        let out = dir.join(format!("out-{}", name.replace(' ', "-")));
+        let o = run_bounded(
+            Command::new(bin("qfleet"))
+                .args(["experiment", "--run-id", &id, "--out"])
+                .arg(&out)
+                .arg(&file),
+        );
+        assert_eq!(o.status.code(), Some(2), "{name}: {}", describe(&o));
+        let err = String::from_utf8_lossy(&o.stderr);
+        for n in needles {
+            assert!(err.contains(n), "{name}: {n:?} not in {err}");
+        }
+        // nothing started: no process of the run, no file of it, no out directory
+        assert!(pid_with_arg(&id, "--run-id", &id).is_none(), "{name}");
+        assert!(leftovers(&id).is_empty(), "{name}: {:?}", leftovers(&id));
+        assert!(
+            !out.join("seed-1").exists(),
+            "{name}: a seed directory was made"
+        );
+    }
+    // a shared grid runs on one host: robots of other hosts are refused before anything starts
+    let o = run_bounded(
+        Command::new(bin("qfleet"))
+            .args([
+                "experiment",
+                "--remote-robots",
+                "1",
+                "--listen",
+                "tcp/127.0.0.1:1",
+            ])
+            .arg(example_manifest()),
+    );
+    assert_eq!(o.status.code(), Some(2), "{}", describe(&o));
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("runs on one host"),
+        "{}",
+        describe(&o)
+    );
+}

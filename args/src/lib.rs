@@ -7,6 +7,7 @@
 
 pub mod manifest;
 pub mod pace;
+pub mod phases;
 pub mod share_mode;
 pub mod world;
 

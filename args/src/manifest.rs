@@ -37,6 +37,31 @@
 //! [[phases]]
 //! rotate = 1                  # round-robin shifted by one: every robot gets another goal
 //! ```
+//!
+//! # One shared grid
+//! `world = "shared"` (default `"separate"`) puts the robots on one grid: in every phase they
+//! learn their goals (each from its manifest start), then the coordinator moves them there
+//! among each other, tick by tick (the MAPF execution of `qfleet run --world shared`). Every
+//! robot has its own start and goal:
+//!
+//! ```toml
+//! world = "shared"
+//! [map]
+//! source = "warehouse.map"
+//! scen = "warehouse.scen"     # robot i: start and goal of scenario line i (as --scen --agents)
+//! [robots]
+//! count = 4                   # or starts = [[x, y], …] and goals = [[x, y], …], one per robot
+//! [[phases]]
+//! [[phases]]
+//! rotate = 1                  # robot i takes robot i+1's goal: goals stay distinct
+//! ```
+//!
+//! Every robot learns every phase from its manifest start; each phase's execution starts
+//! there too, unless `phase_start = "previous"`: then phase k goes from where phase k − 1 left
+//! the robots ([`PhaseStart`]). Each phase is checked as a MAPF instance before anything starts ([`crate::phases`]): two
+//! robots on one start, two robots on one goal in a phase (a policy that gives two robots one
+//! goal), a goal on a wall or walled in, a goal on the robot's own manifest start, more robots
+//! than [`mapf::MAX_AGENTS`] — each an error naming the phase, the robots and the cell.
 
 use std::path::{Path, PathBuf};
 
@@ -45,7 +70,8 @@ use planner::task::{self, Task};
 use planner::{Cell, EpsilonReading, LearnerKind, QScale, Schedule};
 use serde::Deserialize;
 
-use crate::{LearnerArgs, MapArgs, ShareMode};
+use crate::phases::{PhaseProblem, PhaseStart, check_phases};
+use crate::{LearnerArgs, MapArgs, ShareMode, World};
 
 /// Most robots a manifest may ask for (the bus's limit).
 pub const MAX_ROBOTS: u32 = 256;
@@ -70,6 +96,17 @@ pub struct ManifestError {
     pub reason: String,
 }
 
+impl AssignPolicy {
+    /// The policy as a manifest writes it.
+    pub fn word(self) -> &'static str {
+        match self {
+            AssignPolicy::Fixed => "fixed",
+            AssignPolicy::RoundRobin => "round-robin",
+            AssignPolicy::Nearest => "nearest",
+        }
+    }
+}
+
 /// How the coordinator gives robots their goals.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
@@ -86,6 +123,8 @@ pub enum AssignPolicy {
 #[serde(deny_unknown_fields)]
 struct RawManifest {
     name: Option<String>,
+    world: Option<World>,
+    phase_start: Option<PhaseStart>,
     map: RawMap,
     #[serde(default)]
     goals: Vec<RawGoal>,
@@ -126,6 +165,7 @@ struct RawRobots {
     count: u32,
     start: Option<Vec<u32>>,
     starts: Option<Vec<Vec<u32>>>,
+    goals: Option<Vec<Vec<u32>>>,
 }
 
 #[derive(Debug, Clone, Deserialize)]
@@ -209,6 +249,10 @@ pub struct Phase {
 pub struct Manifest {
     /// Name of the experiment.
     pub name: String,
+    /// Separate copies of the map, or one shared grid (each phase a MAPF execution).
+    pub world: World,
+    /// Shared grid: where each phase's execution starts.
+    pub phase_start: PhaseStart,
     /// Where the manifest came from (for messages and relative paths).
     pub source_name: String,
     /// Map spec as written: `builtin:…`, `suite:…` or a path.
@@ -298,6 +342,33 @@ pub fn parse_manifest(source: &str, text: &str) -> Result<Manifest, ManifestErro
     })?;
     let s = source;
     let robots = raw.robots.count;
+    let world = raw.world.unwrap_or_default();
+    let shared = world == World::Shared;
+    if shared && robots as usize > mapf::MAX_AGENTS {
+        return Err(err(
+            s,
+            "robots.count",
+            format!(
+                "{robots} robots on one shared grid; it takes at most {}",
+                mapf::MAX_AGENTS
+            ),
+        ));
+    }
+    if !shared && raw.phase_start.is_some() {
+        return Err(err(
+            s,
+            "phase_start",
+            "only with world = \"shared\" (where a phase's execution on the grid starts)",
+        ));
+    }
+    if shared && raw.map.scen_index.is_some() {
+        return Err(err(
+            s,
+            "map.scen_index",
+            "a shared world takes robot i's start and goal from scenario line i (or from \
+             robots.starts and goals); scen_index picks one task for every robot",
+        ));
+    }
     if robots == 0 || robots > MAX_ROBOTS {
         return Err(err(
             s,
@@ -339,6 +410,35 @@ pub fn parse_manifest(source: &str, text: &str) -> Result<Manifest, ManifestErro
         return Err(err(s, "goals", format!("at most {MAX_GOALS} goals")));
     }
     let mut goals = Vec::new();
+    if let Some(v) = &raw.robots.goals {
+        if !raw.goals.is_empty() {
+            return Err(err(
+                s,
+                "robots.goals",
+                "give either robots.goals (one per robot) or [[goals]] (assigned by policy), \
+                 not both",
+            ));
+        }
+        if v.len() != robots as usize {
+            return Err(err(
+                s,
+                "robots.goals",
+                format!("has {} cells for {robots} robots", v.len()),
+            ));
+        }
+        for (i, c) in v.iter().enumerate() {
+            goals.push(Goal {
+                name: format!("robot-{i}"),
+                spec: GoalSpec::Cell(cell_of(s, &format!("robots.goals[{i}]"), c)?),
+            });
+        }
+    } else if shared && raw.goals.is_empty() && raw.map.scen.is_some() {
+        // robot i's goal is scenario line i's, as `qfleet run --world shared --scen`
+        goals.extend((0..robots as usize).map(|i| Goal {
+            name: format!("robot-{i}"),
+            spec: GoalSpec::Scenario(i),
+        }));
+    }
     for (i, g) in raw.goals.iter().enumerate() {
         let spec = match (&g.cell, g.scen_index) {
             (Some(_), Some(_)) => {
@@ -534,6 +634,8 @@ pub fn parse_manifest(source: &str, text: &str) -> Result<Manifest, ManifestErro
     }
     Ok(Manifest {
         name: raw.name.unwrap_or_else(|| source.to_string()),
+        world,
+        phase_start: raw.phase_start.unwrap_or_default(),
         source_name: source.to_string(),
         map: raw.map.source,
         scen: raw.map.scen,
@@ -636,10 +738,15 @@ impl Manifest {
                 },
             });
         }
+        let shared = self.world == World::Shared;
         let mut starts = Vec::new();
         for (r, st) in self.starts.iter().enumerate() {
             starts.push(match st {
                 Some(c) => *c,
+                // robot i starts where scenario line i does, as `qfleet run --world shared`
+                None if shared && scen.is_some() => {
+                    scen_task(&format!("robots (robot {r}: scenario line {r})"), r)?.start
+                }
                 None => match &scen {
                     Some(_) => default_task()?.start,
                     None => m.start.ok_or_else(|| {
@@ -652,21 +759,11 @@ impl Manifest {
                 },
             });
         }
-        let mut optimal = Vec::new();
-        for (r, st) in starts.iter().enumerate() {
-            let mut row = Vec::new();
-            for (g, gc) in goal_cells.iter().enumerate() {
-                let t = task::resolve_task(&m, Some(*st), Some(*gc)).map_err(|e| {
-                    err(
-                        &s,
-                        format!("robots/goals (robot {r} start {st}, goal {g} {gc})"),
-                        e.to_string(),
-                    )
-                })?;
-                row.push(t.optimal_len);
-            }
-            optimal.push(row);
-        }
+        let optimal = if shared {
+            shared_optima(&m.grid, &starts, &goal_cells)
+        } else {
+            separate_optima(&s, &m, &starts, &goal_cells)?
+        };
         let ngoals = goal_cells.len();
         let mut assignment = Vec::new();
         for p in &self.phases {
@@ -687,6 +784,23 @@ impl Manifest {
                 .collect();
             assignment.push(row);
         }
+        if shared
+            && let Err(e) =
+                check_phases(&m.grid, &starts, &goal_cells, &assignment, self.phase_start)
+        {
+            let phase = &self.phases[e.phase.min(self.phases.len() - 1)];
+            let how = match &e.problem {
+                PhaseProblem::Instance(mapf::InstanceError::SharedGoal { .. }) => {
+                    format!(" (assignment policy {} of this phase)", phase.policy.word())
+                }
+                _ => String::new(),
+            };
+            return Err(err(
+                &s,
+                format!("phases[{}] ({})", e.phase, phase.name),
+                format!("on the shared grid: {}{how}", e.problem),
+            ));
+        }
         Ok(Plan {
             manifest: self,
             map_spec,
@@ -697,6 +811,51 @@ impl Manifest {
             assignment,
         })
     }
+}
+
+/// BFS optimum of every robot to every goal on a shared grid, one BFS per goal (`u32::MAX`
+/// where unreachable, 0 on the goal itself): only the assigned pairs are checked, by
+/// [`check_phases`].
+fn shared_optima(grid: &planner::Grid, starts: &[Cell], goal_cells: &[Cell]) -> Vec<Vec<u32>> {
+    let tables: Vec<Vec<u32>> = goal_cells
+        .iter()
+        .map(|&g| planner::path::bfs_distances(grid, g))
+        .collect();
+    starts
+        .iter()
+        .map(|&st| {
+            tables
+                .iter()
+                .map(|d| d.get(grid.index(st)).copied().unwrap_or(u32::MAX))
+                .collect()
+        })
+        .collect()
+}
+
+/// BFS optimum of every robot to every goal on separate copies of the map: every pair must be
+/// a task (any robot may be given any goal).
+fn separate_optima(
+    s: &str,
+    m: &GridMap,
+    starts: &[Cell],
+    goal_cells: &[Cell],
+) -> Result<Vec<Vec<u32>>, ManifestError> {
+    let mut optimal = Vec::new();
+    for (r, st) in starts.iter().enumerate() {
+        let mut row = Vec::new();
+        for (g, gc) in goal_cells.iter().enumerate() {
+            let t = task::resolve_task(m, Some(*st), Some(*gc)).map_err(|e| {
+                err(
+                    s,
+                    format!("robots/goals (robot {r} start {st}, goal {g} {gc})"),
+                    e.to_string(),
+                )
+            })?;
+            row.push(t.optimal_len);
+        }
+        optimal.push(row);
+    }
+    Ok(optimal)
 }
 
 impl Plan {
@@ -933,5 +1092,154 @@ rotate = 1
         let p = m.resolve(Path::new(".")).unwrap();
         assert_eq!(p.assignment[0], vec![0, 1, 0, 1]);
         assert_eq!(p.assignment[1], vec![1, 1, 0, 0]);
+    }
+
+    const SHARED: &str = r#"
+world = "shared"
+episodes = 20
+[map]
+source = "builtin:paper-10"
+[robots]
+count = 2
+starts = [[0, 0], [9, 0]]
+goals = [[9, 9], [0, 9]]
+[[phases]]
+[[phases]]
+rotate = 1
+"#;
+
+    #[test]
+    fn the_world_is_separate_unless_a_manifest_says_shared() {
+        assert_eq!(
+            parse_manifest("m.toml", GOOD).unwrap().world,
+            World::Separate
+        );
+        assert_eq!(
+            parse_manifest("m.toml", SHARED).unwrap().world,
+            World::Shared
+        );
+        let x = e(&SHARED.replace("\"shared\"", "\"sharde\""));
+        assert!(x.reason.contains("sharde"), "{x}");
+        // every phase goes from the starts, unless the manifest says from where the last ended
+        assert_eq!(
+            parse_manifest("m.toml", SHARED).unwrap().phase_start,
+            PhaseStart::Starts
+        );
+        let prev = SHARED.replace("episodes = 20", "episodes = 20\nphase_start = \"previous\"");
+        let m = parse_manifest("m.toml", &prev).unwrap();
+        assert_eq!(m.phase_start, PhaseStart::Previous);
+        let p = m.resolve(Path::new(".")).unwrap();
+        assert_eq!(p.assignment, vec![vec![0, 1], vec![1, 0]]);
+        let x = e(&GOOD.replace("name = \"t\"", "name = \"t\"\nphase_start = \"previous\""));
+        assert_eq!(x.path, "phase_start");
+    }
+
+    #[test]
+    fn robots_goals_give_each_robot_its_own_goal_and_phases_rotate_them() {
+        let m = parse_manifest("m.toml", SHARED).unwrap();
+        let names: Vec<&str> = m.goals.iter().map(|g| g.name.as_str()).collect();
+        assert_eq!(names, ["robot-0", "robot-1"]);
+        let p = m.resolve(Path::new(".")).unwrap();
+        assert_eq!(p.goal_cells, [Cell::new(9, 9), Cell::new(0, 9)]);
+        assert_eq!(p.assignment, vec![vec![0, 1], vec![1, 0]]);
+        assert_eq!(p.optimal[0], [18, 9]);
+    }
+
+    #[test]
+    fn a_shared_world_takes_robot_i_s_start_and_goal_from_scenario_line_i() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/grid");
+        let m = load_manifest(&dir.join("warehouse-two-phases.toml")).unwrap();
+        assert_eq!(m.world, World::Shared);
+        let p = m.resolve(&dir).unwrap();
+        let scen = map::load_scen(&dir.join("warehouse.scen")).unwrap();
+        assert_eq!(p.starts.len(), 6);
+        for (r, line) in scen.iter().take(6).enumerate() {
+            assert_eq!(p.starts[r], line.start, "robot {r}");
+            assert_eq!(p.goal_cells[r], line.goal, "robot {r}");
+        }
+        assert_eq!(p.assignment[0], [0, 1, 2, 3, 4, 5]);
+        assert_eq!(p.assignment[1], [1, 2, 3, 4, 5, 0]);
+    }
+
+    #[test]
+    fn shared_world_options_that_do_not_fit_name_the_field() {
+        let scen_index = "source = \"m.map\"\nscen = \"m.scen\"\nscen_index = 2";
+        let cases: [(&str, &str, &str); 5] = [
+            ("count = 2", "count = 257", "robots.count"),
+            (
+                "goals = [[9, 9], [0, 9]]",
+                "goals = [[9, 9]]",
+                "robots.goals",
+            ),
+            (
+                "[robots]",
+                "[[goals]]\ncell = [1, 1]\n[robots]",
+                "robots.goals",
+            ),
+            (
+                "goals = [[9, 9], [0, 9]]",
+                "goals = [[9, 9], [0]]",
+                "robots.goals[1]",
+            ),
+            (
+                "source = \"builtin:paper-10\"",
+                scen_index,
+                "map.scen_index",
+            ),
+        ];
+        for (from, to, path) in cases {
+            let x = e(&SHARED.replace(from, to));
+            assert_eq!(x.path, path, "{to}: {x}");
+        }
+        assert!(
+            e(&SHARED.replace("count = 2", "count = 257"))
+                .reason
+                .contains("shared grid")
+        );
+    }
+
+    fn resolve_err(text: &str) -> ManifestError {
+        parse_manifest("m.toml", text)
+            .unwrap()
+            .resolve(Path::new("."))
+            .unwrap_err()
+    }
+
+    #[test]
+    fn every_phase_of_a_shared_world_is_checked_as_an_instance() {
+        // two robots on one start
+        let x = resolve_err(&SHARED.replace("[9, 0]]", "[0, 0]]"));
+        assert_eq!(x.path, "phases[0] (phase-0)");
+        assert!(
+            x.reason.contains("robots 0 and 1 both start at (0,0)"),
+            "{x}"
+        );
+        // one goal for both in phase 1
+        let x = resolve_err(&SHARED.replace("rotate = 1", "policy = \"fixed\"\nassign = [1, 1]"));
+        assert_eq!(x.path, "phases[1] (phase-1)");
+        assert!(x.reason.contains("both have their goal at (0,9)"), "{x}");
+        assert!(x.reason.contains("policy fixed"), "{x}");
+        // a policy that gives both robots the nearest goal
+        let x = resolve_err(
+            &SHARED
+                .replace("goals = [[9, 9], [0, 9]]", "")
+                .replace(
+                    "[robots]",
+                    "[[goals]]\ncell = [9, 9]\n[[goals]]\ncell = [0, 9]\n[robots]",
+                )
+                .replace("starts = [[0, 0], [9, 0]]", "starts = [[8, 9], [9, 8]]")
+                .replace("rotate = 1", "policy = \"nearest\""),
+        );
+        assert_eq!(x.path, "phases[1] (phase-1)", "{x}");
+        assert!(x.reason.contains("policy nearest"), "{x}");
+        // a goal on the robot's own start, where it learns from
+        let x = resolve_err(&SHARED.replace("[0, 9]]", "[9, 0]]"));
+        assert!(
+            x.reason.contains("robot 1's goal (9,0) is its start"),
+            "{x}"
+        );
+        // a goal off the map
+        let x = resolve_err(&SHARED.replace("[0, 9]]", "[0, 10]]"));
+        assert!(x.reason.contains("outside"), "{x}");
     }
 }

@@ -5,12 +5,16 @@
 //!
 //! [`ExperimentPlan::check`] refuses a plan whose parts do not fit together (bad input, exit
 //! code 2) before anything starts; the map is loaded again from its spec (`builtin:…`, `suite:…`
-//! or a path) and every cell checked on it.
+//! or a path) and every cell checked on it. A plan on one shared grid (`world: "shared"`) is
+//! checked phase by phase as MAPF instances ([`qfleet_args::phases::check_phases`], the
+//! manifest's own check).
 
 use std::path::Path;
 
 use planner::map::GridMap;
 use planner::{Cell, Rewards};
+use qfleet_args::World;
+use qfleet_args::phases::{self, PhaseError, PhaseStart};
 use serde::{Deserialize, Serialize};
 
 /// One goal of a plan.
@@ -38,6 +42,14 @@ pub struct ExperimentPlan {
     pub name: String,
     /// Seed of this repetition.
     pub seed: u64,
+    /// Separate copies of the map, or one shared grid: every phase ends with the robots
+    /// moving to their goals among each other (plans written before worlds existed: separate).
+    #[serde(default)]
+    pub world: World,
+    /// On a shared grid, where each phase's execution starts: the starts, or where the phase
+    /// before left the robots.
+    #[serde(default)]
+    pub phase_start: PhaseStart,
     /// Fleet size: robot ids `0..robots`.
     pub robots: u32,
     /// Sharing mode, as the robots' `--share` word (for the result).
@@ -76,6 +88,10 @@ pub enum PlanError {
         #[source]
         source: Box<planner::map::MapError>,
     },
+    /// A phase cannot run on the shared grid (two robots on one start or goal, a goal walled
+    /// in, …).
+    #[error("on the shared grid")]
+    Phase(#[source] PhaseError),
     /// A field is out of shape or range.
     #[error("{field}: {reason}")]
     Field {
@@ -100,6 +116,8 @@ impl ExperimentPlan {
         Ok(ExperimentPlan {
             name: m.name.clone(),
             seed,
+            world: m.world,
+            phase_start: m.phase_start,
             robots: m.robots,
             sharing: m.sharing.as_cli().into(),
             timeout_s: m.timeout_s,
@@ -212,7 +230,40 @@ impl ExperimentPlan {
                 format!("{} is not a free cell of the map", goal.cell),
             ));
         }
+        if self.world == World::Shared {
+            phases::check_phases(
+                g,
+                &self.starts,
+                &self.goal_cells(),
+                &self.assignment,
+                self.phase_start,
+            )
+            .map_err(PlanError::Phase)?;
+        }
         Ok(map)
+    }
+
+    /// Goal cells, by goal index.
+    pub fn goal_cells(&self) -> Vec<Cell> {
+        self.goals.iter().map(|g| g.cell).collect()
+    }
+
+    /// Every robot's goal cell in phase `p` (`None`: no such phase, or a bad goal index).
+    pub fn phase_goals(&self, p: usize) -> Option<Vec<Cell>> {
+        phases::phase_goals(&self.goal_cells(), self.assignment.get(p)?)
+    }
+
+    /// Where phase `p` starts on a shared grid as planned: the starts, or with
+    /// [`PhaseStart::Previous`] the goals of phase `p − 1` after phase 0 (see
+    /// [`qfleet_args::phases`]).
+    pub fn planned_starts(&self, p: usize) -> Option<Vec<Cell>> {
+        phases::planned_starts(
+            &self.starts,
+            &self.goal_cells(),
+            &self.assignment,
+            p,
+            self.phase_start,
+        )
     }
 
     /// Reads a plan file (JSON of an [`ExperimentPlan`]).
@@ -245,6 +296,8 @@ mod tests {
         ExperimentPlan {
             name: "t".into(),
             seed: 1,
+            world: World::Separate,
+            phase_start: PhaseStart::Starts,
             robots: 2,
             sharing: "both".into(),
             timeout_s: 10.0,
@@ -293,6 +346,51 @@ mod tests {
                 Err(PlanError::Field { field: f, .. }) => assert_eq!(f, field),
                 other => panic!("{field}: {other:?}"),
             }
+        }
+    }
+
+    #[test]
+    fn a_shared_plan_is_checked_phase_by_phase_and_round_trips() {
+        let mut p = plan();
+        p.world = World::Shared;
+        p.goals.push(PlanGoal {
+            name: "goal-1".into(),
+            cell: Cell::new(0, 9),
+        });
+        p.starts = vec![Cell::new(0, 0), Cell::new(1, 0)];
+        p.optimal = vec![vec![18, 9], vec![17, 10]];
+        p.assignment = vec![vec![0, 1], vec![1, 0]];
+        p.phases.push(PlanPhase {
+            name: "phase-1".into(),
+            episodes: 5,
+        });
+        p.check().unwrap();
+        assert_eq!(p.planned_starts(1), Some(p.starts.clone()));
+        p.phase_start = PhaseStart::Previous;
+        p.check().unwrap();
+        assert_eq!(
+            p.planned_starts(1),
+            Some(vec![Cell::new(9, 9), Cell::new(0, 9)])
+        );
+        assert_eq!(
+            p.phase_goals(1),
+            Some(vec![Cell::new(0, 9), Cell::new(9, 9)])
+        );
+        let back: ExperimentPlan =
+            serde_json::from_str(&serde_json::to_string(&p).unwrap()).unwrap();
+        assert_eq!(back, p);
+        // a plan without `world` (written before worlds existed) is a separate one
+        let mut v = serde_json::to_value(plan()).unwrap();
+        v.as_object_mut().unwrap().remove("world");
+        v.as_object_mut().unwrap().remove("phase_start");
+        let old: ExperimentPlan = serde_json::from_value(v).unwrap();
+        assert_eq!(old.world, World::Separate);
+        assert_eq!(old.phase_start, PhaseStart::Starts);
+        // two robots on one goal in phase 1: refused with the phase
+        p.assignment[1] = vec![1, 1];
+        match p.check() {
+            Err(PlanError::Phase(e)) => assert_eq!(e.phase, 1, "{e}"),
+            other => panic!("{other:?}"),
         }
     }
 

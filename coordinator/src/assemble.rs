@@ -344,6 +344,8 @@ pub(crate) fn phase_result(
         discoveries_received: 0,
         robots,
         wall_s,
+        // the execution on a shared grid, if any, is the driver's to add
+        grid: None,
     }
 }
 

@@ -7,10 +7,17 @@
 //! starts (counting the start), when a phase starts, and after each phase with its result.
 //! This type only decides; it does no IO.
 //!
+//! On a shared grid the checkpoint also keeps where the last phase done left the robots
+//! ([`Checkpoint::at`]), so that the next phase's execution starts there after a restart too,
+//! and each phase done keeps its grid result. A phase whose execution was under way when the
+//! coordinator died is run again from its start: its learning is reported again by the robots,
+//! and its execution restarts cleanly from where the phase before left the robots.
+//!
 //! What a killed coordinator counted after the last checkpoint (merged Q updates, relays,
 //! rejected messages, liveness events of the interrupted phase) is lost with it; discoveries
 //! are not, because every robot replays its discoveries to a new coordinator.
 
+use planner::Cell;
 use serde::{Deserialize, Serialize};
 
 use report::run::PhaseResult;
@@ -73,6 +80,10 @@ pub struct Checkpoint {
     pub current: Option<Current>,
     /// Counts up to the end of the last phase done.
     pub totals: Totals,
+    /// On a shared grid: where the last phase done left the robots (its execution's end, by
+    /// robot id); `None` before any phase was executed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub at: Option<Vec<Cell>>,
     /// Counts of the coordinator processes before this one, up to the last checkpoint
     /// (the base this process adds its own to; not written).
     #[serde(skip)]
@@ -109,6 +120,7 @@ impl Checkpoint {
                 phases: Vec::new(),
                 current: None,
                 totals: Totals::default(),
+                at: None,
                 base: Totals::default(),
             },
         }
@@ -162,6 +174,21 @@ impl Checkpoint {
         self.current = None;
         self.phases.push(result);
     }
+
+    /// The last phase done left the robots at `at` on the shared grid.
+    pub fn left_at(&mut self, at: Vec<Cell>) {
+        self.at = Some(at);
+    }
+
+    /// Where the next phase's execution starts on the shared grid: where the last phase done
+    /// left the robots, or `planned` (phase 0, or a checkpoint without positions for this
+    /// fleet).
+    pub fn grid_starts(&self, planned: Vec<Cell>) -> Vec<Cell> {
+        match &self.at {
+            Some(at) if !self.phases.is_empty() && at.len() == planned.len() => at.clone(),
+            _ => planned,
+        }
+    }
 }
 
 #[cfg(test)]
@@ -198,6 +225,7 @@ mod tests {
             discoveries_sent: sent.iter().sum(),
             discoveries_received: 0,
             wall_s: 1.0,
+            grid: None,
         }
     }
 
@@ -265,6 +293,29 @@ mod tests {
         d.start_phase(1, 0);
         d.phase_done(phase(1, &[1, 0]), life(5, 0));
         assert_eq!(d.phases[1].discoveries_received, 1);
+    }
+
+    #[test]
+    fn the_next_execution_starts_where_the_last_phase_done_left_the_robots_across_a_restart() {
+        let planned = vec![Cell::new(1, 1), Cell::new(2, 2)];
+        let mut c = Checkpoint::resume(None, "r", 1, 3, 0);
+        assert_eq!(
+            c.grid_starts(planned.clone()),
+            planned,
+            "phase 0: as planned"
+        );
+        c.start_phase(0, 0);
+        c.phase_done(phase(0, &[]), LifeCounts::default());
+        // robot 1 did not reach its goal: the next phase starts where it stood
+        let left = vec![Cell::new(5, 5), Cell::new(2, 3)];
+        c.left_at(left.clone());
+        c.start_phase(1, 0);
+        // killed during phase 1's execution: the restarted coordinator starts it again there
+        let d = Checkpoint::resume(reread(&c), "r", 1, 3, 9);
+        assert_eq!(d.next_phase(), 1);
+        assert_eq!(d.grid_starts(planned.clone()), left);
+        // positions for another fleet size are not used
+        assert_eq!(d.grid_starts(vec![Cell::new(0, 0)]), vec![Cell::new(0, 0)]);
     }
 
     #[test]

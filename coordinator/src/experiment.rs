@@ -18,6 +18,15 @@
 //!    env steps per robot (interpolated between the robot's episode ends).
 //! 4. Keep the phase's result in `experiment-checkpoint.json` ([`Checkpoint`]).
 //!
+//! 5. On a shared grid (`world: "shared"` in the plan): the coordinator executes the phase as
+//!    a plain run's execution ([`grid::execute`], the same engine): `Execute`, then tick by
+//!    tick from the plan's starts to this phase's goals, or with `phase_start: "previous"`
+//!    from where the phase before left the robots. The phase's result carries the grid section
+//!    and the paths go to `paths-phase-<p>.txt`. Robots learn every phase from their start in
+//!    the plan (the cell their process was started with); their ranking answers for any cell
+//!    of the map (its learned values, and its own map distance where it never tried a move),
+//!    so an execution may start elsewhere.
+//!
 //! After the last phase: `Stop` to all.
 //!
 //! # A coordinator restart
@@ -28,6 +37,13 @@
 //! has finished, and answers the repeat of a phase it already reported with its report again,
 //! so the phase ends as if nothing happened. The fleet tables start empty again (the robots
 //! keep what they learned); the counts of earlier coordinators are carried in the checkpoint.
+//! On a shared grid a finished phase's grid result is in the checkpoint with it, and so is
+//! where it left the robots; a phase whose execution was under way is executed again from its
+//! starts (with `phase_start: "previous"`, where the phase before left the robots, from the
+//! checkpoint). Its half-done moves are not kept: the grid is the coordinator's own record.
+//! A robot still in the old execution answers the new grants only once their tick passes the
+//! last one it answered (`robot_agent`'s execution loop keeps it), so it is hung for the first
+//! ticks of the new one: an obstacle that waits, a known limit.
 
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
@@ -41,10 +57,16 @@ use report::{OutDir, OutFile, ReadError};
 use crate::assemble::{self, GoalTrack};
 use crate::checkpoint::{Checkpoint, LifeCounts};
 use crate::engine::{Assignment, Engine, tolerate};
+use crate::grid::{self, GridPlan};
 use crate::liveness::{Life, start_lister};
 use crate::options::{CoordArgs, CoordError, bus_config, secs};
 use crate::wait::{Serving, Waiting, serve};
+use bus::Lister;
 pub use contract::plan::ExperimentPlan;
+use mapf::Instance;
+use qfleet_args::World;
+use qfleet_args::phases::PhaseStart;
+use report::GridResult;
 pub use report::run::{ExperimentResult, GoalPhase, PhaseResult, RobotPhase};
 use sharing::FleetTable;
 
@@ -65,11 +87,12 @@ pub fn run(
     plan: &ExperimentPlan,
     stop: &AtomicBool,
 ) -> Result<ExperimentResult, CoordError> {
-    // a shared grid is a plain run's for now: said, not silently ignored
-    if args.world.shared() {
+    // the plan says which world; `--world shared` with a plan of separate copies is a mistake,
+    // said, not silently ignored (the other `--world` options apply to a shared plan)
+    if args.world.shared() && plan.world != World::Shared {
         return Err(CoordError::Option {
             option: "--world",
-            must: "separate with --plan (a shared grid runs with `qfleet run --world shared`)",
+            must: "the plan's world with --plan (the manifest's `world = \"shared\"`)",
             value: args.world.world.to_string(),
         });
     }
@@ -133,6 +156,10 @@ pub fn run(
         args.out.clone(),
     );
     engine.optimum = plan.optimal.clone();
+    if plan.world == World::Shared {
+        // robots register with their start in the plan: the one they learn from
+        engine.starts = Some(plan.starts.clone());
+    }
     let ctx = Ctx {
         args,
         plan,
@@ -251,9 +278,24 @@ fn drive(
                 merged_optimal_ns: w.merged_optimal_ns,
             })
             .collect();
-        let result = assemble::phase_result(plan, engine, &tracks, p, phase_ns, ctx.dir, wall_s);
+        let mut result =
+            assemble::phase_result(plan, engine, &tracks, p, phase_ns, ctx.dir, wall_s);
+        let mut left_at = None;
+        if plan.world == World::Shared && !interrupted {
+            let (grid, at) = execute_phase(ctx, cp, engine, bus, &lister, stop, p)?;
+            report::log_line!(
+                "qfleet-coordinator: phase {p} on the shared grid: {}",
+                grid.line()
+            );
+            result.grid = Some(grid);
+            left_at = Some(at);
+            interrupted = stop.load(std::sync::atomic::Ordering::Relaxed);
+        }
         ended = cp.clone();
         ended.phase_done(result, life_counts(engine));
+        if let Some(at) = left_at {
+            ended.left_at(at);
+        }
         if interrupted {
             break;
         }
@@ -282,6 +324,72 @@ fn drive(
         // robots on other hosts are `qfleet experiment`'s to add
         hosts: Vec::new(),
     })
+}
+
+/// Executes phase `p` on the shared grid (see the module docs): from the plan's starts, or
+/// where the last phase done left the robots (`cp`), to the phase's goals; its result and
+/// where it left the robots.
+fn execute_phase(
+    ctx: &Ctx<'_>,
+    cp: &Checkpoint,
+    engine: &mut Engine,
+    bus: &CoordinatorBus,
+    lister: &Lister,
+    stop: &AtomicBool,
+    p: usize,
+) -> Result<(GridResult, Vec<Cell>), CoordError> {
+    let plan = ctx.plan;
+    let unfit = |what: String| {
+        CoordError::Plan(Box::new(contract::plan::PlanError::Field {
+            field: "assignment",
+            reason: what,
+        }))
+    };
+    let (Some(goals), Some(planned)) = (plan.phase_goals(p), plan.planned_starts(p)) else {
+        return Err(unfit(format!("phase {p} has no goal per robot")));
+    };
+    let grid = &ctx.map.grid;
+    let from = match plan.phase_start {
+        PhaseStart::Starts => planned.clone(),
+        PhaseStart::Previous => cp.grid_starts(planned.clone()),
+    };
+    let instance = match Instance::new(grid.clone(), from, goals.clone()) {
+        Ok(i) => i,
+        // where the last phase left the robots does not make an instance (a robot lost there
+        // stood where another stopped): the phase goes from where it was planned to
+        Err(e) => {
+            report::log_line!(
+                "qfleet-coordinator: warning: phase {p} cannot start where phase {} left the \
+                 robots ({e}); it starts from the goals of phase {}, as planned",
+                p.saturating_sub(1),
+                p.saturating_sub(1)
+            );
+            Instance::new(grid.clone(), planned, goals)
+                .map_err(|e| unfit(format!("phase {p} on the shared grid: {e}")))?
+        }
+    };
+    // every robot ranks its moves with what the whole fleet learned of its goal
+    let mut flushed = vec![false; engine.tables.len()];
+    for &g in &plan.assignment[p] {
+        if !std::mem::replace(&mut flushed[g], true) {
+            engine.flush(bus, g as u32)?;
+        }
+    }
+    let args = ctx.args;
+    let gp = GridPlan {
+        max_ticks: args
+            .world
+            .max_ticks
+            .unwrap_or_else(|| GridPlan::default_max_ticks(&instance)),
+        scen: None,
+        tick_min: Duration::from_millis(args.world.tick_ms),
+        horizon: args.world.intent_horizon,
+        paths: OutFile::PhasePaths(p as u32),
+        instance,
+    };
+    let spin = Duration::from_micros(args.spin_us);
+    let hang = Duration::from_millis(args.hang_ms);
+    grid::execute(engine, bus, lister, &gp, spin, hang, stop, ctx.dir)
 }
 
 /// Notes, per goal whose table changed, the first time its merged greedy path is optimal from

@@ -66,6 +66,9 @@ pub struct GridPlan {
     pub tick_min: Duration,
     /// The intent horizon asked of the robots (`--intent-horizon`; 0: one intent per tick).
     pub horizon: u8,
+    /// The paths file to write into the out directory: `paths.txt` for a run,
+    /// `paths-phase-<p>.txt` for phase `p` of an experiment.
+    pub paths: OutFile,
 }
 
 impl GridPlan {
@@ -328,8 +331,10 @@ impl Round {
     }
 }
 
-/// Drives one shared-grid execution on the bus (see the module docs) and returns its result;
-/// writes `paths.txt` into `out`.
+/// Drives one shared-grid execution on the bus (see the module docs) and returns its result
+/// and where it left every robot (by robot id; a robot that left the grid: its last cell);
+/// writes the plan's paths file into `out`. An experiment calls it once per phase, on the
+/// same engine and bus.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn execute(
     engine: &mut Engine,
@@ -340,7 +345,7 @@ pub(crate) fn execute(
     hang: Duration,
     stop: &AtomicBool,
     out: &OutDir,
-) -> Result<GridResult, CoordError> {
+) -> Result<(GridResult, Vec<Cell>), CoordError> {
     let inst = &plan.instance;
     let n = inst.agents();
     let mut world = World::new(inst, WorldConfig::default());
@@ -351,6 +356,9 @@ pub(crate) fn execute(
         }
     }
     bus.connect_all()?;
+    // answers to an earlier execution (the phase before, in an experiment) are not this one's
+    while bus.intent.receive_sample()?.is_some() {}
+    while bus.horizon.receive_sample()?.is_some() {}
     report::log_line!(
         "qfleet-coordinator: shared grid: {} robots move from their starts (at most {} ticks)",
         n,
@@ -478,14 +486,19 @@ pub(crate) fn execute(
         plan.horizon
     );
     let paths = world.paths();
-    let paths_file = match out.write(OutFile::Paths, mapf::write_paths(&paths).as_bytes()) {
-        Ok(_) => Some(OutFile::Paths.name()),
+    let paths_file = match out.write(plan.paths, mapf::write_paths(&paths).as_bytes()) {
+        Ok(_) => Some(plan.paths.name()),
         Err(e) => {
             report::log_line!("qfleet-coordinator: warning: {e}");
             None
         }
     };
-    Ok(summarize(
+    let at = paths
+        .iter()
+        .zip(inst.starts())
+        .map(|(p, &s)| p.last().copied().unwrap_or(s))
+        .collect();
+    let result = summarize(
         plan,
         &world,
         &paths,
@@ -498,7 +511,8 @@ pub(crate) fn execute(
             resolve: &resolve_hist,
             paths_file,
         },
-    ))
+    );
+    Ok((result, at))
 }
 
 /// Takes what waits in the intent inbox into the round; returns how many messages it took.

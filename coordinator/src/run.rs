@@ -60,6 +60,7 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
                 scen: args.map.scen.as_ref().map(|p| p.display().to_string()),
                 tick_min: Duration::from_millis(args.world.tick_ms),
                 horizon: args.world.intent_horizon,
+                paths: OutFile::Paths,
                 instance,
             })
         }
@@ -332,7 +333,7 @@ fn drive(
             let hang = Duration::from_millis(args.hang_ms);
             let spin = Duration::from_micros(args.spin_us);
             let out = OutDir::new(&args.out);
-            let r = grid::execute(engine, bus, &lister, g, spin, hang, stop, &out)?;
+            let (r, _) = grid::execute(engine, bus, &lister, g, spin, hang, stop, &out)?;
             executed = Some(r);
         }
         Some(_) => {}

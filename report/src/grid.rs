@@ -95,3 +95,94 @@ pub struct GridResult {
     /// Per robot.
     pub robots: Vec<GridRobot>,
 }
+
+impl GridEnd {
+    /// How the execution ended, in words.
+    pub fn words(self) -> &'static str {
+        match self {
+            GridEnd::Arrived => "every robot arrived",
+            GridEnd::TickLimit => "the tick limit passed",
+            GridEnd::Unsolvable => "no plan brings every robot home (proved by search)",
+            GridEnd::Stopped => "stopped",
+        }
+    }
+}
+
+impl GridResult {
+    /// One line of a human summary: how it ended, the costs against the lower bound, the
+    /// independent check's conflicts and the paths file (an experiment prints one per phase).
+    pub fn line(&self) -> String {
+        format!(
+            "{} ({} of {} arrived) after {} ticks; sum of costs {} (lower bound {}, ratio {:.3}), \
+             makespan {}, conflicts {}{}",
+            self.ended.words(),
+            self.arrived,
+            self.agents,
+            self.ticks,
+            self.sum_of_costs,
+            self.lower_bound,
+            self.soc_ratio,
+            self.makespan,
+            self.conflicts,
+            self.paths_file
+                .as_deref()
+                .map_or(String::new(), |f| format!(", {f}"))
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn result() -> GridResult {
+        GridResult {
+            agents: 2,
+            scen: None,
+            ended: GridEnd::Arrived,
+            all_arrived: true,
+            arrived: 2,
+            sum_of_costs: 11,
+            makespan: 6,
+            lower_bound: 10,
+            soc_ratio: 1.1,
+            ticks: 6,
+            waits: 1,
+            denied_moves: 1,
+            conflicts: 0,
+            intents_rejected: 0,
+            exec_s: 0.5,
+            ticks_per_s: 12.0,
+            tick_latency_ns: LatencyStats::default(),
+            intent_latency_ns: LatencyStats::default(),
+            resolve_latency_ns: LatencyStats::default(),
+            paths_file: Some("paths-phase-1.txt".into()),
+            robots: vec![GridRobot {
+                robot_id: 0,
+                start: "0,0".into(),
+                goal: "3,3".into(),
+                shortest: 6,
+                arrived_at: Some(6),
+                waits: 0,
+                denied: 0,
+                left: false,
+            }],
+        }
+    }
+
+    #[test]
+    fn the_summary_line_says_how_it_ended_what_it_cost_and_where_the_paths_are() {
+        assert_eq!(
+            result().line(),
+            "every robot arrived (2 of 2 arrived) after 6 ticks; sum of costs 11 (lower bound \
+             10, ratio 1.100), makespan 6, conflicts 0, paths-phase-1.txt"
+        );
+    }
+
+    #[test]
+    fn a_grid_result_round_trips_through_json() {
+        let r = result();
+        let back: GridResult = serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
+        assert_eq!(back, r);
+    }
+}

@@ -142,6 +142,8 @@ pub enum OutFile {
     StepsPlot,
     /// `paths.txt`: a shared grid's paths in the mapf-visualizer format.
     Paths,
+    /// `paths-phase-<p>.txt`: the paths of phase `p` of an experiment on a shared grid.
+    PhasePaths(u32),
 }
 
 impl OutFile {
@@ -162,6 +164,7 @@ impl OutFile {
             OutFile::LatencyPlot => "latency.svg".into(),
             OutFile::StepsPlot => "steps.svg".into(),
             OutFile::Paths => "paths.txt".into(),
+            OutFile::PhasePaths(p) => format!("paths-phase-{p}.txt"),
         }
     }
 
@@ -177,6 +180,12 @@ impl OutFile {
             "steps.svg" => return Some(OutFile::StepsPlot),
             "paths.txt" => return Some(OutFile::Paths),
             _ => {}
+        }
+        if let Some(p) = name
+            .strip_prefix("paths-phase-")
+            .and_then(|n| n.strip_suffix(".txt"))
+        {
+            return number(p).map(OutFile::PhasePaths);
         }
         if let Some(p) = name
             .strip_prefix("latency-")
@@ -356,6 +365,8 @@ mod tests {
             OutFile::LatencyPlot,
             OutFile::StepsPlot,
             OutFile::Paths,
+            OutFile::PhasePaths(0),
+            OutFile::PhasePaths(12),
         ];
         v.extend(LatencyPath::ALL.map(OutFile::Latency));
         v.extend(RobotHist::ALL.map(|kind| OutFile::RobotHist { robot: 1, kind }));

@@ -428,6 +428,11 @@ pub struct PhaseResult {
     pub discoveries_received: u64,
     /// Wall time of the phase, s (from its start, also across a coordinator restart).
     pub wall_s: f64,
+    /// The phase's execution on the shared grid (`world = "shared"`; absent otherwise, and
+    /// when the phase was cut short before it): from where the last phase left the robots to
+    /// this phase's goals. Its paths are in `paths-phase-<p>.txt`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grid: Option<crate::grid::GridResult>,
 }
 
 /// The result of one experiment run (one seed).

@@ -383,6 +383,13 @@ impl ExperimentCmd {
         if let Some(s) = self.seed {
             plan.manifest.seeds = vec![s];
         }
+        if plan.manifest.world == qfleet_args::World::Shared && self.remote.remote_robots > 0 {
+            return Err(anyhow!(
+                "world = \"shared\" runs on one host: its intents and grants do not cross the \
+                 bridge yet (drop --remote-robots)"
+            )
+            .context(Exit::BadInput));
+        }
         let grace = Duration::try_from_secs_f64(self.grace)
             .map_err(|_| {
                 anyhow!(
@@ -475,6 +482,17 @@ impl ExperimentCmd {
             };
             if !self.json {
                 out!("{}", crate::table::experiment_table(&r))?;
+                // a shared world: each phase's execution, as a MAPF user reads it
+                for ph in &r.phases {
+                    if let Some(g) = &ph.grid {
+                        out!(
+                            "phase {} ({}) on the shared grid: {}",
+                            ph.phase,
+                            ph.name,
+                            g.line()
+                        )?;
+                    }
+                }
             }
             results.push(r);
         }
