@@ -128,3 +128,54 @@ fn a_fleet_that_does_not_fit_in_memory_is_refused_before_it_starts() {
     );
     assert!(qfleet_suite::leftovers(&id).is_empty());
 }
+
+/// The same preflight for `qfleet experiment` (issue 27): a manifest whose repetition does not
+/// fit in memory is refused before any process starts, with what to do.
+#[test]
+fn an_experiment_that_does_not_fit_in_memory_is_refused_before_it_starts() {
+    const NAME: &str = "an_experiment_that_does_not_fit_in_memory_is_refused_before_it_starts";
+    let cells = 2048 * 2048;
+    let need = bus::limits::memory_estimate(cells, 257);
+    if bus::limits::mem_available().is_none_or(|have| have >= need) {
+        qfleet_suite::skip(
+            NAME,
+            "this machine has the memory for 256 robots on a 2048 x 2048 map",
+        );
+        return;
+    }
+    let task = planner::suite::from_spec("maze-2048-1")
+        .expect("a suite map")
+        .task;
+    let (s, g) = (task.start, task.goal);
+    let dir = qfleet_suite::scratch("exp-no-mem");
+    let manifest = dir.join("big.toml");
+    std::fs::write(
+        &manifest,
+        format!(
+            "name = \"too big\"\nepisodes = 1\nseeds = [1]\n[map]\nsource = \"suite:maze-2048-1\"\n\
+             [[goals]]\nname = \"g\"\ncell = [{}, {}]\n[robots]\ncount = 256\nstart = [{}, {}]\n",
+            g.x, g.y, s.x, s.y
+        ),
+    )
+    .expect("write the manifest");
+    let out = qfleet_suite::run_bounded(
+        std::process::Command::new(qfleet_suite::bin("qfleet"))
+            .arg("experiment")
+            .arg(&manifest)
+            .arg("--out")
+            .arg(dir.join("out")),
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(
+        out.status.code(),
+        Some(2),
+        "{}",
+        qfleet_suite::describe(&out)
+    );
+    assert!(
+        err.contains("not enough memory: 256 robot(s) and the coordinator")
+            && err.contains("--ignore-memory"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

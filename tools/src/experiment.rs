@@ -41,6 +41,10 @@ pub struct ExperimentCmd {
     /// Write into a non-empty `--out` directory, replacing files of the same names.
     #[arg(long)]
     force: bool,
+    /// Start even if a repetition's estimated memory (robots and coordinator, from the map's
+    /// size) exceeds the memory available now.
+    #[arg(long)]
+    ignore_memory: bool,
     /// Restart a robot-agent or the coordinator that died, crashed or hung (with backoff; the
     /// coordinator warm-starts a robot from its goal's fleet table, a restarted coordinator
     /// resumes the experiment from its checkpoint).
@@ -238,6 +242,7 @@ pub fn run_once(
     let _claim = crate::launch::claim(run_id)?;
     // iceoryx2 root usable, no other user's file in the prefix, room in /dev/shm
     bus::preflight(&bus::BusConfig::new(run_id, plan.manifest.robots)?)?;
+
     let coord_bin = sibling("qfleet-coordinator")?;
     let robot_bin = sibling("robot-agent")?;
     let dir = OutDir::new(out);
@@ -400,6 +405,18 @@ impl ExperimentCmd {
             .context(Exit::BadInput)?;
         if let Some(p) = &self.run_id {
             launcher::run_id::validate(p).context(Exit::BadInput)?;
+        }
+        // room in memory for this host's robots and the coordinator (issue 27), as `qfleet
+        // run` checks: refused before anything is created
+        if !self.ignore_memory {
+            let remote = self.remote.remote_robots.min(plan.manifest.robots);
+            let cells = (plan.map.grid.width() * plan.map.grid.height()) as u64;
+            bus::limits::check_memory(
+                cells,
+                u64::from(plan.manifest.robots - remote),
+                bus::limits::mem_available(),
+            )
+            .context(Exit::BadInput)?;
         }
         let sup = Supervision {
             policy: self.restart,

@@ -27,6 +27,8 @@ impl Robot<'_> {
         let mut ranks = [0u16; HORIZON_CELLS];
         let mut cache = RankCache::new(&p.task);
         let mut answered: Option<u32> = None;
+        // whose grants those ticks were: a coordinator that took over counts ticks afresh
+        let mut granter = self.gate.coordinator().map(|o| o.node);
         let mut heard = Instant::now();
         let mut polled = Instant::now();
         let mut intents = 0u64;
@@ -34,6 +36,13 @@ impl Robot<'_> {
             // the newest grant of this robot's coordinator: only its tick, state and this
             // robot's entry matter
             let coordinator = self.gate.coordinator().map(|o| o.node);
+            if coordinator != granter {
+                // a restarted coordinator executes the phase again from tick 0: answer it
+                // from there, not only past the last tick the old one granted
+                granter = coordinator;
+                answered = None;
+                answering = Answering::new(horizon);
+            }
             let mut newest: Option<(u32, u8, Cell, bool)> = None;
             while let Some(g) = self.bus.grant.receive_sample()? {
                 if coordinator != Some(g.header().node_id().value()) {
