@@ -888,6 +888,11 @@ fn a_stranger_on_the_network_reads_nothing_forges_nothing_and_takes_no_slot() {
     )
     .expect("bridge.json is JSON");
     assert!(bridge["unauthenticated"].as_u64() >= Some(1), "{bridge}");
+    // host A's memory under the attack stays bounded: the launcher holding the hub (its
+    // coordinator and robots are processes of their own) peaked under 256 MiB
+    let rss = bridge["peak_rss_kib"].as_u64().expect("peak_rss_kib");
+    eprintln!("host A's launcher peaked at {rss} KiB under the attack");
+    assert!((1..256 * 1024).contains(&rss), "{bridge}");
     let joined: Value =
         serde_json::from_str(&std::fs::read_to_string(db.join("join.json")).expect("join.json"))
             .expect("join.json is JSON");

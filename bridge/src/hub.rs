@@ -97,6 +97,20 @@ pub struct HubReport {
     pub given_up: Vec<u32>,
     /// One entry per joined host.
     pub hosts: Vec<HostReport>,
+    /// Peak resident memory of this host's launcher process (the hub runs in it) when the hub
+    /// finished, KiB (`getrusage`): what strangers' floods did to host A's memory shows here.
+    pub peak_rss_kib: u64,
+}
+
+/// This process's peak resident memory so far, KiB (0 when it cannot be read).
+fn peak_rss_kib() -> u64 {
+    // SAFETY: getrusage fills a plain-old-data struct; zero is a valid initial value.
+    let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: a valid out-pointer.
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut u) } != 0 {
+        return 0;
+    }
+    u64::try_from(u.ru_maxrss).unwrap_or(0)
 }
 
 impl HubReport {
@@ -425,6 +439,7 @@ fn run(
     report.unauthenticated = door.unauthenticated;
     report.refused = refused.reasons;
     report.hosts = hosts.into_iter().map(Host::into_report).collect();
+    report.peak_rss_kib = peak_rss_kib();
     Ok(report)
 }
 

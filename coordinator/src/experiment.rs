@@ -389,7 +389,8 @@ fn execute_phase(
     };
     let spin = Duration::from_micros(args.spin_us);
     let hang = Duration::from_millis(args.hang_ms);
-    grid::execute(engine, bus, lister, &gp, spin, hang, stop, ctx.dir)
+    let world = grid::prepare(&gp);
+    grid::execute(engine, bus, lister, &gp, world, spin, hang, stop, ctx.dir)
 }
 
 /// Notes, per goal whose table changed, the first time its merged greedy path is optimal from

@@ -331,16 +331,26 @@ impl Round {
     }
 }
 
+/// The world of `plan` with its first look-ahead plan made ([`World::prepare`]): a plain run
+/// makes it right after `Start`, while the robots learn, so the execution's first tick does
+/// not wait for it (~6 ms at 64 robots in a release build, a quarter of the execution).
+pub(crate) fn prepare(plan: &GridPlan) -> World {
+    let mut world = World::new(&plan.instance, WorldConfig::default());
+    world.prepare();
+    world
+}
+
 /// Drives one shared-grid execution on the bus (see the module docs) and returns its result
 /// and where it left every robot (by robot id; a robot that left the grid: its last cell);
-/// writes the plan's paths file into `out`. An experiment calls it once per phase, on the
-/// same engine and bus.
+/// writes the plan's paths file into `out`. `world` is [`prepare`]'s for `plan`. An experiment
+/// calls it once per phase, on the same engine and bus.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn execute(
     engine: &mut Engine,
     bus: &CoordinatorBus,
     lister: &Lister,
     plan: &GridPlan,
+    mut world: World,
     spin: Duration,
     hang: Duration,
     stop: &AtomicBool,
@@ -348,7 +358,6 @@ pub(crate) fn execute(
 ) -> Result<(GridResult, Vec<Cell>), CoordError> {
     let inst = &plan.instance;
     let n = inst.agents();
-    let mut world = World::new(inst, WorldConfig::default());
     // robots the coordinator lost before the execution never stand on the grid
     for (id, slot) in engine.robots.iter().enumerate() {
         if slot.lost || !slot.accepted {

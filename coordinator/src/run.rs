@@ -301,6 +301,8 @@ fn drive(
         strategy: args.wait,
         spin: Duration::from_micros(args.spin_us),
     };
+    // the shared grid's first look-ahead plan is made now, while the robots learn
+    let mut prepared = grid.map(grid::prepare);
     let progress = args.progress;
     let serving = Serving {
         bus,
@@ -333,7 +335,8 @@ fn drive(
             let hang = Duration::from_millis(args.hang_ms);
             let spin = Duration::from_micros(args.spin_us);
             let out = OutDir::new(&args.out);
-            let (r, _) = grid::execute(engine, bus, &lister, g, spin, hang, stop, &out)?;
+            let world = prepared.take().unwrap_or_else(|| grid::prepare(g));
+            let (r, _) = grid::execute(engine, bus, &lister, g, world, spin, hang, stop, &out)?;
             executed = Some(r);
         }
         Some(_) => {}

@@ -722,6 +722,15 @@ impl World {
         list[..n].copy_from_slice(&out[..n]);
     }
 
+    /// Makes the look-ahead plan for the current configuration now, if one is kept and none
+    /// is valid (what the next [`World::step`] would do first): a coordinator calls it while
+    /// the robots are still learning, so the first tick does not wait for it.
+    pub fn prepare(&mut self) {
+        if self.config.plan_ahead && !self.plan_valid && self.following.is_empty() {
+            self.replan();
+        }
+    }
+
     /// Recomputes the look-ahead plan from the current configuration.
     fn replan(&mut self) {
         // several priority orders while the budget lasts; the cheapest plan is kept

@@ -266,3 +266,33 @@ fn a_search_out_of_budget_reports_stalled_and_backs_off() {
     // windows of 4, 8, 16, 32, 64, 128 ticks: at most 6 searches in 200 ticks
     assert!((2..=6).contains(&w.searches()), "{} searches", w.searches());
 }
+
+/// A world whose first plan was made ahead ([`World::prepare`], what the coordinator does while
+/// the robots learn) moves exactly as one that makes it at its first step, and does not plan
+/// again at that step.
+#[test]
+fn a_plan_made_ahead_is_the_one_the_first_step_would_make() {
+    let map = ".....\n.#.#.\n.....\n.#.#.\n.....\n";
+    let (s, g) = (
+        [c(0, 0), c(4, 0), c(0, 4), c(4, 4), c(2, 2)],
+        [c(4, 4), c(0, 4), c(4, 0), c(0, 0), c(2, 0)],
+    );
+    let i = inst(map, &s, &g);
+    let lazy = run(&i, WorldConfig::default(), 100);
+    let mut w = World::new(&i, WorldConfig::default());
+    w.prepare();
+    assert_eq!(w.replans(), 1);
+    w.prepare();
+    assert_eq!(w.replans(), 1, "a valid plan is not made again");
+    let mut intents = vec![None; i.agents()];
+    greedy(&i, w.positions(), &mut intents);
+    w.step(&intents).unwrap();
+    assert_eq!(w.replans(), 1, "the first step follows the plan made ahead");
+    while w.tick() < 100 && !w.all_arrived() {
+        greedy(&i, w.positions(), &mut intents);
+        w.step(&intents).unwrap();
+    }
+    assert!(w.all_arrived());
+    assert_eq!(w.paths(), lazy.world.paths());
+    checked(&i, &w);
+}
