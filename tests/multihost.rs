@@ -614,9 +614,13 @@ struct Stranger {
     admin_replies: u64,
     /// Frames it replayed or forged onto the keys it saw.
     forged: u64,
-    /// Idle TCP connections it opened, and how many host A closed within 5 s.
+    /// TCP connections it dialed that never start Zenoh's handshake (a flood of
+    /// [`FLOOD_CONNECTIONS`] kept open, each re-dialed as soon as host A closed it, for the
+    /// stranger's whole life), how many of them host A closed (the last ones within 5 s of the
+    /// flood's end), and how many were re-dials.
     idle_opened: u64,
     idle_closed: u64,
+    redials: u64,
     /// Zenoh sessions it opened to host A (its own and a flood of more), and how many of them
     /// host A admitted as peers.
     sessions_opened: u64,
@@ -644,10 +648,11 @@ fn stranger_role() {
     let password = parts.next();
     let mut seen = Stranger::default();
     let addr = endpoint.trim_start_matches("tcp/");
-    let idle: Vec<std::net::TcpStream> = (0..200)
-        .filter_map(|_| std::net::TcpStream::connect(addr).ok())
-        .collect();
-    seen.idle_opened = idle.len() as u64;
+    let stop_flood = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let flood_conns = std::thread::spawn({
+        let (addr, stop) = (addr.to_string(), stop_flood.clone());
+        move || redial_flood(&addr, &stop)
+    });
     let mut c = zenoh::Config::default();
     for (k, v) in [
         ("mode", "\"peer\"".to_string()),
@@ -769,15 +774,60 @@ fn stranger_role() {
         }
     }
     let _ = s.close().wait();
-    // host A dropped the idle connections long ago (its accept timeout is 1 s)
-    for mut t in idle {
-        use std::io::Read;
-        let _ = t.set_read_timeout(Some(Duration::from_secs(5)));
-        if matches!(t.read(&mut [0u8; 64]), Ok(0) | Err(_)) {
-            seen.idle_closed += 1;
+    stop_flood.store(true, Ordering::Relaxed);
+    (seen.idle_opened, seen.idle_closed, seen.redials) =
+        flood_conns.join().expect("the flood thread");
+    println!("STRANGER {}", serde_json::to_string(&seen).unwrap());
+}
+
+/// TCP connections the stranger keeps open to host A's endpoint at once.
+const FLOOD_CONNECTIONS: usize = 300;
+
+/// Keeps [`FLOOD_CONNECTIONS`] TCP connections to `addr` that never send a byte, re-dialing
+/// each one host A closes, until `stop`; then waits up to 5 s for host A to close the last
+/// ones. Returns (dials, closed by host A, re-dials).
+fn redial_flood(addr: &str, stop: &std::sync::atomic::AtomicBool) -> (u64, u64, u64) {
+    use std::io::{ErrorKind, Read};
+    use std::net::{SocketAddr, TcpStream};
+    let addr: SocketAddr = addr.parse().expect("a socket address");
+    let closed = |t: &mut TcpStream| match t.read(&mut [0u8; 64]) {
+        Ok(0) => true,
+        Ok(_) => false,
+        Err(e) => !matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut),
+    };
+    let (mut dials, mut closes, mut redials) = (0u64, 0u64, 0u64);
+    let mut conns: Vec<Option<TcpStream>> = (0..FLOOD_CONNECTIONS).map(|_| None).collect();
+    while !stop.load(Ordering::Relaxed) {
+        for slot in conns.iter_mut() {
+            match slot {
+                Some(t) if closed(t) => {
+                    closes += 1;
+                    *slot = None;
+                }
+                Some(_) => {}
+                None => {
+                    if let Ok(t) = TcpStream::connect_timeout(&addr, Duration::from_millis(200)) {
+                        let _ = t.set_nonblocking(true);
+                        redials += u64::from(dials >= FLOOD_CONNECTIONS as u64);
+                        dials += 1;
+                        *slot = Some(t);
+                    }
+                }
+            }
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // host A drops a connection that has not finished the handshake after 1 s
+    let until = Instant::now() + Duration::from_secs(5);
+    for t in conns.iter_mut().flatten() {
+        let _ = t.set_nonblocking(false);
+        let left = until.saturating_duration_since(Instant::now());
+        let _ = t.set_read_timeout(Some(left.max(Duration::from_millis(1))));
+        if closed(t) {
+            closes += 1;
         }
     }
-    println!("STRANGER {}", serde_json::to_string(&seen).unwrap());
+    (dials, closes, redials)
 }
 
 #[test]
@@ -860,7 +910,9 @@ fn a_stranger_on_the_network_reads_nothing_forges_nothing_and_takes_no_slot() {
     );
     assert!(seen.sessions_opened > 1, "{seen:?}");
     assert!(seen.join_answers.is_empty(), "{seen:?}");
-    assert!(seen.idle_opened > 0, "{seen:?}");
+    // the re-dialing flood of half-open connections went on through host B's join, and host
+    // A kept closing them: it re-dialed, and every one it opened was closed
+    assert!(seen.redials > 0, "{seen:?}");
     assert_eq!(seen.idle_closed, seen.idle_opened, "{seen:?}");
     // what the insider (session password, no join secret) got: frames, but no plaintext; no
     // slot; no admin space
@@ -880,7 +932,7 @@ fn a_stranger_on_the_network_reads_nothing_forges_nothing_and_takes_no_slot() {
     );
     assert_eq!(seen.admin_replies, 0, "{seen:?}");
     assert!(seen.forged > 0, "{seen:?}");
-    assert!(seen.idle_opened > 0, "{seen:?}");
+    assert!(seen.redials > 0, "{seen:?}");
     assert_eq!(seen.idle_closed, seen.idle_opened, "{seen:?}");
     // host A counted the stranger's joins, host B dropped its replays and forgeries
     let bridge: Value = serde_json::from_str(

@@ -65,6 +65,10 @@ use crate::pace::Pacer;
 use crate::reconnect::{Link, handshake};
 use sharing::{ApplyCtx, HintBatcher, MergedApplier};
 
+/// How often a robot waiting for the next phase or `Execute` propagates merged hints that
+/// arrived meanwhile ([`Learner::settle`], nothing to do when none did).
+const SETTLE_WHILE_WAITING: Duration = Duration::from_millis(50);
+
 /// Runs one robot-agent to the coordinator's `Stop`; `stop` is set by a signal handler
 /// (graceful stop: the phase ends, is reported, and the robot exits).
 pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, AgentError> {
@@ -280,8 +284,18 @@ impl Robot<'_> {
         let mut deadline = Instant::now() + self.timeout;
         let mut rejoins = self.link.counters.rejoins;
         let mut beat = Instant::now();
+        let mut settled = Instant::now();
         loop {
             self.poll(last.as_deref_mut())?;
+            // merged hints applied while waiting are propagated now, a few times a second, not
+            // when `Execute` comes: the shared grid's first tick waits for the slowest robot's
+            // first answer, and 64 robots settling at once on two cores took it to tens of ms
+            if let Some(p) = last.as_deref_mut()
+                && settled.elapsed() >= SETTLE_WHILE_WAITING
+            {
+                settled = Instant::now();
+                p.learner.settle();
+            }
             if let Some(horizon) = self.plan.take_execute()
                 && let Some(p) = last.as_deref_mut()
             {
