@@ -27,6 +27,29 @@ pub fn at(path: &Path) -> impl Fn(DrawingAreaErrorKind<std::io::Error>) -> PlotE
     }
 }
 
+/// The legend's mark for a series drawn in `color` with lines `width` pixels wide.
+pub fn legend_mark(color: RGBColor, width: u32) -> impl Fn((i32, i32)) -> PathElement<(i32, i32)> {
+    move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(width))
+}
+
+/// Draws the legend box at `pos` (every figure's: white, half-transparent, framed) and writes
+/// the figure to `path`.
+pub fn finish<'a, CT: plotters::coord::CoordTranslate>(
+    root: &DrawingArea<SVGBackend<'a>, plotters::coord::Shift>,
+    chart: &mut ChartContext<'a, SVGBackend<'a>, CT>,
+    pos: SeriesLabelPosition,
+    path: &Path,
+) -> Result<()> {
+    chart
+        .configure_series_labels()
+        .position(pos)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .draw()
+        .map_err(at(path))?;
+    root.present().map_err(at(path))
+}
+
 /// Colours of successive series.
 pub const PALETTE: [RGBColor; 12] = [
     RGBColor(31, 119, 180),
@@ -105,18 +128,9 @@ pub fn line_chart(
             ))
             .map_err(at(path))?
             .label(s.label)
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
-            });
+            .legend(legend_mark(color, 2));
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(at(path))?;
-    root.present().map_err(at(path))?;
-    Ok(())
+    finish(&root, &mut chart, SeriesLabelPosition::MiddleRight, path)
 }
 
 /// Draws the grid (obstacles dark), start, goal and any number of labelled paths into an SVG file.
@@ -182,9 +196,7 @@ pub fn paths_on_grid(
             )))
             .map_err(at(path))?
             .label(format!("{label} ({} moves)", cells.len().saturating_sub(1)))
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(3))
-            });
+            .legend(legend_mark(color, 3));
     }
     let r = (cell_px / 3).max(2);
     chart
@@ -194,17 +206,10 @@ pub fn paths_on_grid(
                 .map(|(c, col)| Circle::new(centre(&c), r, col.filled())),
         )
         .map_err(at(path))?;
-    if !paths.is_empty() {
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerLeft)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .draw()
-            .map_err(at(path))?;
+    if paths.is_empty() {
+        return root.present().map_err(at(path));
     }
-    root.present().map_err(at(path))?;
-    Ok(())
+    finish(&root, &mut chart, SeriesLabelPosition::LowerLeft, path)
 }
 
 /// One latency distribution: (percentile in [0, 100), value) points.
@@ -264,17 +269,7 @@ pub fn percentile_chart(
             ))
             .map_err(at(path))?
             .label(s.label)
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
-            });
+            .legend(legend_mark(color, 2));
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(at(path))?;
-    root.present().map_err(at(path))?;
-    Ok(())
+    finish(&root, &mut chart, SeriesLabelPosition::UpperLeft, path)
 }

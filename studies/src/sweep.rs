@@ -642,20 +642,12 @@ fn plot(path: &Path, rows: &[Row]) -> Result<(), PlotError> {
             .draw_series(segs)
             .map_err(at(path))?
             .label(label.clone())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2)));
+            .legend(crate::plots::legend_mark(c, 2));
         chart
             .draw_series(pts.iter().map(|p| Circle::new(*p, 4, c.filled())))
             .map_err(at(path))?;
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-        .map_err(at(path))?;
-    root.present().map_err(at(path))?;
-    Ok(())
+    crate::plots::finish(&root, &mut chart, SeriesLabelPosition::UpperLeft, path)
 }
 
 /// One run's line for the person watching: when the robots' own tables and the merged table first gave the
