@@ -79,7 +79,7 @@
 //! [`Observer`]): robot→coordinator topics admit R+S+O publishers and 1+S+O subscribers,
 //! coordinator→robot topics 1+S+O publishers and R+S+O subscribers, every service R+1+S+O
 //! nodes; each topic's wake event service admits as many notifiers/listeners as the topic has
-//! publishers/subscribers. See [`limits`]. Shared memory is allocated up front from these;
+//! publishers/subscribers. See [`limits()`]. Shared memory is allocated up front from these;
 //! [`shm_estimate`] computes the run's need from them and [`preflight`] compares it with the
 //! free space of `/dev/shm` before a run starts.
 //!
