@@ -12,13 +12,13 @@ use bus_schema::names::Delivery;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::update_connections::UpdateConnections;
-use iceoryx2::port::{BackpressureAction, BackpressureInfo, SendError};
+use iceoryx2::port::{BackpressureAction, BackpressureInfo, SendError as IoxSendError};
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::publish_subscribe;
 
 use super::open::{FLEET_PORT_NAME, Role, open_pubsub, open_wake};
 use super::{Batch, EVENT_DATA, Message, limits};
-use crate::{BusConfig, BusError};
+use crate::{BusConfig, BusError, SendError};
 
 /// Slots an [`Outbox`] remembers for [`Outbox::send_batch`]; more than any topic's data
 /// segment has (a bound against an unexpected allocator, not a tuning knob).
@@ -171,9 +171,9 @@ impl<T: Message> Outbox<T> {
     /// Copies `msg` into a loaned shared-memory slot and sends it; returns the number of
     /// subscribers reached.
     ///
-    /// Lossless topics report [`BusError::NoSubscriber`] when nobody received it and
-    /// [`BusError::DeliveryTimeout`] when a subscriber stayed full for the send timeout.
-    pub fn send(&self, msg: &T) -> Result<usize, BusError> {
+    /// Lossless topics report [`SendError::NoSubscriber`] when nobody received it and
+    /// [`SendError::DeliveryTimeout`] when a subscriber stayed full for the send timeout.
+    pub fn send(&self, msg: &T) -> Result<usize, SendError> {
         let sample = self.publisher.loan_uninit().map_err(|e| self.loan_err(e))?;
         self.finish(sample.write_payload(*msg).send())
     }
@@ -182,7 +182,7 @@ impl<T: Message> Outbox<T> {
     ///
     /// The zero-copy way to send the 3–6 KiB hint batches: nothing is built on the stack and
     /// copied. Same results as [`send`](Self::send).
-    pub fn send_with(&self, fill: impl FnOnce(&mut T)) -> Result<usize, BusError> {
+    pub fn send_with(&self, fill: impl FnOnce(&mut T)) -> Result<usize, SendError> {
         let mut uninit = self.publisher.loan_uninit().map_err(|e| self.loan_err(e))?;
         // SAFETY: `T: Message` guarantees all-zero bytes are a valid `T`; the slot is
         // exclusively ours until sent.
@@ -194,7 +194,7 @@ impl<T: Message> Outbox<T> {
         self.finish(sample.send())
     }
 
-    /// Sends `msg` and then wakes the subscribers.
+    /// Sends `msg` and then wakes the subscribers; a failed send is [`BusError::Send`].
     pub fn send_and_notify(&self, msg: &T) -> Result<usize, BusError> {
         let n = self.send(msg)?;
         self.notify()?;
@@ -214,32 +214,32 @@ impl<T: Message> Outbox<T> {
 
     /// Connects to subscribers that appeared since the last send (sending does this too).
     pub fn connect(&self) -> Result<(), BusError> {
-        self.publisher
-            .update_connections()
-            .map_err(|e| BusError::Send {
+        self.publisher.update_connections().map_err(|e| {
+            BusError::from(SendError::Failed {
                 service: self.service.clone(),
                 detail: format!("cannot update connections: {e:?}"),
             })
+        })
     }
 
-    fn loan_err(&self, e: impl Debug) -> BusError {
-        BusError::Loan {
+    fn loan_err(&self, e: impl Debug) -> SendError {
+        SendError::Loan {
             service: self.service.clone(),
             detail: format!("{e:?}"),
         }
     }
 
-    fn finish(&self, sent: Result<usize, SendError>) -> Result<usize, BusError> {
+    fn finish(&self, sent: Result<usize, IoxSendError>) -> Result<usize, SendError> {
         match sent {
-            Ok(0) if self.delivery == Delivery::Lossless => Err(BusError::NoSubscriber {
+            Ok(0) if self.delivery == Delivery::Lossless => Err(SendError::NoSubscriber {
                 service: self.service.clone(),
             }),
             Ok(n) => Ok(n),
-            Err(SendError::UnableToDeliver) => Err(BusError::DeliveryTimeout {
+            Err(IoxSendError::UnableToDeliver) => Err(SendError::DeliveryTimeout {
                 service: self.service.clone(),
                 timeout: self.send_timeout,
             }),
-            Err(e) => Err(BusError::Send {
+            Err(e) => Err(SendError::Failed {
                 service: self.service.clone(),
                 detail: format!("{e:?}"),
             }),
@@ -257,7 +257,7 @@ impl<T: Batch> Outbox<T> {
     /// whose `fill` panicked, is zeroed whole). Entries beyond `count` thus stay zero on the
     /// wire, as bus-schema promises, for ~100 bytes of stores instead of 3–6 KiB when a batch
     /// is small; `fill` must not write beyond `count` (it would leave non-zero entries behind).
-    pub fn send_batch(&self, fill: impl FnOnce(&mut T)) -> Result<usize, BusError> {
+    pub fn send_batch(&self, fill: impl FnOnce(&mut T)) -> Result<usize, SendError> {
         let mut uninit = self.publisher.loan_uninit().map_err(|e| self.loan_err(e))?;
         let slot = uninit.payload_mut().as_mut_ptr();
         let key = slot as usize;
