@@ -20,7 +20,8 @@ use bus::bus_schema::{
 };
 use bus::iceoryx2::prelude::{CallbackProgression, SignalHandlingMode, WaitSetBuilder, ipc};
 use bus::{
-    BusConfig, BusError, CoordinatorBus, Lister, Listing, WakeListener, monotonic_ns, wake_pair,
+    BusConfig, BusError, CoordinatorBus, Lister, Listing, SendError, WakeListener, monotonic_ns,
+    wake_pair,
 };
 use zenoh::Wait;
 use zenoh::pubsub::Subscriber;
@@ -482,7 +483,7 @@ impl Local {
                 }
             }
             // nobody here to tell (the robots left): as the coordinator does, not an error
-            Err(BusError::NoSubscriber { .. }) => Put::Skipped,
+            Err(SendError::NoSubscriber { .. }) => Put::Skipped,
             Err(_) if T::TOPIC.delivery() == bus::bus_schema::Delivery::Lossless => Put::Later,
             Err(_) => Put::Dropped,
         }

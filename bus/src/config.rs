@@ -59,7 +59,8 @@ pub struct BusConfig {
     /// predecessor is not cleaned up yet (outside readers have their own [`OBSERVER_SLOTS`]).
     pub spare_ports: u32,
     /// How long a lossless send keeps retrying into a full buffer before it reports
-    /// [`BusError::DeliveryTimeout`] instead of blocking forever on a stuck peer.
+    /// [`SendError::DeliveryTimeout`](crate::SendError::DeliveryTimeout) instead of blocking
+    /// forever on a stuck peer.
     pub send_timeout: Duration,
     /// Let iceoryx2 install SIGINT/SIGTERM handlers (off: the qfleet processes handle signals
     /// themselves, e.g. with `ctrlc`, and iceoryx2 must not compete for them).

@@ -20,7 +20,7 @@ use crate::files::{no_space, restrict_run_files, shm_exhausted};
 use crate::handshake::{Admission, Expected, check_register, control, reason, set_reason};
 use crate::liveness::{CleanReport, clean_stale};
 use crate::topic::{Inbox, Outbox, Role, Wakeups};
-use crate::{BusConfig, BusError};
+use crate::{BusConfig, BusError, SendError};
 
 /// How often a robot re-sends its `Register` while no answer has come.
 const REGISTER_RESEND: Duration = Duration::from_millis(250);
@@ -209,7 +209,7 @@ impl CoordinatorBus {
             Err(why) => {
                 match self.refuse(reg.robot_id, &why) {
                     // the refused robot (and every other) is already gone: nobody to tell
-                    Ok(_) | Err(BusError::NoSubscriber { .. }) => {}
+                    Ok(_) | Err(BusError::Send(SendError::NoSubscriber { .. })) => {}
                     Err(e) => return Err(e),
                 }
                 Ok(Admission::Refused(why))
@@ -223,7 +223,7 @@ impl CoordinatorBus {
                         accepted.insert(reg.robot_id, *reg);
                         Ok(admission)
                     }
-                    Err(BusError::NoSubscriber { .. }) => Ok(Admission::Gone),
+                    Err(BusError::Send(SendError::NoSubscriber { .. })) => Ok(Admission::Gone),
                     Err(e) => Err(e),
                 }
             }
@@ -482,8 +482,8 @@ impl RobotBus {
                         self.register.notify()?;
                     }
                     // the coordinator's subscriber is not there yet: try again later
-                    Err(BusError::NoSubscriber { .. }) => {}
-                    Err(e) => return Err(e),
+                    Err(SendError::NoSubscriber { .. }) => {}
+                    Err(e) => return Err(e.into()),
                 }
             }
             while let Some((ctl, from)) = self.next_control_from_bus()? {
@@ -680,7 +680,9 @@ impl RobotPorts {
 /// ([`BusError::NoShmSpace`]), whatever iceoryx2 called it.
 fn explain_no_space(config: &BusConfig, e: BusError) -> BusError {
     match e {
-        BusError::Service { .. } | BusError::Port { .. } | BusError::Loan { .. }
+        BusError::Service { .. }
+        | BusError::Port { .. }
+        | BusError::Send(SendError::Loan { .. })
             if shm_exhausted() =>
         {
             no_space(config)

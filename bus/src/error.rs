@@ -1,4 +1,26 @@
-//! The one error type of the bus: every variant says what went wrong and what to do about it.
+//! The bus's errors: every variant says what went wrong and what to do about it.
+//!
+//! [`BusError`] is the error of every operation but one. A send on an
+//! [`Outbox`](crate::Outbox) returns its own [`SendError`], because its callers act on how it
+//! failed: a lossless send that reached no subscriber or timed out waiting for a full buffer
+//! means a peer is gone or stuck (the coordinator logs it and goes on, a robot without its
+//! coordinator retries or looks for a new one, the bridge skips or re-queues the message),
+//! while a failed loan or an iceoryx2 send error means the bus itself is broken.
+//! `From<SendError> for BusError` (the variant [`BusError::Send`], transparent: same text,
+//! same source) keeps `?` working for callers that do not care.
+//!
+//! The other operations keep the one enum, after reading how the workspace's callers match:
+//! - the start handshake's outcomes (`Refused`, `Timeout`, `Interrupted`) are each acted on
+//!   (exit codes 3 and 130, retrying in slices), but `Timeout` and `Interrupted` are not the
+//!   handshake's alone — opening a robot's bus, waiting for `Start`, the coordinator's and the
+//!   robot's own waits end the same way — and a handshake also fails with any receive, event
+//!   or send error, so a `HandshakeError` would need a boxed `BusError` inside it and callers
+//!   would look for a timeout in two places;
+//! - opening services (`ServiceMissing`, `SchemaMismatch`, `IncompatibleService`, `Service`,
+//!   `Port`): only the bus itself acts on the difference (a robot retries a missing service; a
+//!   full `/dev/shm` explains an open failure), and outside it only tests look at a variant;
+//! - the rest (config, files, liveness, resources) are each raised by one operation and
+//!   reported, not matched, apart from the coordinator's exit code for `OpenFiles`.
 
 use std::time::Duration;
 
@@ -91,44 +113,10 @@ pub enum BusError {
         detail: String,
     },
 
-    /// No shared-memory sample could be loaned for sending.
-    #[error("cannot loan a sample on {service:?}: {detail}")]
-    Loan {
-        /// Service name.
-        service: String,
-        /// iceoryx2's error.
-        detail: String,
-    },
-
-    /// Sending failed inside iceoryx2.
-    #[error("cannot send on {service:?}: {detail}")]
-    Send {
-        /// Service name.
-        service: String,
-        /// iceoryx2's error.
-        detail: String,
-    },
-
-    /// A lossless send gave up: the subscriber's buffer stayed full for the whole send timeout.
-    #[error(
-        "lossless send on {service:?} not delivered within {timeout:?}: the subscriber does not \
-         drain its buffer (stuck or dead?)"
-    )]
-    DeliveryTimeout {
-        /// Service name.
-        service: String,
-        /// The configured send timeout.
-        timeout: Duration,
-    },
-
-    /// A lossless send reached no subscriber at all, so it was not delivered.
-    #[error(
-        "lossless send on {service:?} reached no subscriber (peer not started, gone, or not yet connected)"
-    )]
-    NoSubscriber {
-        /// Service name.
-        service: String,
-    },
+    /// A send on an [`Outbox`](crate::Outbox) failed; [`SendError`] says how, for the callers
+    /// that treat a peer that is gone or stuck apart from a broken bus.
+    #[error(transparent)]
+    Send(#[from] SendError),
 
     /// Receiving failed inside iceoryx2.
     #[error("cannot receive on {service:?}: {detail}")]
@@ -290,4 +278,72 @@ pub enum BusError {
         /// Observer slots per run.
         slots: u32,
     },
+}
+
+/// How one send on an [`Outbox`](crate::Outbox) failed (`send`, `send_with`, `send_batch`).
+///
+/// `DeliveryTimeout` and `NoSubscriber` (lossless topics only) mean the message reached no
+/// fleet subscriber because a peer is stuck, dead or not connected yet: the bus still works,
+/// and the caller decides whether that is fatal. `Loan` and `Failed` mean the bus itself
+/// failed.
+#[derive(Debug, thiserror::Error)]
+pub enum SendError {
+    /// No shared-memory sample could be loaned for sending.
+    #[error("cannot loan a sample on {service:?}: {detail}")]
+    Loan {
+        /// Service name.
+        service: String,
+        /// iceoryx2's error.
+        detail: String,
+    },
+
+    /// Sending failed inside iceoryx2.
+    #[error("cannot send on {service:?}: {detail}")]
+    Failed {
+        /// Service name.
+        service: String,
+        /// iceoryx2's error.
+        detail: String,
+    },
+
+    /// A lossless send gave up: the subscriber's buffer stayed full for the whole send timeout.
+    #[error(
+        "lossless send on {service:?} not delivered within {timeout:?}: the subscriber does not \
+         drain its buffer (stuck or dead?)"
+    )]
+    DeliveryTimeout {
+        /// Service name.
+        service: String,
+        /// The configured send timeout.
+        timeout: Duration,
+    },
+
+    /// A lossless send reached no subscriber at all, so it was not delivered.
+    #[error(
+        "lossless send on {service:?} reached no subscriber (peer not started, gone, or not yet connected)"
+    )]
+    NoSubscriber {
+        /// Service name.
+        service: String,
+    },
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_send_error_keeps_its_text_and_variant_inside_a_bus_error() {
+        let e = SendError::DeliveryTimeout {
+            service: "qfleet/r/coord/control".into(),
+            timeout: Duration::from_millis(200),
+        };
+        let text = e.to_string();
+        let bus = BusError::from(e);
+        assert_eq!(bus.to_string(), text);
+        assert!(matches!(
+            bus,
+            BusError::Send(SendError::DeliveryTimeout { .. })
+        ));
+    }
 }

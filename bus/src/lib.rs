@@ -62,8 +62,8 @@
 //! | `coord/discovery` | `DiscoveryRelay` | lossless | `discovery_buffer` (256) | 0 | each distinct discovery is relayed once and must reach every robot on its goal; rare (a few dozen per goal) |
 //!
 //! Lossless = safe overflow off + `RetryUntilDelivered` with a backpressure handler that gives
-//! up after `send_timeout` (5 s) and reports [`BusError::DeliveryTimeout`], and a send that
-//! reached no subscriber is [`BusError::NoSubscriber`] — a lossless send never drops silently
+//! up after `send_timeout` (5 s) and reports [`SendError::DeliveryTimeout`], and a send that
+//! reached no subscriber is [`SendError::NoSubscriber`] — a lossless send never drops silently
 //! and never hangs forever on a dead peer. Lossless is lossless *to the fleet*: the handler
 //! retries only for the fleet's own subscribers (port name [`FLEET_PORT_NAME`]); a full buffer
 //! of an outside reader ([`Inbox::open`], [`Observer`]) drops that sample for it alone and the
@@ -79,7 +79,7 @@
 //! [`Observer`]): robot→coordinator topics admit R+S+O publishers and 1+S+O subscribers,
 //! coordinator→robot topics 1+S+O publishers and R+S+O subscribers, every service R+1+S+O
 //! nodes; each topic's wake event service admits as many notifiers/listeners as the topic has
-//! publishers/subscribers. See [`limits`]. Shared memory is allocated up front from these;
+//! publishers/subscribers. See [`limits()`]. Shared memory is allocated up front from these;
 //! [`shm_estimate`] computes the run's need from them and [`preflight`] compares it with the
 //! free space of `/dev/shm` before a run starts.
 //!
@@ -109,7 +109,7 @@
 //!    ([`CoordinatorBus::start`]); robots publish learning traffic only after
 //!    [`RobotBus::wait_start`] returned `Start`.
 //!
-//! Sending a lossless message before this is reported as [`BusError::NoSubscriber`] once the
+//! Sending a lossless message before this is reported as [`SendError::NoSubscriber`] once the
 //! unconnected buffer is full, never dropped silently (tested).
 //!
 //! ## Sending and waking
@@ -152,9 +152,16 @@
 //!
 //! ## Errors
 //!
-//! One [`BusError`]; each variant says what to do. A peer built from another schema (different
-//! payload type name, size or alignment) gets [`BusError::SchemaMismatch`] naming the service,
-//! the type and both schema facts, instead of iceoryx2's bare `IncompatibleTypes`.
+//! [`BusError`] for every operation but a send; each variant says what to do. A send on an
+//! [`Outbox`] (`send`, `send_with`, `send_batch`) returns [`SendError`], whose outcomes its
+//! callers act on apart: [`SendError::NoSubscriber`] and [`SendError::DeliveryTimeout`] (a
+//! peer gone, stuck or not connected yet: log, skip or retry) versus [`SendError::Loan`] and
+//! [`SendError::Failed`] (the bus is broken). `?` turns it into [`BusError::Send`], which shows
+//! the same text, so [`Outbox::send_and_notify`], [`CoordinatorBus::send_control`] and the
+//! handshake return `BusError` with the send's outcome inside. Why the other operations share
+//! one enum is in `error.rs`. A peer built from another schema (different payload type name,
+//! size or alignment) gets [`BusError::SchemaMismatch`] naming the service, the type and both
+//! schema facts, instead of iceoryx2's bare `IncompatibleTypes`.
 
 #![deny(missing_docs)]
 
@@ -183,7 +190,7 @@ pub use config::{
     validate_run_id,
 };
 pub use endpoints::{CoordinatorBus, Origin, RobotBus};
-pub use error::BusError;
+pub use error::{BusError, SendError};
 pub use files::{
     DIR_MODE, FILE_MODE, check_iceoryx_root, check_run_files, check_shm_space, free_bytes,
     preflight, restrict_run_files, shm_estimate,

@@ -6,7 +6,7 @@ mod common;
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::{DiscoveryAck, PseudoTargetDiscovery, ROBOT_ID_ALL};
-use bus::{BusConfig, BusError, CoordinatorBus, RobotBus, monotonic_ns};
+use bus::{BusConfig, BusError, CoordinatorBus, RobotBus, SendError, monotonic_ns};
 use common::{PATIENCE, assert_no_leftovers, config, expected, registration};
 
 const N: u64 = 10_000;
@@ -119,7 +119,7 @@ fn a_lossless_send_into_a_stuck_subscriber_times_out_loudly() {
         t.elapsed() >= Duration::from_millis(200),
         "it retried for the timeout"
     );
-    assert!(matches!(err, BusError::DeliveryTimeout { .. }), "{err}");
+    assert!(matches!(err, SendError::DeliveryTimeout { .. }), "{err}");
     assert!(
         err.to_string().contains("not delivered within 200ms"),
         "{err}"
@@ -139,7 +139,10 @@ fn a_lossless_send_without_any_subscriber_is_an_error_not_a_silent_drop() {
     // a robot's control inbox is the only subscriber of control; without it the send fails
     drop(robot);
     let err = coordinator.start(ROBOT_ID_ALL, 0).unwrap_err();
-    assert!(matches!(err, BusError::NoSubscriber { .. }), "{err}");
+    assert!(
+        matches!(err, BusError::Send(SendError::NoSubscriber { .. })),
+        "{err}"
+    );
     coordinator.close().unwrap();
     assert_no_leftovers(&cfg);
 }
@@ -159,7 +162,7 @@ fn before_the_handshake_connects_a_subscriber_overflow_is_reported_not_silent() 
         assert_eq!(robot.discovery.send(&d).unwrap(), 1);
     }
     let err = robot.discovery.send(&d).unwrap_err();
-    assert!(matches!(err, BusError::NoSubscriber { .. }), "{err}");
+    assert!(matches!(err, SendError::NoSubscriber { .. }), "{err}");
     assert_eq!(coordinator.discovery.drain(usize::MAX, |_| {}).unwrap(), 4);
     drop(robot);
     coordinator.close().unwrap();

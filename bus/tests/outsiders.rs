@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use bus::bus_schema::{Command, Control, ROBOT_ID_ALL};
 use bus::{
     Admission, BusConfig, BusError, CoordinatorBus, DIR_MODE, FILE_MODE, Inbox, OBSERVER_SLOTS,
-    Observer, RobotBus, control_buffer, leftover_files,
+    Observer, RobotBus, SendError, control_buffer, leftover_files,
 };
 use common::{PATIENCE, assert_no_leftovers, config, expected, registration};
 
@@ -121,7 +121,10 @@ fn a_stalled_fleet_subscriber_still_fails_loudly() {
                 }
             }
             assert!(
-                matches!(failure, Some(BusError::DeliveryTimeout { .. })),
+                matches!(
+                    failure,
+                    Some(BusError::Send(SendError::DeliveryTimeout { .. }))
+                ),
                 "a robot that never drains is a delivery failure, not a silent drop: {failure:?}"
             );
             assert_eq!(bus.control.outsider_drops(), 0);

@@ -19,7 +19,7 @@ use bus::bus_schema::{
 };
 use bus::iceoryx2::prelude::*;
 use bus::{
-    BusConfig, BusError, CoordinatorBus, Expected, Inbox, Listing, Message, check_nodes,
+    BusConfig, BusError, CoordinatorBus, Expected, Inbox, Listing, Message, SendError, check_nodes,
     monotonic_ns,
 };
 use hdrhistogram::Histogram;
@@ -157,7 +157,9 @@ fn take<T: Message>(
 pub(crate) fn tolerate(r: Result<usize, BusError>) -> Result<(), CoordError> {
     match r {
         Ok(_) => Ok(()),
-        Err(e @ (BusError::DeliveryTimeout { .. } | BusError::NoSubscriber { .. })) => {
+        Err(
+            e @ BusError::Send(SendError::DeliveryTimeout { .. } | SendError::NoSubscriber { .. }),
+        ) => {
             report::log_line!("qfleet-coordinator: warning: {e}");
             Ok(())
         }
@@ -678,7 +680,7 @@ impl Engine {
             r.relay_seq = self.relays_sent;
             r.send_time_ns = monotonic_ns();
             match bus.relay.send(&r) {
-                Ok(_) | Err(BusError::NoSubscriber { .. }) => self.relays_sent += 1,
+                Ok(_) | Err(SendError::NoSubscriber { .. }) => self.relays_sent += 1,
                 Err(e) => return Err(e.into()),
             }
         }

@@ -38,7 +38,7 @@ use bus::bus_schema::{
     ROBOT_ID_ALL,
 };
 use bus::iceoryx2::prelude::*;
-use bus::{BusError, CoordinatorBus, Lister, monotonic_ns};
+use bus::{CoordinatorBus, Lister, SendError, monotonic_ns};
 use hdrhistogram::Histogram;
 use mapf::horizon::{diamond_len, unpack};
 use mapf::{Coverage, Instance, Status, World, WorldConfig};
@@ -624,7 +624,7 @@ fn publish(
     });
     match r {
         // every robot already gone: nothing to tell, the execution still ends as it does
-        Ok(_) | Err(BusError::NoSubscriber { .. }) => {}
+        Ok(_) | Err(SendError::NoSubscriber { .. }) => {}
         Err(e) => return Err(e.into()),
     }
     if wake {

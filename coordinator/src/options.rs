@@ -5,7 +5,7 @@
 
 use std::time::Duration;
 
-use bus::{BusConfig, BusError};
+use bus::{BusConfig, BusError, SendError};
 
 pub use contract::coordinator::{
     BRIDGED_SPIN_US, CoordArgs, DEFAULT_SPIN_US, MergeRule, WaitStrategy, spin_us_for,
@@ -89,6 +89,14 @@ impl CoordError {
             CoordError::Refused { .. } => 3,
             _ => 1,
         }
+    }
+}
+
+/// A failed send is a bus failure to the coordinator's callers ([`BusError::Send`]); the sends
+/// whose failure the coordinator tolerates match [`SendError`] before it gets here.
+impl From<SendError> for CoordError {
+    fn from(e: SendError) -> Self {
+        CoordError::Bus(e.into())
     }
 }
 

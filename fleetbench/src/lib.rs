@@ -94,3 +94,10 @@ pub enum BenchError {
     #[error("{0}")]
     Input(String),
 }
+
+/// A failed send is a bus failure ([`bus::BusError::Send`]): no benchmark row survives one.
+impl From<bus::SendError> for BenchError {
+    fn from(e: bus::SendError) -> Self {
+        BenchError::Bus(e.into())
+    }
+}

@@ -1,6 +1,6 @@
 //! Why a robot-agent failed, and the exit code each reason gets.
 
-use bus::BusError;
+use bus::{BusError, SendError};
 use planner::Cell;
 
 /// Why a robot-agent failed.
@@ -67,6 +67,14 @@ impl From<BusError> for AgentError {
             BusError::Interrupted => AgentError::Interrupted,
             e => AgentError::Bus(e),
         }
+    }
+}
+
+/// A failed send is a bus failure ([`AgentError::Bus`]): a send is never refused or interrupted;
+/// the sends whose failure a robot survives match [`SendError`] before it gets here.
+impl From<SendError> for AgentError {
+    fn from(e: SendError) -> Self {
+        AgentError::Bus(e.into())
     }
 }
 

@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 
 use bus::Origin;
 use bus::bus_schema::{COORDINATOR_NODE_NAME, Command, Control, Register};
-use bus::{BusError, RobotBus, check_nodes, monotonic_ns, reason};
+use bus::{BusError, RobotBus, SendError, check_nodes, monotonic_ns, reason};
 
 use crate::gate::{ControlGate, Verdict};
 pub use report::LinkCounters;
@@ -95,8 +95,8 @@ impl Link {
                     bus.register.notify()?;
                 }
                 // its subscriber is not there yet, or it died again: the next round retries
-                Err(BusError::NoSubscriber { .. } | BusError::DeliveryTimeout { .. }) => {}
-                Err(e) => return Err(e),
+                Err(SendError::NoSubscriber { .. } | SendError::DeliveryTimeout { .. }) => {}
+                Err(e) => return Err(e.into()),
             }
         }
         Ok(())
@@ -210,7 +210,8 @@ pub fn register_until(
         let left = deadline.saturating_duration_since(Instant::now());
         match bus.register(reg, left.min(HANDSHAKE_SLICE)) {
             // a dead coordinator's full register buffer: retry (it is cleaned meanwhile)
-            Err(BusError::DeliveryTimeout { .. }) if Instant::now() < deadline => {}
+            Err(BusError::Send(SendError::DeliveryTimeout { .. })) if Instant::now() < deadline => {
+            }
             Err(BusError::Timeout { what, .. }) => {
                 if stop.load(Ordering::Relaxed) {
                     return Err(BusError::Interrupted);

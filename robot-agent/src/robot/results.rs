@@ -2,7 +2,7 @@
 //! link's folded in, the `FinalReport` a phase ends with, and the robot's `RobotResult`.
 
 use bus::bus_schema::{FinalReport, RobotStatus, SCHEMA_VERSION};
-use bus::{BusError, monotonic_ns};
+use bus::{BusError, SendError, monotonic_ns};
 use planner::Summary;
 use report::hist::{self, LatencyStats};
 use report::{Counters, EndStatus, PhaseDetail, RobotResult};
@@ -99,8 +99,10 @@ impl Robot<'_> {
             // phase (see the protocol in `crate::experiment`); one that died since the last
             // periodic look is looked for now (CI: a robot ending its phase just after the
             // coordinator was killed exited with "reached no subscriber")
-            Err(e @ (BusError::NoSubscriber { .. } | BusError::DeliveryTimeout { .. })) => {
-                let nobody = matches!(e, BusError::NoSubscriber { .. })
+            Err(BusError::Send(
+                e @ (SendError::NoSubscriber { .. } | SendError::DeliveryTimeout { .. }),
+            )) => {
+                let nobody = matches!(e, SendError::NoSubscriber { .. })
                     && (self.plan.stopped() || self.link.alone());
                 if nobody || self.link.look_now(&self.bus)? {
                     Ok(())
