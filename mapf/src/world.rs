@@ -123,6 +123,14 @@ pub struct WorldConfig {
     pub refine_tick: u64,
     /// A* expansions one agent's search may spend while improving a plan.
     pub refine_nodes: u32,
+    /// A* expansions [`World::prepare`] spends improving the first plan on top of
+    /// `plan_refine` (it runs before the execution, while the robots learn, so it may spend
+    /// far more than a tick).
+    pub prepare_refine: u64,
+    /// Whether the refinement chooses its neighbourhoods adaptively among the delayed agent's
+    /// way, a junction's agents and random agents (MAPF-LNS's adaptive LNS), else always the
+    /// delayed agent's way.
+    pub refine_adaptive: bool,
     /// Whether, among candidates equally near the goal, cells nobody stands on come first (as
     /// PIBT's reference implementation breaks ties). Off by default: with the look-ahead it
     /// measured slightly worse on the tuning instance; it helps plain PIBT a lot.
@@ -150,6 +158,8 @@ impl Default for WorldConfig {
             plan_refine: 50_000,
             refine_tick: 2_000,
             refine_nodes: 4_000,
+            prepare_refine: 1_000_000,
+            refine_adaptive: true,
             free_first: false,
             record: true,
             seed: 0x9e37_79b9_7f4a_7c15,
@@ -284,6 +294,8 @@ impl World {
             config.plan_nodes,
         );
         planner.seed(config.seed);
+        planner.adaptive = config.refine_adaptive;
+        planner.set_junctions(&nbr);
         let mut w = World {
             out: instance.starts().iter().map(|&c| Some(c)).collect(),
             grid,
@@ -344,6 +356,19 @@ impl World {
     /// How often the look-ahead plan was (re)computed.
     pub fn replans(&self) -> u32 {
         self.replans
+    }
+
+    /// While a look-ahead plan is kept: its sum of costs over the agents it routes (the tick
+    /// each arrives for good if the plan is followed, counted from tick 0) and how many agents
+    /// it could not route.
+    pub fn planned_cost(&self) -> Option<(u64, usize)> {
+        self.plan_valid.then(|| {
+            let (u, soc) = self.plan_cost();
+            (
+                soc + u64::from(self.plan_tick) * (self.pos.len() - u) as u64,
+                u,
+            )
+        })
     }
 
     /// How often the complete search ran.
@@ -723,11 +748,18 @@ impl World {
     }
 
     /// Makes the look-ahead plan for the current configuration now, if one is kept and none
-    /// is valid (what the next [`World::step`] would do first): a coordinator calls it while
-    /// the robots are still learning, so the first tick does not wait for it.
+    /// is valid (what the next [`World::step`] would do first), and improves it with
+    /// [`WorldConfig::prepare_refine`] more A* expansions of large neighbourhood search: a
+    /// coordinator calls it while the robots are still learning, so the first tick does not
+    /// wait for it and the plan the fleet starts on is better than a tick could afford. Its
+    /// work is bounded by A* expansion budgets (`plan_total`, `plan_refine`,
+    /// `prepare_refine`), never by a clock: the plan it makes is deterministic.
     pub fn prepare(&mut self) {
         if self.config.plan_ahead && !self.plan_valid && self.following.is_empty() {
             self.replan();
+            if self.config.prepare_refine > 0 {
+                self.refine(0, self.config.prepare_refine);
+            }
         }
     }
 
