@@ -2,6 +2,9 @@
 //! learned its own goal, it drives the execution tick by tick and keeps the fleet free of
 //! collisions. The robot's side of the protocol is `robot_agent::execute`.
 //!
+//! The execution's first look-ahead plan is made before it, while the robots learn, on a
+//! thread of its own ([`prepare_while`]); the execution waits for it if they finish first.
+//!
 //! # A tick
 //! 1. Publish a `Grant` with every robot's cell at tick `t` (tick 0: the starts) and wake the
 //!    robots.

@@ -31,9 +31,11 @@
 //! move to the front, distances get a small pseudo-random jitter) keeping the cheapest plan,
 //! then improved by large neighbourhood search (a few agents at a time forget their paths and
 //! are replanned; kept only if cheaper): [`WorldConfig::plan_refine`] A* expansions when the
-//! plan is made and [`WorldConfig::refine_tick`] on every tick it is followed. The plan may
-//! step an agent away from its goal (a detour, [`WorldConfig::plan_detours`]) when waiting for
-//! its way to clear would cost more. The plan changes the candidate order in these ways only:
+//! plan is made and [`WorldConfig::refine_tick`] on every tick it is followed; the first plan,
+//! made ahead by [`World::prepare`] before the first tick, gets [`WorldConfig::prepare_refine`]
+//! more (the neighbourhoods are chosen adaptively, [`WorldConfig::refine_adaptive`]). The plan
+//! may step an agent away from its goal (a detour, [`WorldConfig::plan_detours`]) when waiting
+//! for its way to clear would cost more. The plan changes the candidate order in these ways only:
 //!
 //! 1. **The plan leads a robot heading its shortest way** ([`WorldConfig::plan_first`]). When
 //!    the robot's first choice is as near its goal as any move it has (what a robot with
