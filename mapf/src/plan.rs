@@ -66,6 +66,21 @@ pub(crate) struct Planner {
     seen_gen: u32,
 }
 
+/// What the planner reads of the world: where the agents are and must go, and the grid.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Fleet<'a> {
+    /// Each agent's cell (NIL = absent).
+    pub pos: &'a [u32],
+    /// Each agent's goal cell.
+    pub goal: &'a [u32],
+    /// Agents that never move (silent robots).
+    pub fixed: &'a [bool],
+    /// Each cell's passable neighbours (NIL where none).
+    pub nbr: &'a [[u32; 4]],
+    /// Each agent's distance table.
+    pub dist: &'a [Vec<u32>],
+}
+
 /// Agents replanned together in one refinement step (MAPF-LNS's neighbourhood size; 4 and 16
 /// measured worse on the tuning set).
 const NEIGHBOURHOOD: usize = 8;
@@ -278,22 +293,23 @@ impl Planner {
         self.res[t * self.cells + v as usize] != NIL || self.hold[v as usize] as usize <= t
     }
 
-    /// Plans every agent in `order` from `pos` (NIL = absent); `fixed[i]` agents never move.
-    /// `nbr` lists each cell's passable neighbours (NIL where none); `dist[i]` is agent i's
-    /// distance table; each agent's search may expand `node_budget` nodes, all of them
+    /// Plans every agent in `order` from its cell in `fleet` (absent ones not; fixed ones hold
+    /// their cells); each agent's search may expand `node_budget` nodes, all of them
     /// `total_budget` (agents left when it is spent get no plan). Returns the expansions spent.
-    #[allow(clippy::too_many_arguments)]
     pub fn plan(
         &mut self,
         order: &[u32],
-        pos: &[u32],
-        goal: &[u32],
-        fixed: &[bool],
-        nbr: &[[u32; 4]],
-        dist: &[Vec<u32>],
+        fleet: &Fleet<'_>,
         node_budget: u32,
         total_budget: u64,
     ) -> u64 {
+        let Fleet {
+            pos,
+            goal,
+            fixed,
+            nbr,
+            dist,
+        } = *fleet;
         self.clear();
         let h = self.horizon + 1;
         // robots that will not move hold their cells from now on
@@ -339,15 +355,15 @@ impl Planner {
     }
 
     /// Whether refinement from `t0` may replan agent `a`: present, not fixed, not arrived.
-    fn eligible(&self, a: usize, t0: usize, pos: &[u32], fixed: &[bool]) -> bool {
-        pos[a] != NIL && !fixed[a] && (self.arrive[a] == NIL || self.arrive[a] as usize > t0)
+    fn eligible(&self, a: usize, t0: usize, f: &Fleet<'_>) -> bool {
+        f.pos[a] != NIL && !f.fixed[a] && (self.arrive[a] == NIL || self.arrive[a] as usize > t0)
     }
 
     /// Adds agent `a` to the neighbourhood if it is eligible and not in it yet.
-    fn add(&mut self, a: u32, t0: usize, pos: &[u32], fixed: &[bool]) {
+    fn add(&mut self, a: u32, t0: usize, f: &Fleet<'_>) {
         if self.nb.len() < NEIGHBOURHOOD
             && !self.in_nb[a as usize]
-            && self.eligible(a as usize, t0, pos, fixed)
+            && self.eligible(a as usize, t0, f)
         {
             self.in_nb[a as usize] = true;
             self.nb.push(a);
@@ -356,7 +372,7 @@ impl Planner {
 
     /// Adds the agents planned on cell `v` from `t0` on (and the one resting there) to the
     /// neighbourhood; returns the work done, in expansions.
-    fn add_passing(&mut self, v: u32, t0: usize, pos: &[u32], fixed: &[bool]) -> u64 {
+    fn add_passing(&mut self, v: u32, t0: usize, f: &Fleet<'_>) -> u64 {
         let l = self.last[v as usize];
         let top = if l == NIL {
             t0
@@ -366,7 +382,7 @@ impl Planner {
         for t in t0..=top {
             let r = self.res[t * self.cells + v as usize];
             if r != NIL {
-                self.add(r, t0, pos, fixed);
+                self.add(r, t0, f);
                 if self.nb.len() == NEIGHBOURHOOD {
                     break;
                 }
@@ -374,7 +390,7 @@ impl Planner {
         }
         let g = self.holder[v as usize];
         if g != NIL {
-            self.add(g, t0, pos, fixed);
+            self.add(g, t0, f);
         }
         1 + top.saturating_sub(t0) as u64 / 16
     }
@@ -382,22 +398,20 @@ impl Planner {
     /// The neighbourhood of one of the most delayed of a few agents drawn at random: it and
     /// the agents planned across its shortest way (ties broken at random). Returns the work
     /// done, in expansions; leaves the neighbourhood empty when the agents drawn are on time.
-    #[allow(clippy::too_many_arguments)]
-    fn nb_delayed(
-        &mut self,
-        t0: usize,
-        pos: &[u32],
-        fixed: &[bool],
-        goal: &[u32],
-        nbr: &[[u32; 4]],
-        dist: &[Vec<u32>],
-    ) -> u64 {
+    fn nb_delayed(&mut self, t0: usize, f: &Fleet<'_>) -> u64 {
+        let Fleet {
+            pos,
+            goal,
+            nbr,
+            dist,
+            ..
+        } = *f;
         let n = self.arrive.len();
         let mut seed = NIL;
         let mut seed_delay = 0u64;
         for _ in 0..4 {
             let a = self.below(n);
-            if !self.eligible(a, t0, pos, fixed) {
+            if !self.eligible(a, t0, f) {
                 continue;
             }
             let d = self
@@ -412,7 +426,7 @@ impl Planner {
         if seed == NIL {
             return spent;
         }
-        self.add(seed, t0, pos, fixed);
+        self.add(seed, t0, f);
         let s = seed as usize;
         let mut v = self.start_of(s, t0, pos);
         while v != goal[s] && self.nb.len() < NEIGHBOURHOOD {
@@ -430,14 +444,14 @@ impl Planner {
                 break;
             }
             v = best;
-            spent += self.add_passing(v, t0, pos, fixed);
+            spent += self.add_passing(v, t0, f);
         }
         spent
     }
 
     /// The neighbourhood of a random junction: the agents planned through it and through the
     /// cells nearest it (breadth first, at most [`JUNCTION_CELLS`]). Returns the work done.
-    fn nb_junction(&mut self, t0: usize, pos: &[u32], fixed: &[bool], nbr: &[[u32; 4]]) -> u64 {
+    fn nb_junction(&mut self, t0: usize, f: &Fleet<'_>) -> u64 {
         if self.junctions.is_empty() {
             return 1;
         }
@@ -457,8 +471,8 @@ impl Planner {
         while head < self.queue.len() && head < JUNCTION_CELLS && self.nb.len() < NEIGHBOURHOOD {
             let v = self.queue[head];
             head += 1;
-            spent += self.add_passing(v, t0, pos, fixed);
-            for &u in &nbr[v as usize] {
+            spent += self.add_passing(v, t0, f);
+            for &u in &f.nbr[v as usize] {
                 if u != NIL && self.seen[u as usize] != gen_ {
                     self.seen[u as usize] = gen_;
                     self.queue.push(u);
@@ -469,12 +483,12 @@ impl Planner {
     }
 
     /// A neighbourhood of agents drawn at random. Returns the work done.
-    fn nb_random(&mut self, t0: usize, pos: &[u32], fixed: &[bool]) -> u64 {
+    fn nb_random(&mut self, t0: usize, f: &Fleet<'_>) -> u64 {
         let n = self.arrive.len();
         let mut spent = 0;
         while spent < 4 * NEIGHBOURHOOD as u64 && self.nb.len() < NEIGHBOURHOOD {
             let a = self.below(n) as u32;
-            self.add(a, t0, pos, fixed);
+            self.add(a, t0, f);
             spent += 1;
         }
         spent
@@ -505,18 +519,14 @@ impl Planner {
     /// follow the cost each lowered lately (adaptive LNS), else always the delayed agent's.
     /// Spends about `budget` A* expansions; agents already arrived by `t0` and fixed ones are
     /// never touched. Returns the expansions spent.
-    #[allow(clippy::too_many_arguments)]
-    pub fn refine(
-        &mut self,
-        t0: usize,
-        pos: &[u32],
-        fixed: &[bool],
-        goal: &[u32],
-        nbr: &[[u32; 4]],
-        dist: &[Vec<u32>],
-        node_budget: u32,
-        budget: u64,
-    ) -> u64 {
+    pub fn refine(&mut self, t0: usize, f: &Fleet<'_>, node_budget: u32, budget: u64) -> u64 {
+        let Fleet {
+            pos,
+            goal,
+            nbr,
+            dist,
+            ..
+        } = *f;
         let h = self.horizon + 1;
         let n = self.arrive.len();
         let mut spent = 0u64;
@@ -527,9 +537,9 @@ impl Planner {
             self.nb.clear();
             let kind = self.pick();
             spent += match kind {
-                Neighbourhood::Delayed => self.nb_delayed(t0, pos, fixed, goal, nbr, dist),
-                Neighbourhood::Junction => self.nb_junction(t0, pos, fixed, nbr),
-                Neighbourhood::Random => self.nb_random(t0, pos, fixed),
+                Neighbourhood::Delayed => self.nb_delayed(t0, f),
+                Neighbourhood::Junction => self.nb_junction(t0, f),
+                Neighbourhood::Random => self.nb_random(t0, f),
             };
             if self.nb.is_empty() {
                 continue;
@@ -822,17 +832,24 @@ mod tests {
             // every neighbourhood on the odd seeds, the delayed agent's alone on the even ones
             p.adaptive = seed % 2 == 1;
             p.set_junctions(&nbr);
-            p.plan(&order, &pos, &goal, &fixed, &nbr, dist, 5000, 1 << 20);
+            let f = Fleet {
+                pos: &pos,
+                goal: &goal,
+                fixed: &fixed,
+                nbr: &nbr,
+                dist,
+            };
+            p.plan(&order, &f, 5000, 1 << 20);
             assert_valid(&p, &pos, &goal, &nbr);
             let cost = |p: &Planner| (0..n).map(|a| p.cost(a)).sum::<u64>();
             let before = cost(&p);
             p.save();
-            p.refine(0, &pos, &fixed, &goal, &nbr, dist, 2000, 200_000);
+            p.refine(0, &f, 2000, 200_000);
             assert_valid(&p, &pos, &goal, &nbr);
             assert!(cost(&p) <= before, "seed {seed}: {} > {before}", cost(&p));
             // refining from a later time keeps the prefix and stays valid
             let prefix: Vec<u32> = (0..n).map(|a| p.at(a, 3)).collect();
-            p.refine(3, &pos, &fixed, &goal, &nbr, dist, 2000, 100_000);
+            p.refine(3, &f, 2000, 100_000);
             assert_valid(&p, &pos, &goal, &nbr);
             assert_eq!((0..n).map(|a| p.at(a, 3)).collect::<Vec<_>>(), prefix);
             // and a kept plan comes back exactly

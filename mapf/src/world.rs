@@ -84,7 +84,7 @@
 use crate::instance::Instance;
 use crate::moves::{Intent, Move};
 use crate::pibt::{NIL, Pibt};
-use crate::plan::Planner;
+use crate::plan::{Fleet, Planner};
 use crate::search::{Outcome, Problem, lacam};
 use planner::{Cell, Grid};
 
@@ -808,16 +808,15 @@ impl World {
 
     /// Improves the plan from its time index `t0` on, spending about `budget` A* expansions.
     fn refine(&mut self, t0: usize, budget: u64) {
-        self.planner.refine(
-            t0,
-            &self.pos,
-            &self.hung,
-            &self.goal,
-            &self.nbr,
-            &self.dist,
-            self.config.refine_nodes,
-            budget,
-        );
+        let fleet = Fleet {
+            pos: &self.pos,
+            goal: &self.goal,
+            fixed: &self.hung,
+            nbr: &self.nbr,
+            dist: &self.dist,
+        };
+        self.planner
+            .refine(t0, &fleet, self.config.refine_nodes, budget);
     }
 
     /// Plans every agent in priority order number `r`: agents the previous plan could not
@@ -840,13 +839,16 @@ impl World {
             (!(boost[i as usize] || lift[i as usize]), d + j, i)
         });
         self.planner.voluntary_detours = self.config.plan_detours;
+        let fleet = Fleet {
+            pos: &self.pos,
+            goal: &self.goal,
+            fixed: &self.hung,
+            nbr: &self.nbr,
+            dist: &self.dist,
+        };
         self.planner.plan(
             &self.order,
-            &self.pos,
-            &self.goal,
-            &self.hung,
-            &self.nbr,
-            &self.dist,
+            &fleet,
             self.config.plan_nodes,
             self.config.plan_total,
         )
