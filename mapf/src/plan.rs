@@ -399,13 +399,7 @@ impl Planner {
     /// the agents planned across its shortest way (ties broken at random). Returns the work
     /// done, in expansions; leaves the neighbourhood empty when the agents drawn are on time.
     fn nb_delayed(&mut self, t0: usize, f: &Fleet<'_>) -> u64 {
-        let Fleet {
-            pos,
-            goal,
-            nbr,
-            dist,
-            ..
-        } = *f;
+        let (pos, dist) = (f.pos, f.dist);
         let n = self.arrive.len();
         let mut seed = NIL;
         let mut seed_delay = 0u64;
@@ -429,10 +423,10 @@ impl Planner {
         self.add(seed, t0, f);
         let s = seed as usize;
         let mut v = self.start_of(s, t0, pos);
-        while v != goal[s] && self.nb.len() < NEIGHBOURHOOD {
+        while v != f.goal[s] && self.nb.len() < NEIGHBOURHOOD {
             let mut best = NIL;
             let mut ties = 0;
-            for &u in &nbr[v as usize] {
+            for &u in &f.nbr[v as usize] {
                 if u != NIL && dist[s][u as usize] < dist[s][v as usize] {
                     ties += 1;
                     if self.below(ties) == 0 {
@@ -457,12 +451,7 @@ impl Planner {
         }
         let k = self.below(self.junctions.len());
         let v0 = self.junctions[k];
-        self.seen_gen = self.seen_gen.wrapping_add(1);
-        if self.seen_gen == 0 {
-            self.seen.fill(0);
-            self.seen_gen = 1;
-        }
-        let gen_ = self.seen_gen;
+        let gen_ = next_generation(&mut self.seen_gen, &mut self.seen);
         self.queue.clear();
         self.queue.push(v0);
         self.seen[v0 as usize] = gen_;
@@ -642,12 +631,7 @@ impl Planner {
         max_arrive: u32,
     ) -> (bool, u32) {
         self.arrive[a] = NIL;
-        self.generation = self.generation.wrapping_add(1);
-        if self.generation == 0 {
-            self.stamp.fill(0);
-            self.generation = 1;
-        }
-        let gen_ = self.generation;
+        let gen_ = next_generation(&mut self.generation, &mut self.stamp);
         self.heap.clear();
         self.stamp[t0 * self.cells + start as usize] = gen_;
         self.heap
@@ -716,6 +700,16 @@ impl Planner {
         }
         (false, expanded)
     }
+}
+
+/// The next visit stamp after `generation` (clearing `stamps` when it wraps to 0).
+fn next_generation(generation: &mut u32, stamps: &mut [u32]) -> u32 {
+    *generation = generation.wrapping_add(1);
+    if *generation == 0 {
+        stamps.fill(0);
+        *generation = 1;
+    }
+    *generation
 }
 
 /// The cell a move index came from: the inverse of step `m` from `v`.

@@ -806,8 +806,9 @@ impl World {
         }
     }
 
-    /// Improves the plan from its time index `t0` on, spending about `budget` A* expansions.
-    fn refine(&mut self, t0: usize, budget: u64) {
+    /// The planner, the priority order and what the planner reads of the world, borrowed
+    /// together.
+    fn planning(&mut self) -> (&mut Planner, &[u32], Fleet<'_>) {
         let fleet = Fleet {
             pos: &self.pos,
             goal: &self.goal,
@@ -815,8 +816,14 @@ impl World {
             nbr: &self.nbr,
             dist: &self.dist,
         };
-        self.planner
-            .refine(t0, &fleet, self.config.refine_nodes, budget);
+        (&mut self.planner, &self.order, fleet)
+    }
+
+    /// Improves the plan from its time index `t0` on, spending about `budget` A* expansions.
+    fn refine(&mut self, t0: usize, budget: u64) {
+        let nodes = self.config.refine_nodes;
+        let (planner, _, fleet) = self.planning();
+        planner.refine(t0, &fleet, nodes, budget);
     }
 
     /// Plans every agent in priority order number `r`: agents the previous plan could not
@@ -839,19 +846,9 @@ impl World {
             (!(boost[i as usize] || lift[i as usize]), d + j, i)
         });
         self.planner.voluntary_detours = self.config.plan_detours;
-        let fleet = Fleet {
-            pos: &self.pos,
-            goal: &self.goal,
-            fixed: &self.hung,
-            nbr: &self.nbr,
-            dist: &self.dist,
-        };
-        self.planner.plan(
-            &self.order,
-            &fleet,
-            self.config.plan_nodes,
-            self.config.plan_total,
-        )
+        let (nodes, total) = (self.config.plan_nodes, self.config.plan_total);
+        let (planner, order, fleet) = self.planning();
+        planner.plan(order, &fleet, nodes, total)
     }
 
     /// The current plan's cost: agents it could not route, then its summed arrival.
