@@ -258,16 +258,26 @@ fn drive(
         } else {
             Command::Phase
         };
+        // the phase's shared-grid instance is known before its robots learn (from the starts,
+        // or where the phase before left them): its first plan is made on a thread of its own
+        // while they learn, and the execution waits for it if they finish first
+        let gp = match plan.world {
+            World::Shared => Some(phase_grid(ctx, cp, p)?),
+            _ => None,
+        };
         engine.start_phase(bus, plan_p, go)?;
-        interrupted = serve(
-            engine,
-            &serving,
-            |e| watch_merged(e, &mut watches),
-            |e| {
-                let now = std::time::Instant::now();
-                (0..e.robots.len()).all(|i| e.phase_done(i, now))
-            },
-        )?;
+        let (served, prepared) = grid::prepare_while(gp.as_ref(), || {
+            serve(
+                engine,
+                &serving,
+                |e| watch_merged(e, &mut watches),
+                |e| {
+                    let now = std::time::Instant::now();
+                    (0..e.robots.len()).all(|i| e.phase_done(i, now))
+                },
+            )
+        });
+        interrupted = served?;
         // the reports are in; the phase files were written before them
         let wall_s = monotonic_ns().saturating_sub(phase_ns) as f64 / 1e9;
         let tracks: Vec<GoalTrack<'_>> = watches
@@ -281,8 +291,8 @@ fn drive(
         let mut result =
             assemble::phase_result(plan, engine, &tracks, p, phase_ns, ctx.dir, wall_s);
         let mut left_at = None;
-        if plan.world == World::Shared && !interrupted {
-            let (grid, at) = execute_phase(ctx, cp, engine, bus, &lister, stop, p)?;
+        if let (Some(gp), Some(world), false) = (&gp, prepared, interrupted) {
+            let (grid, at) = execute_phase(ctx, engine, bus, &lister, stop, p, gp, world)?;
             report::log_line!(
                 "qfleet-coordinator: phase {p} on the shared grid: {}",
                 grid.line()
@@ -326,18 +336,9 @@ fn drive(
     })
 }
 
-/// Executes phase `p` on the shared grid (see the module docs): from the plan's starts, or
-/// where the last phase done left the robots (`cp`), to the phase's goals; its result and
-/// where it left the robots.
-fn execute_phase(
-    ctx: &Ctx<'_>,
-    cp: &Checkpoint,
-    engine: &mut Engine,
-    bus: &CoordinatorBus,
-    lister: &Lister,
-    stop: &AtomicBool,
-    p: usize,
-) -> Result<(GridResult, Vec<Cell>), CoordError> {
+/// Phase `p`'s shared-grid execution: from the plan's starts, or where the last phase done
+/// left the robots (`cp`), to the phase's goals.
+fn phase_grid(ctx: &Ctx<'_>, cp: &Checkpoint, p: usize) -> Result<GridPlan, CoordError> {
     let plan = ctx.plan;
     let unfit = |what: String| {
         CoordError::Plan(Box::new(contract::plan::PlanError::Field {
@@ -368,15 +369,8 @@ fn execute_phase(
                 .map_err(|e| unfit(format!("phase {p} on the shared grid: {e}")))?
         }
     };
-    // every robot ranks its moves with what the whole fleet learned of its goal
-    let mut flushed = vec![false; engine.tables.len()];
-    for &g in &plan.assignment[p] {
-        if !std::mem::replace(&mut flushed[g], true) {
-            engine.flush(bus, g as u32)?;
-        }
-    }
     let args = ctx.args;
-    let gp = GridPlan {
+    Ok(GridPlan {
         max_ticks: args
             .world
             .max_ticks
@@ -386,11 +380,33 @@ fn execute_phase(
         horizon: args.world.intent_horizon,
         paths: OutFile::PhasePaths(p as u32),
         instance,
-    };
-    let spin = Duration::from_micros(args.spin_us);
-    let hang = Duration::from_millis(args.hang_ms);
-    let world = grid::prepare(&gp);
-    grid::execute(engine, bus, lister, &gp, world, spin, hang, stop, ctx.dir)
+    })
+}
+
+/// Executes phase `p` on the shared grid (see the module docs): `gp` is [`phase_grid`]'s,
+/// `world` its world made while the robots learned; its result and where it left the robots.
+#[allow(clippy::too_many_arguments)]
+fn execute_phase(
+    ctx: &Ctx<'_>,
+    engine: &mut Engine,
+    bus: &CoordinatorBus,
+    lister: &Lister,
+    stop: &AtomicBool,
+    p: usize,
+    gp: &GridPlan,
+    world: mapf::World,
+) -> Result<(GridResult, Vec<Cell>), CoordError> {
+    let plan = ctx.plan;
+    // every robot ranks its moves with what the whole fleet learned of its goal
+    let mut flushed = vec![false; engine.tables.len()];
+    for &g in &plan.assignment[p] {
+        if !std::mem::replace(&mut flushed[g], true) {
+            engine.flush(bus, g as u32)?;
+        }
+    }
+    let spin = Duration::from_micros(ctx.args.spin_us);
+    let hang = Duration::from_millis(ctx.args.hang_ms);
+    grid::execute(engine, bus, lister, gp, world, spin, hang, stop, ctx.dir)
 }
 
 /// Notes, per goal whose table changed, the first time its merged greedy path is optimal from

@@ -2,6 +2,9 @@
 //! learned its own goal, it drives the execution tick by tick and keeps the fleet free of
 //! collisions. The robot's side of the protocol is `robot_agent::execute`.
 //!
+//! The execution's first look-ahead plan is made before it, while the robots learn, on a
+//! thread of its own ([`prepare_while`]); the execution waits for it if they finish first.
+//!
 //! # A tick
 //! 1. Publish a `Grant` with every robot's cell at tick `t` (tick 0: the starts) and wake the
 //!    robots.
@@ -331,13 +334,42 @@ impl Round {
     }
 }
 
-/// The world of `plan` with its first look-ahead plan made ([`World::prepare`]): a plain run
-/// makes it right after `Start`, while the robots learn, so the execution's first tick does
-/// not wait for it (~6 ms at 64 robots in a release build, a quarter of the execution).
+/// The world of `plan` with its first look-ahead plan made and refined ([`World::prepare`]:
+/// `WorldConfig::prepare_refine` A* expansions of large neighbourhood search on top of the
+/// plan a tick would make; about 0.2–0.4 s at 128 robots on random-32-32-10 in a release
+/// build, see `mapf/README.md`). The coordinator makes it while the robots learn
+/// ([`prepare_while`]).
 pub(crate) fn prepare(plan: &GridPlan) -> World {
     let mut world = World::new(&plan.instance, WorldConfig::default());
     world.prepare();
     world
+}
+
+/// Runs `learn` (the coordinator's message loop while the robots learn) on this thread while
+/// a thread of its own makes `plan`'s world ([`prepare`]), so a long preparation never stalls
+/// the message loop; returns both once both are done. If the robots finish learning first,
+/// this waits for the preparation: the execution starts on the prepared plan, never on a
+/// half-made one (the preparation is bounded by A* expansions, not a clock, so its plan is
+/// the same on a fast or a slow host). Without a thread (the OS refused one) the world is
+/// prepared here after `learn`.
+pub(crate) fn prepare_while<T>(
+    plan: Option<&GridPlan>,
+    learn: impl FnOnce() -> T,
+) -> (T, Option<World>) {
+    std::thread::scope(|s| {
+        let preparing = plan.map(|p| {
+            let spawned = std::thread::Builder::new()
+                .name("qfleet-prepare".into())
+                .spawn_scoped(s, move || prepare(p));
+            (p, spawned.ok())
+        });
+        let learned = learn();
+        let world = preparing.map(|(p, handle)| match handle {
+            Some(h) => h.join().unwrap_or_else(|e| std::panic::resume_unwind(e)),
+            None => prepare(p),
+        });
+        (learned, world)
+    })
 }
 
 /// Drives one shared-grid execution on the bus (see the module docs) and returns its result

@@ -301,8 +301,6 @@ fn drive(
         strategy: args.wait,
         spin: Duration::from_micros(args.spin_us),
     };
-    // the shared grid's first look-ahead plan is made now, while the robots learn
-    let mut prepared = grid.map(grid::prepare);
     let progress = args.progress;
     let serving = Serving {
         bus,
@@ -310,19 +308,24 @@ fn drive(
         how,
         stop,
     };
-    let interrupted = serve(
-        engine,
-        &serving,
-        |_| {},
-        |e| {
-            if progress {
-                print_progress(e);
-            }
-            cp.every(e);
-            let now = Instant::now();
-            (0..e.robots.len()).all(|i| e.done(i, now))
-        },
-    )?;
+    // the shared grid's first look-ahead plan is made on a thread of its own while the robots
+    // learn; the execution waits for it if they finish first
+    let (served, mut prepared) = grid::prepare_while(grid, || {
+        serve(
+            engine,
+            &serving,
+            |_| {},
+            |e| {
+                if progress {
+                    print_progress(e);
+                }
+                cp.every(e);
+                let now = Instant::now();
+                (0..e.robots.len()).all(|i| e.done(i, now))
+            },
+        )
+    });
+    let interrupted = served?;
     let active = secs_since(started_ns);
     // every robot is done learning (or lost): hand out the whole fleet table (one goal), or
     // move the robots on the shared grid (a goal each), then Stop

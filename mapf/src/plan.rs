@@ -53,10 +53,68 @@ pub(crate) struct Planner {
     /// A copy of `cells_of` and `arrive` ([`Planner::save`]).
     kept_cells: Vec<u32>,
     kept_arrive: Vec<u32>,
+    /// Whether refinement chooses among every [`Neighbourhood`] adaptively (else only
+    /// [`Neighbourhood::Delayed`]).
+    pub adaptive: bool,
+    /// The adaptive choice's weight of each [`Neighbourhood`].
+    weights: [f64; KINDS],
+    /// Cells with three or more passable neighbours (where ways cross), set once.
+    junctions: Vec<u32>,
+    /// The junction neighbourhood's breadth-first queue and visited stamps.
+    queue: Vec<u32>,
+    seen: Vec<u32>,
+    seen_gen: u32,
 }
 
-/// Agents replanned together in one refinement step (MAPF-LNS's neighbourhood size).
+/// What the planner reads of the world: where the agents are and must go, and the grid.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Fleet<'a> {
+    /// Each agent's cell (NIL = absent).
+    pub pos: &'a [u32],
+    /// Each agent's goal cell.
+    pub goal: &'a [u32],
+    /// Agents that never move (silent robots).
+    pub fixed: &'a [bool],
+    /// Each cell's passable neighbours (NIL where none).
+    pub nbr: &'a [[u32; 4]],
+    /// Each agent's distance table.
+    pub dist: &'a [Vec<u32>],
+}
+
+/// Agents replanned together in one refinement step (MAPF-LNS's neighbourhood size; 4 and 16
+/// measured worse on the tuning set).
 const NEIGHBOURHOOD: usize = 8;
+
+/// What an agent without a plan costs the refinement: more than any summed arrival, so a
+/// refinement step never trades a routed agent for the others' arrivals (it did with a
+/// penalty of 4 × the horizon: plans that left agents unrouted, recomputed at once).
+const UNPLANNED: u64 = 1 << 32;
+
+/// How a refinement step chooses the agents it replans (MAPF-LNS's neighbourhoods, Li et al.
+/// 2021, chosen adaptively as there).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Neighbourhood {
+    /// One of the most delayed agents and the agents planned across its shortest way.
+    Delayed,
+    /// The agents planned through the cells nearest a random junction.
+    Junction,
+    /// Agents drawn at random.
+    Random,
+}
+
+const KINDS: usize = 3;
+const NEIGHBOURHOODS: [Neighbourhood; KINDS] = [
+    Neighbourhood::Delayed,
+    Neighbourhood::Junction,
+    Neighbourhood::Random,
+];
+
+/// How fast the adaptive weights follow the improvements (ALNS's reaction factor; 0.01 and 0.5
+/// measured no better on the tuning set).
+const REACTION: f64 = 0.1;
+
+/// Cells the junction neighbourhood visits at most around its junction.
+const JUNCTION_CELLS: usize = 64;
 
 impl Planner {
     /// Tables for `agents` agents on `cells` cells with plans up to `horizon` ticks.
@@ -89,7 +147,24 @@ impl Planner {
             improved: 0,
             kept_cells: vec![NIL; agents * (horizon + 1)],
             kept_arrive: vec![NIL; agents],
+            adaptive: false,
+            weights: [1.0; KINDS],
+            junctions: Vec::new(),
+            queue: Vec::with_capacity(if agents == 0 { 0 } else { cells }),
+            seen: vec![0; if agents == 0 { 0 } else { cells }],
+            seen_gen: 0,
         }
+    }
+
+    /// Notes the junctions of the grid whose passable neighbours are `nbr` (once, before any
+    /// refinement: it allocates).
+    pub fn set_junctions(&mut self, nbr: &[[u32; 4]]) {
+        if self.arrive.is_empty() {
+            return;
+        }
+        self.junctions = (0..nbr.len() as u32)
+            .filter(|&v| nbr[v as usize].iter().filter(|&&u| u != NIL).count() >= 3)
+            .collect();
     }
 
     /// Keeps a copy of the current plan.
@@ -218,22 +293,23 @@ impl Planner {
         self.res[t * self.cells + v as usize] != NIL || self.hold[v as usize] as usize <= t
     }
 
-    /// Plans every agent in `order` from `pos` (NIL = absent); `fixed[i]` agents never move.
-    /// `nbr` lists each cell's passable neighbours (NIL where none); `dist[i]` is agent i's
-    /// distance table; each agent's search may expand `node_budget` nodes, all of them
+    /// Plans every agent in `order` from its cell in `fleet` (absent ones not; fixed ones hold
+    /// their cells); each agent's search may expand `node_budget` nodes, all of them
     /// `total_budget` (agents left when it is spent get no plan). Returns the expansions spent.
-    #[allow(clippy::too_many_arguments)]
     pub fn plan(
         &mut self,
         order: &[u32],
-        pos: &[u32],
-        goal: &[u32],
-        fixed: &[bool],
-        nbr: &[[u32; 4]],
-        dist: &[Vec<u32>],
+        fleet: &Fleet<'_>,
         node_budget: u32,
         total_budget: u64,
     ) -> u64 {
+        let Fleet {
+            pos,
+            goal,
+            fixed,
+            nbr,
+            dist,
+        } = *fleet;
         self.clear();
         let h = self.horizon + 1;
         // robots that will not move hold their cells from now on
@@ -260,32 +336,186 @@ impl Planner {
         spent
     }
 
-    /// The cost refinement counts for agent `a`: its arrival, or a penalty without a plan.
+    /// The cost refinement counts for agent `a`: its arrival, or [`UNPLANNED`] without a plan.
     fn cost(&self, a: usize) -> u64 {
         match self.arrive[a] {
-            NIL => 4 * (self.horizon as u64 + 1),
+            NIL => UNPLANNED,
             t => u64::from(t),
         }
     }
 
+    /// Where agent `a` starts a refinement from `t0`: its plan's cell at `t0`, else (unplanned,
+    /// `t0` = 0) its cell.
+    fn start_of(&self, a: usize, t0: usize, pos: &[u32]) -> u32 {
+        if self.arrive[a] == NIL {
+            pos[a]
+        } else {
+            self.cells_of[a * (self.horizon + 1) + t0.min(self.arrive[a] as usize)]
+        }
+    }
+
+    /// Whether refinement from `t0` may replan agent `a`: present, not fixed, not arrived.
+    fn eligible(&self, a: usize, t0: usize, f: &Fleet<'_>) -> bool {
+        f.pos[a] != NIL && !f.fixed[a] && (self.arrive[a] == NIL || self.arrive[a] as usize > t0)
+    }
+
+    /// Adds agent `a` to the neighbourhood if it is eligible and not in it yet.
+    fn add(&mut self, a: u32, t0: usize, f: &Fleet<'_>) {
+        if self.nb.len() < NEIGHBOURHOOD
+            && !self.in_nb[a as usize]
+            && self.eligible(a as usize, t0, f)
+        {
+            self.in_nb[a as usize] = true;
+            self.nb.push(a);
+        }
+    }
+
+    /// Adds the agents planned on cell `v` from `t0` on (and the one resting there) to the
+    /// neighbourhood; returns the work done, in expansions.
+    fn add_passing(&mut self, v: u32, t0: usize, f: &Fleet<'_>) -> u64 {
+        let l = self.last[v as usize];
+        let top = if l == NIL {
+            t0
+        } else {
+            (l as usize).min(self.horizon)
+        };
+        for t in t0..=top {
+            let r = self.res[t * self.cells + v as usize];
+            if r != NIL {
+                self.add(r, t0, f);
+                if self.nb.len() == NEIGHBOURHOOD {
+                    break;
+                }
+            }
+        }
+        let g = self.holder[v as usize];
+        if g != NIL {
+            self.add(g, t0, f);
+        }
+        1 + top.saturating_sub(t0) as u64 / 16
+    }
+
+    /// The neighbourhood of one of the most delayed of a few agents drawn at random: it and
+    /// the agents planned across its shortest way (ties broken at random). Returns the work
+    /// done, in expansions; leaves the neighbourhood empty when the agents drawn are on time.
+    fn nb_delayed(&mut self, t0: usize, f: &Fleet<'_>) -> u64 {
+        let (pos, dist) = (f.pos, f.dist);
+        let n = self.arrive.len();
+        let mut seed = NIL;
+        let mut seed_delay = 0u64;
+        for _ in 0..4 {
+            let a = self.below(n);
+            if !self.eligible(a, t0, f) {
+                continue;
+            }
+            let d = self
+                .cost(a)
+                .saturating_sub(t0 as u64 + u64::from(dist[a][self.start_of(a, t0, pos) as usize]));
+            if d > seed_delay {
+                seed = a as u32;
+                seed_delay = d;
+            }
+        }
+        let mut spent = 4;
+        if seed == NIL {
+            return spent;
+        }
+        self.add(seed, t0, f);
+        let s = seed as usize;
+        let mut v = self.start_of(s, t0, pos);
+        while v != f.goal[s] && self.nb.len() < NEIGHBOURHOOD {
+            let mut best = NIL;
+            let mut ties = 0;
+            for &u in &f.nbr[v as usize] {
+                if u != NIL && dist[s][u as usize] < dist[s][v as usize] {
+                    ties += 1;
+                    if self.below(ties) == 0 {
+                        best = u;
+                    }
+                }
+            }
+            if best == NIL {
+                break;
+            }
+            v = best;
+            spent += self.add_passing(v, t0, f);
+        }
+        spent
+    }
+
+    /// The neighbourhood of a random junction: the agents planned through it and through the
+    /// cells nearest it (breadth first, at most [`JUNCTION_CELLS`]). Returns the work done.
+    fn nb_junction(&mut self, t0: usize, f: &Fleet<'_>) -> u64 {
+        if self.junctions.is_empty() {
+            return 1;
+        }
+        let k = self.below(self.junctions.len());
+        let v0 = self.junctions[k];
+        let gen_ = next_generation(&mut self.seen_gen, &mut self.seen);
+        self.queue.clear();
+        self.queue.push(v0);
+        self.seen[v0 as usize] = gen_;
+        let mut spent = 1;
+        let mut head = 0;
+        while head < self.queue.len() && head < JUNCTION_CELLS && self.nb.len() < NEIGHBOURHOOD {
+            let v = self.queue[head];
+            head += 1;
+            spent += self.add_passing(v, t0, f);
+            for &u in &f.nbr[v as usize] {
+                if u != NIL && self.seen[u as usize] != gen_ {
+                    self.seen[u as usize] = gen_;
+                    self.queue.push(u);
+                }
+            }
+        }
+        spent
+    }
+
+    /// A neighbourhood of agents drawn at random. Returns the work done.
+    fn nb_random(&mut self, t0: usize, f: &Fleet<'_>) -> u64 {
+        let n = self.arrive.len();
+        let mut spent = 0;
+        while spent < 4 * NEIGHBOURHOOD as u64 && self.nb.len() < NEIGHBOURHOOD {
+            let a = self.below(n) as u32;
+            self.add(a, t0, f);
+            spent += 1;
+        }
+        spent
+    }
+
+    /// The neighbourhood the next refinement step uses: drawn in proportion to the weights
+    /// when adaptive, else always [`Neighbourhood::Delayed`].
+    fn pick(&mut self) -> Neighbourhood {
+        if !self.adaptive {
+            return Neighbourhood::Delayed;
+        }
+        let total: f64 = self.weights.iter().sum();
+        let mut x = self.below(1 << 20) as f64 / f64::from(1u32 << 20) * total;
+        for (k, &w) in self.weights.iter().enumerate() {
+            if x < w {
+                return NEIGHBOURHOODS[k];
+            }
+            x -= w;
+        }
+        NEIGHBOURHOODS[KINDS - 1]
+    }
+
     /// Large neighbourhood search (Li et al., "Anytime Multi-Agent Path Finding via Large
     /// Neighborhood Search", IJCAI 2021) on the plan from time index `t0` on: a few agents
-    /// (one of the most delayed and agents planned across its shortest path) forget their
-    /// paths and are replanned one after another in a random order; the new paths are kept
-    /// only when their summed arrival is lower. Spends about `budget` A* expansions; agents
-    /// already arrived by `t0` and fixed ones are never touched. Returns the expansions spent.
-    #[allow(clippy::too_many_arguments)]
-    pub fn refine(
-        &mut self,
-        t0: usize,
-        pos: &[u32],
-        fixed: &[bool],
-        goal: &[u32],
-        nbr: &[[u32; 4]],
-        dist: &[Vec<u32>],
-        node_budget: u32,
-        budget: u64,
-    ) -> u64 {
+    /// forget their paths and are replanned one after another in a random order; the new paths
+    /// are kept only when their summed arrival is lower. The agents are chosen by one of the
+    /// [`Neighbourhood`]s: with `adaptive`, each step draws one in proportion to weights that
+    /// follow the cost each lowered lately (adaptive LNS), else always the delayed agent's.
+    /// Spends about `budget` A* expansions; agents already arrived by `t0` and fixed ones are
+    /// never touched. Returns the expansions spent.
+    pub fn refine(&mut self, t0: usize, f: &Fleet<'_>, node_budget: u32, budget: u64) -> u64 {
+        let Fleet {
+            pos,
+            goal,
+            nbr,
+            dist,
+            ..
+        } = *f;
         let h = self.horizon + 1;
         let n = self.arrive.len();
         let mut spent = 0u64;
@@ -293,85 +523,15 @@ impl Planner {
             return 0;
         }
         while spent < budget {
-            // where each agent starts: its plan's cell at t0, else (unplanned, t0 = 0) its cell
-            let start = |p: &Planner, a: usize| {
-                if p.arrive[a] == NIL {
-                    pos[a]
-                } else {
-                    p.cells_of[a * h + t0.min(p.arrive[a] as usize)]
-                }
-            };
-            let eligible = |p: &Planner, a: usize| {
-                pos[a] != NIL && !fixed[a] && (p.arrive[a] == NIL || p.arrive[a] as usize > t0)
-            };
-            // the seed: an unplanned agent, else the most delayed of a few drawn at random
-            let mut seed = NIL;
-            let mut seed_delay = 0u64;
-            for _ in 0..4 {
-                let a = self.below(n);
-                if !eligible(self, a) {
-                    continue;
-                }
-                let d = self
-                    .cost(a)
-                    .saturating_sub(t0 as u64 + u64::from(dist[a][start(self, a) as usize]));
-                if d > seed_delay {
-                    seed = a as u32;
-                    seed_delay = d;
-                }
-            }
-            spent += 4;
-            if seed == NIL {
-                continue;
-            }
             self.nb.clear();
-            self.nb.push(seed);
-            self.in_nb[seed as usize] = true;
-            // agents planned on the seed's shortest path (ties broken at random)
-            let s = seed as usize;
-            let mut v = start(self, s);
-            while v != goal[s] && self.nb.len() < NEIGHBOURHOOD {
-                let mut best = NIL;
-                let mut ties = 0;
-                for &u in &nbr[v as usize] {
-                    if u != NIL && dist[s][u as usize] < dist[s][v as usize] {
-                        ties += 1;
-                        if self.below(ties) == 0 {
-                            best = u;
-                        }
-                    }
-                }
-                if best == NIL {
-                    break;
-                }
-                v = best;
-                spent += 1;
-                let l = self.last[v as usize];
-                let top = if l == NIL {
-                    t0
-                } else {
-                    (l as usize).min(self.horizon)
-                };
-                for t in t0..=top {
-                    let r = self.res[t * self.cells + v as usize];
-                    if r != NIL && !self.in_nb[r as usize] && eligible(self, r as usize) {
-                        self.in_nb[r as usize] = true;
-                        self.nb.push(r);
-                        if self.nb.len() == NEIGHBOURHOOD {
-                            break;
-                        }
-                    }
-                }
-                spent += top.saturating_sub(t0) as u64 / 16;
-                let g = self.holder[v as usize];
-                if g != NIL
-                    && self.nb.len() < NEIGHBOURHOOD
-                    && !self.in_nb[g as usize]
-                    && eligible(self, g as usize)
-                {
-                    self.in_nb[g as usize] = true;
-                    self.nb.push(g);
-                }
+            let kind = self.pick();
+            spent += match kind {
+                Neighbourhood::Delayed => self.nb_delayed(t0, f),
+                Neighbourhood::Junction => self.nb_junction(t0, f),
+                Neighbourhood::Random => self.nb_random(t0, f),
+            };
+            if self.nb.is_empty() {
+                continue;
             }
             // forget their paths, remembering them
             let mut before = 0u64;
@@ -427,6 +587,11 @@ impl Planner {
                     break;
                 }
             }
+            if self.adaptive {
+                let gain = before.saturating_sub(after) as f64;
+                let w = &mut self.weights[kind as usize];
+                *w = (REACTION * gain + (1.0 - REACTION) * *w).max(0.01);
+            }
             if after < before {
                 self.improved += 1;
             } else {
@@ -466,12 +631,7 @@ impl Planner {
         max_arrive: u32,
     ) -> (bool, u32) {
         self.arrive[a] = NIL;
-        self.generation = self.generation.wrapping_add(1);
-        if self.generation == 0 {
-            self.stamp.fill(0);
-            self.generation = 1;
-        }
-        let gen_ = self.generation;
+        let gen_ = next_generation(&mut self.generation, &mut self.stamp);
         self.heap.clear();
         self.stamp[t0 * self.cells + start as usize] = gen_;
         self.heap
@@ -540,6 +700,16 @@ impl Planner {
         }
         (false, expanded)
     }
+}
+
+/// The next visit stamp after `generation` (clearing `stamps` when it wraps to 0).
+fn next_generation(generation: &mut u32, stamps: &mut [u32]) -> u32 {
+    *generation = generation.wrapping_add(1);
+    if *generation == 0 {
+        stamps.fill(0);
+        *generation = 1;
+    }
+    *generation
 }
 
 /// The cell a move index came from: the inverse of step `m` from `v`.
@@ -639,6 +809,7 @@ mod tests {
 
     #[test]
     fn refining_keeps_every_plan_valid_and_never_raises_its_cost() {
+        let mut improved = 0;
         for seed in 1..=6u64 {
             let (inst, nbr) = setup(seed);
             let n = inst.agents();
@@ -652,17 +823,27 @@ mod tests {
             let mut p = Planner::new(n, inst.grid().len(), 80, 5000);
             p.voluntary_detours = true;
             p.seed(seed);
-            p.plan(&order, &pos, &goal, &fixed, &nbr, dist, 5000, 1 << 20);
+            // every neighbourhood on the odd seeds, the delayed agent's alone on the even ones
+            p.adaptive = seed % 2 == 1;
+            p.set_junctions(&nbr);
+            let f = Fleet {
+                pos: &pos,
+                goal: &goal,
+                fixed: &fixed,
+                nbr: &nbr,
+                dist,
+            };
+            p.plan(&order, &f, 5000, 1 << 20);
             assert_valid(&p, &pos, &goal, &nbr);
             let cost = |p: &Planner| (0..n).map(|a| p.cost(a)).sum::<u64>();
             let before = cost(&p);
             p.save();
-            p.refine(0, &pos, &fixed, &goal, &nbr, dist, 2000, 200_000);
+            p.refine(0, &f, 2000, 200_000);
             assert_valid(&p, &pos, &goal, &nbr);
             assert!(cost(&p) <= before, "seed {seed}: {} > {before}", cost(&p));
             // refining from a later time keeps the prefix and stays valid
             let prefix: Vec<u32> = (0..n).map(|a| p.at(a, 3)).collect();
-            p.refine(3, &pos, &fixed, &goal, &nbr, dist, 2000, 100_000);
+            p.refine(3, &f, 2000, 100_000);
             assert_valid(&p, &pos, &goal, &nbr);
             assert_eq!((0..n).map(|a| p.at(a, 3)).collect::<Vec<_>>(), prefix);
             // and a kept plan comes back exactly
@@ -671,6 +852,8 @@ mod tests {
             assert_valid(&p, &pos, &goal, &nbr);
             assert_eq!(cost(&p), before);
             assert!(after <= before);
+            improved += p.improved;
         }
+        assert!(improved > 0, "the refinement lowered some plan's cost");
     }
 }

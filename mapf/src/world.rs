@@ -31,9 +31,11 @@
 //! move to the front, distances get a small pseudo-random jitter) keeping the cheapest plan,
 //! then improved by large neighbourhood search (a few agents at a time forget their paths and
 //! are replanned; kept only if cheaper): [`WorldConfig::plan_refine`] A* expansions when the
-//! plan is made and [`WorldConfig::refine_tick`] on every tick it is followed. The plan may
-//! step an agent away from its goal (a detour, [`WorldConfig::plan_detours`]) when waiting for
-//! its way to clear would cost more. The plan changes the candidate order in these ways only:
+//! plan is made and [`WorldConfig::refine_tick`] on every tick it is followed; the first plan,
+//! made ahead by [`World::prepare`] before the first tick, gets [`WorldConfig::prepare_refine`]
+//! more (the neighbourhoods are chosen adaptively, [`WorldConfig::refine_adaptive`]). The plan
+//! may step an agent away from its goal (a detour, [`WorldConfig::plan_detours`]) when waiting
+//! for its way to clear would cost more. The plan changes the candidate order in these ways only:
 //!
 //! 1. **The plan leads a robot heading its shortest way** ([`WorldConfig::plan_first`]). When
 //!    the robot's first choice is as near its goal as any move it has (what a robot with
@@ -82,7 +84,7 @@
 use crate::instance::Instance;
 use crate::moves::{Intent, Move};
 use crate::pibt::{NIL, Pibt};
-use crate::plan::Planner;
+use crate::plan::{Fleet, Planner};
 use crate::search::{Outcome, Problem, lacam};
 use planner::{Cell, Grid};
 
@@ -123,6 +125,14 @@ pub struct WorldConfig {
     pub refine_tick: u64,
     /// A* expansions one agent's search may spend while improving a plan.
     pub refine_nodes: u32,
+    /// A* expansions [`World::prepare`] spends improving the first plan on top of
+    /// `plan_refine` (it runs before the execution, while the robots learn, so it may spend
+    /// far more than a tick).
+    pub prepare_refine: u64,
+    /// Whether the refinement chooses its neighbourhoods adaptively among the delayed agent's
+    /// way, a junction's agents and random agents (MAPF-LNS's adaptive LNS), else always the
+    /// delayed agent's way.
+    pub refine_adaptive: bool,
     /// Whether, among candidates equally near the goal, cells nobody stands on come first (as
     /// PIBT's reference implementation breaks ties). Off by default: with the look-ahead it
     /// measured slightly worse on the tuning instance; it helps plain PIBT a lot.
@@ -150,6 +160,8 @@ impl Default for WorldConfig {
             plan_refine: 50_000,
             refine_tick: 2_000,
             refine_nodes: 4_000,
+            prepare_refine: 1_000_000,
+            refine_adaptive: true,
             free_first: false,
             record: true,
             seed: 0x9e37_79b9_7f4a_7c15,
@@ -284,6 +296,8 @@ impl World {
             config.plan_nodes,
         );
         planner.seed(config.seed);
+        planner.adaptive = config.refine_adaptive;
+        planner.set_junctions(&nbr);
         let mut w = World {
             out: instance.starts().iter().map(|&c| Some(c)).collect(),
             grid,
@@ -344,6 +358,19 @@ impl World {
     /// How often the look-ahead plan was (re)computed.
     pub fn replans(&self) -> u32 {
         self.replans
+    }
+
+    /// While a look-ahead plan is kept: its sum of costs over the agents it routes (the tick
+    /// each arrives for good if the plan is followed, counted from tick 0) and how many agents
+    /// it could not route.
+    pub fn planned_cost(&self) -> Option<(u64, usize)> {
+        self.plan_valid.then(|| {
+            let (u, soc) = self.plan_cost();
+            (
+                soc + u64::from(self.plan_tick) * (self.pos.len() - u) as u64,
+                u,
+            )
+        })
     }
 
     /// How often the complete search ran.
@@ -723,11 +750,18 @@ impl World {
     }
 
     /// Makes the look-ahead plan for the current configuration now, if one is kept and none
-    /// is valid (what the next [`World::step`] would do first): a coordinator calls it while
-    /// the robots are still learning, so the first tick does not wait for it.
+    /// is valid (what the next [`World::step`] would do first), and improves it with
+    /// [`WorldConfig::prepare_refine`] more A* expansions of large neighbourhood search: a
+    /// coordinator calls it while the robots are still learning, so the first tick does not
+    /// wait for it and the plan the fleet starts on is better than a tick could afford. Its
+    /// work is bounded by A* expansion budgets (`plan_total`, `plan_refine`,
+    /// `prepare_refine`), never by a clock: the plan it makes is deterministic.
     pub fn prepare(&mut self) {
         if self.config.plan_ahead && !self.plan_valid && self.following.is_empty() {
             self.replan();
+            if self.config.prepare_refine > 0 {
+                self.refine(0, self.config.prepare_refine);
+            }
         }
     }
 
@@ -772,18 +806,24 @@ impl World {
         }
     }
 
+    /// The planner, the priority order and what the planner reads of the world, borrowed
+    /// together.
+    fn planning(&mut self) -> (&mut Planner, &[u32], Fleet<'_>) {
+        let fleet = Fleet {
+            pos: &self.pos,
+            goal: &self.goal,
+            fixed: &self.hung,
+            nbr: &self.nbr,
+            dist: &self.dist,
+        };
+        (&mut self.planner, &self.order, fleet)
+    }
+
     /// Improves the plan from its time index `t0` on, spending about `budget` A* expansions.
     fn refine(&mut self, t0: usize, budget: u64) {
-        self.planner.refine(
-            t0,
-            &self.pos,
-            &self.hung,
-            &self.goal,
-            &self.nbr,
-            &self.dist,
-            self.config.refine_nodes,
-            budget,
-        );
+        let nodes = self.config.refine_nodes;
+        let (planner, _, fleet) = self.planning();
+        planner.refine(t0, &fleet, nodes, budget);
     }
 
     /// Plans every agent in priority order number `r`: agents the previous plan could not
@@ -806,16 +846,9 @@ impl World {
             (!(boost[i as usize] || lift[i as usize]), d + j, i)
         });
         self.planner.voluntary_detours = self.config.plan_detours;
-        self.planner.plan(
-            &self.order,
-            &self.pos,
-            &self.goal,
-            &self.hung,
-            &self.nbr,
-            &self.dist,
-            self.config.plan_nodes,
-            self.config.plan_total,
-        )
+        let (nodes, total) = (self.config.plan_nodes, self.config.plan_total);
+        let (planner, order, fleet) = self.planning();
+        planner.plan(order, &fleet, nodes, total)
     }
 
     /// The current plan's cost: agents it could not route, then its summed arrival.

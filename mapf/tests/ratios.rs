@@ -8,8 +8,12 @@
 //!   den312d and warehouse-10-20-10-2-1 with random pairs, the new seeds 3, 4, 5 and the old
 //!   seeds 1, 2 (looked at before this split existed) reported apart.
 //!
-//! Then the resolve time per tick at 64 and 128 agents on the tuning instance. Ignored by
-//! default (it takes a while in a dev build):
+//! Every world is made as the coordinator makes it: [`World::prepare`] first (the plan made
+//! ahead, while the robots learn), then the ticks. "before" is the same crate without the
+//! refinement of the plan made ahead and with only the delayed agent's neighbourhood
+//! (`prepare_refine: 0, refine_adaptive: false`). Then the time [`World::prepare`] takes and
+//! the resolve time per tick at 64 and 128 agents on the tuning instance. Ignored by default
+//! (it takes a while in a dev build):
 //!
 //! ```sh
 //! cargo test -p mapf --release --test ratios -- --ignored --nocapture
@@ -17,7 +21,7 @@
 
 mod common;
 
-use common::{checked, greedy, movingai, run};
+use common::{checked, greedy, movingai, run_prepared};
 use mapf::{Instance, World, WorldConfig};
 use planner::map::{load_map, load_scen};
 use planner::{Cell, Grid};
@@ -79,10 +83,11 @@ fn widened(g: &Grid) -> Grid {
     Grid::new(xs.len(), ys.len(), free).expect("a widened grid is a grid")
 }
 
-/// (SoC / LB, ms) of one run, asserting every agent arrives without conflict.
+/// (SoC / LB, ms) of one run (the plan made ahead included), asserting every agent arrives
+/// without conflict.
 fn measure(inst: &Instance, config: WorldConfig) -> (f64, f64) {
     let t0 = Instant::now();
-    let r = run(inst, config, 5000);
+    let r = run_prepared(inst, config, 5000);
     let ms = t0.elapsed().as_secs_f64() * 1e3;
     assert!(
         r.world.all_arrived(),
@@ -93,10 +98,13 @@ fn measure(inst: &Instance, config: WorldConfig) -> (f64, f64) {
     (checked(inst, &r.world).ratio, ms)
 }
 
-/// The resolver's own time per tick (µs: mean, median, largest over the run; intents built
-/// outside the clock).
-fn per_tick_us(inst: &Instance, config: WorldConfig) -> (f64, f64, f64) {
+/// The time [`World::prepare`] takes (ms), and the resolver's own time per tick after it (µs:
+/// mean, median, largest over the run; intents built outside the clock).
+fn per_tick_us(inst: &Instance, config: WorldConfig) -> (f64, (f64, f64, f64)) {
+    let t0 = Instant::now();
     let mut w = World::new(inst, config);
+    w.prepare();
+    let prepare_ms = t0.elapsed().as_secs_f64() * 1e3;
     let mut intents = vec![None; inst.agents()];
     let mut spent = Vec::new();
     while w.tick() < 5000 && !w.all_arrived() {
@@ -108,7 +116,8 @@ fn per_tick_us(inst: &Instance, config: WorldConfig) -> (f64, f64, f64) {
     let mean = spent.iter().sum::<f64>() / spent.len().max(1) as f64;
     spent.sort_by(f64::total_cmp);
     let median = spent.get(spent.len() / 2).copied().unwrap_or(0.0);
-    (mean, median, spent.last().copied().unwrap_or(0.0))
+    let largest = spent.last().copied().unwrap_or(0.0);
+    (prepare_ms, (mean, median, largest))
 }
 
 fn mean(v: &[f64]) -> f64 {
@@ -119,20 +128,30 @@ fn worst(v: &[f64]) -> f64 {
     v.iter().cloned().fold(0.0, f64::max)
 }
 
-/// One row over several seeds after the `lead` columns: mapf's mean (worst), ms mean, plain
-/// PIBT's mean (worst).
-fn row(lead: &str, insts: &[Instance], plan: WorldConfig, pibt: WorldConfig) {
-    let (mut rs, mut ps, mut ms) = (Vec::new(), Vec::new(), Vec::new());
+/// The three configurations every row compares.
+struct Configs {
+    plan: WorldConfig,
+    before: WorldConfig,
+    pibt: WorldConfig,
+}
+
+/// One row over several seeds after the `lead` columns: mapf's mean (worst), before's mean
+/// (worst), mapf's ms mean, plain PIBT's mean (worst).
+fn row(lead: &str, insts: &[Instance], c: &Configs) {
+    let (mut rs, mut bs, mut ps, mut ms) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for inst in insts {
-        let (r, t) = measure(inst, plan);
+        let (r, t) = measure(inst, c.plan);
         rs.push(r);
         ms.push(t);
-        ps.push(measure(inst, pibt).0);
+        bs.push(measure(inst, c.before).0);
+        ps.push(measure(inst, c.pibt).0);
     }
     println!(
-        "| {lead} | {:.3} ({:.3}) | {:.0} | {:.3} ({:.3}) |",
+        "| {lead} | {:.3} ({:.3}) | {:.3} ({:.3}) | {:.0} | {:.3} ({:.3}) |",
         mean(&rs),
         worst(&rs),
+        mean(&bs),
+        worst(&bs),
         mean(&ms),
         mean(&ps),
         worst(&ps)
@@ -166,25 +185,35 @@ fn ratios() {
         free_first: true,
         ..WorldConfig::default()
     };
+    // the resolver before the plan made ahead was refined further
+    let before = WorldConfig {
+        prepare_refine: 0,
+        refine_adaptive: false,
+        ..WorldConfig::default()
+    };
+    let c = Configs { plan, before, pibt };
     let load = |f: &str| load_map(dir.join(f).to_str().unwrap()).unwrap();
     println!("TUNING: random-32-32-10, first N agents of random-1");
-    println!("| N | LB | mapf SoC/LB | ms | plain PIBT, same intents |");
-    println!("|---:|---:|---:|---:|---:|");
+    println!("| N | LB | mapf SoC/LB | before | ms | plain PIBT, same intents |");
+    println!("|---:|---:|---:|---:|---:|---:|");
     let map = load("random-32-32-10.map");
     let scen = load_scen(&dir.join("random-32-32-10-random-1.scen")).unwrap();
     for n in [8, 16, 32, 64, 128] {
         let inst = Instance::from_scen(&map, &scen, n).unwrap();
         let (r, ms) = measure(&inst, plan);
+        let (b, _) = measure(&inst, before);
         let (p, _) = measure(&inst, pibt);
         println!(
-            "| {n} | {} | {r:.3} | {ms:.0} | {p:.3} |",
+            "| {n} | {} | {r:.3} | {b:.3} | {ms:.0} | {p:.3} |",
             inst.lower_bound()
         );
     }
     println!();
     println!("TUNING: random start/goal pairs, seeds 1, 2 (mean and worst)");
-    println!("| map | N | mapf SoC/LB mean (worst) | ms mean | plain PIBT mean (worst) |");
-    println!("|---|---:|---:|---:|---:|");
+    println!(
+        "| map | N | mapf SoC/LB mean (worst) | before mean (worst) | ms mean | plain PIBT mean (worst) |"
+    );
+    println!("|---|---:|---:|---:|---:|---:|");
     let mut tuning = vec![(
         "random-64-64-10".to_owned(),
         load("random-64-64-10.map").grid,
@@ -193,13 +222,15 @@ fn ratios() {
     for (name, grid) in &tuning {
         for n in [16, 48] {
             let insts: Vec<_> = (1..=2).map(|s| random_instance(grid, n, s)).collect();
-            row(&format!("{name} | {n}"), &insts, plan, pibt);
+            row(&format!("{name} | {n}"), &insts, &c);
         }
     }
     println!();
     println!("HELD OUT: random start/goal pairs, new seeds 3, 4, 5 | old seeds 1, 2");
-    println!("| map | N | seeds | mapf SoC/LB mean (worst) | ms mean | plain PIBT mean (worst) |");
-    println!("|---|---:|---|---:|---:|---:|");
+    println!(
+        "| map | N | seeds | mapf SoC/LB mean (worst) | before mean (worst) | ms mean | plain PIBT mean (worst) |"
+    );
+    println!("|---|---:|---|---:|---:|---:|---:|");
     for file in [
         "room-32-32-4.map",
         "maze-32-32-2.map",
@@ -211,20 +242,32 @@ fn ratios() {
         for n in [16, 48] {
             for (label, seeds) in [("3, 4, 5", 3..=5u64), ("1, 2", 1..=2u64)] {
                 let insts: Vec<_> = seeds.map(|s| random_instance(&grid, n, s)).collect();
-                row(&format!("{name} | {n} | {label}"), &insts, plan, pibt);
+                row(&format!("{name} | {n} | {label}"), &insts, &c);
             }
         }
     }
     println!();
-    println!("resolve time per tick, tuning instance (µs: mean / median / largest over the run)");
-    println!("| N | mapf | plain PIBT |");
-    println!("|---:|---:|---:|");
+    println!(
+        "World::prepare (ms) and resolve time per tick after it, tuning instance (µs: mean / \
+         median / largest over the run)"
+    );
+    println!("| N | mapf prepare | mapf tick | before prepare | before tick | plain PIBT tick |");
+    println!("|---:|---:|---:|---:|---:|---:|");
     for n in [64, 128] {
         let inst = Instance::from_scen(&map, &scen, n).unwrap();
-        let (a, b) = (per_tick_us(&inst, plan), per_tick_us(&inst, pibt));
+        let us = |t: (f64, f64, f64)| format!("{:.0} / {:.0} / {:.0}", t.0, t.1, t.2);
+        let (a, b, p) = (
+            per_tick_us(&inst, plan),
+            per_tick_us(&inst, before),
+            per_tick_us(&inst, pibt),
+        );
         println!(
-            "| {n} | {:.0} / {:.0} / {:.0} | {:.0} / {:.0} / {:.0} |",
-            a.0, a.1, a.2, b.0, b.1, b.2
+            "| {n} | {:.0} | {} | {:.0} | {} | {} |",
+            a.0,
+            us(a.1),
+            b.0,
+            us(b.1),
+            us(p.1)
         );
     }
 }

@@ -268,8 +268,8 @@ fn a_search_out_of_budget_reports_stalled_and_backs_off() {
 }
 
 /// A world whose first plan was made ahead ([`World::prepare`], what the coordinator does while
-/// the robots learn) moves exactly as one that makes it at its first step, and does not plan
-/// again at that step.
+/// the robots learn) without the extra refinement moves exactly as one that makes it at its
+/// first step, and does not plan again at that step.
 #[test]
 fn a_plan_made_ahead_is_the_one_the_first_step_would_make() {
     let map = ".....\n.#.#.\n.....\n.#.#.\n.....\n";
@@ -278,8 +278,12 @@ fn a_plan_made_ahead_is_the_one_the_first_step_would_make() {
         [c(4, 4), c(0, 4), c(4, 0), c(0, 0), c(2, 0)],
     );
     let i = inst(map, &s, &g);
-    let lazy = run(&i, WorldConfig::default(), 100);
-    let mut w = World::new(&i, WorldConfig::default());
+    let config = WorldConfig {
+        prepare_refine: 0,
+        ..WorldConfig::default()
+    };
+    let lazy = run(&i, config, 100);
+    let mut w = World::new(&i, config);
     w.prepare();
     assert_eq!(w.replans(), 1);
     w.prepare();
@@ -295,4 +299,55 @@ fn a_plan_made_ahead_is_the_one_the_first_step_would_make() {
     assert!(w.all_arrived());
     assert_eq!(w.paths(), lazy.world.paths());
     checked(&i, &w);
+}
+
+/// The refinement a plan made ahead gets ([`WorldConfig::prepare_refine`]) never makes it
+/// costlier, is deterministic (expansions, not a clock), and the fleet follows it to the goals.
+#[test]
+fn a_plan_made_ahead_is_refined_deterministically_and_never_costlier() {
+    // a 12x12 room with a wall across the middle (two doors) and 20 agents crossing it
+    let mut map = String::new();
+    for y in 0..12 {
+        for x in 0..12 {
+            map.push(if y == 6 && x != 3 && x != 8 { '#' } else { '.' });
+        }
+        map.push('\n');
+    }
+    let starts: Vec<Cell> = (0..20).map(|k| c(k % 12, k / 12)).collect();
+    let goals: Vec<Cell> = (0..20).map(|k| c(11 - k % 12, 11 - k / 12)).collect();
+    let i = inst(&map, &starts, &goals);
+    let made = |prepare_refine| {
+        let mut w = World::new(
+            &i,
+            WorldConfig {
+                prepare_refine,
+                ..WorldConfig::default()
+            },
+        );
+        w.prepare();
+        w
+    };
+    let (plain, refined) = (made(0), made(200_000));
+    let (p, r) = (
+        plain.planned_cost().unwrap(),
+        refined.planned_cost().unwrap(),
+    );
+    assert_eq!((p.1, r.1), (0, 0), "every agent routed");
+    assert!(r.0 <= p.0, "refined {r:?} > {p:?}");
+    assert!(r.0 >= i.lower_bound());
+    let again = made(200_000);
+    assert_eq!(again.planned_cost(), refined.planned_cost());
+    let runs: Vec<_> = [refined, again]
+        .into_iter()
+        .map(|w| common::run_world(&i, w, 300))
+        .collect();
+    assert!(runs[0].world.all_arrived());
+    assert_eq!(runs[0].world.paths(), runs[1].world.paths());
+    let costs = checked(&i, &runs[0].world);
+    assert!(
+        costs.soc <= r.0,
+        "the run costs {} > the plan's {}",
+        costs.soc,
+        r.0
+    );
 }

@@ -47,7 +47,19 @@ pub struct Run {
 
 /// Steps a world with greedy intents until all arrive, it is unsolvable, or `max_ticks`.
 pub fn run(inst: &Instance, config: WorldConfig, max_ticks: u32) -> Run {
+    run_world(inst, World::new(inst, config), max_ticks)
+}
+
+/// [`run`] from a world made ahead (a coordinator's: [`World::prepare`] ran while the robots
+/// learned).
+pub fn run_prepared(inst: &Instance, config: WorldConfig, max_ticks: u32) -> Run {
     let mut w = World::new(inst, config);
+    w.prepare();
+    run_world(inst, w, max_ticks)
+}
+
+/// Steps `w` with greedy intents until all arrive, it is unsolvable, or `max_ticks`.
+pub fn run_world(inst: &Instance, mut w: World, max_ticks: u32) -> Run {
     let mut intents = vec![None; inst.agents()];
     let mut last = Status::Running;
     while w.tick() < max_ticks && !w.all_arrived() {
