@@ -33,7 +33,8 @@
 //! are replanned; kept only if cheaper): [`WorldConfig::plan_refine`] A* expansions when the
 //! plan is made and [`WorldConfig::refine_tick`] on every tick it is followed; the first plan,
 //! made ahead by [`World::prepare`] before the first tick, gets [`WorldConfig::prepare_refine`]
-//! more (the neighbourhoods are chosen adaptively, [`WorldConfig::refine_adaptive`]). The plan
+//! more (the neighbourhoods are chosen adaptively, [`WorldConfig::refine_adaptive`], except on
+//! ticks: [`WorldConfig::refine_tick_adaptive`]). The plan
 //! may step an agent away from its goal (a detour, [`WorldConfig::plan_detours`]) when waiting
 //! for its way to clear would cost more. The plan changes the candidate order in these ways only:
 //!
@@ -133,6 +134,10 @@ pub struct WorldConfig {
     /// way, a junction's agents and random agents (MAPF-LNS's adaptive LNS), else always the
     /// delayed agent's way.
     pub refine_adaptive: bool,
+    /// Whether a tick's refinement (`refine_tick`) chooses adaptively too; else it works on the
+    /// delayed agent's way alone, which often finds nothing to do and ends early, so a tick
+    /// costs less.
+    pub refine_tick_adaptive: bool,
     /// Whether, among candidates equally near the goal, cells nobody stands on come first (as
     /// PIBT's reference implementation breaks ties). Off by default: with the look-ahead it
     /// measured slightly worse on the tuning instance; it helps plain PIBT a lot.
@@ -162,6 +167,7 @@ impl Default for WorldConfig {
             refine_nodes: 4_000,
             prepare_refine: 1_000_000,
             refine_adaptive: true,
+            refine_tick_adaptive: false,
             free_first: false,
             record: true,
             seed: 0x9e37_79b9_7f4a_7c15,
@@ -474,10 +480,12 @@ impl World {
             self.replan();
         } else if !following && self.plan_valid && self.config.refine_tick > 0 {
             // every agent is on the plan: improve the rest of it a little
+            self.planner.adaptive = self.config.refine_adaptive && self.config.refine_tick_adaptive;
             self.refine(
                 (self.tick - self.plan_tick) as usize,
                 self.config.refine_tick,
             );
+            self.planner.adaptive = self.config.refine_adaptive;
         }
         // candidates (they look at who stands where)
         self.pibt.begin(&self.pos);
