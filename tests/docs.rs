@@ -382,7 +382,8 @@ fn lex(line: &str) -> Vec<Tok> {
     while i < chars.len() {
         let c = chars[i];
         match c {
-            ' ' | '\t' => {
+            // a block's lines are read joined by newlines: a newline ends a word too
+            ' ' | '\t' | '\n' | '\r' => {
                 flush(&mut word, &mut in_word, &mut toks);
                 i += 1;
             }
@@ -922,6 +923,9 @@ fn the_readers_of_markdown_and_shell_read_what_the_docs_write() {
     );
     assert_eq!(words("qfleet clean | head -2"), [vec!["clean".to_string()]]);
     assert!(words("qfleet-coordinator --plan p.json").is_empty());
+    // a loop on the block's second line binds too (its lines are joined by newlines)
+    let vars = bindings("cargo build\nfor l in a b; do\n  qfleet bench --only $l\ndone");
+    assert_eq!(vars.get("l").map(String::as_str), Some("a"));
     let vars = bindings("for s in $(seq 1 20); do qfleet learn --seed $s; done");
     match verdict(
         &["learn".into(), "--seed".into(), "$s".into()],
