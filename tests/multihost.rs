@@ -855,7 +855,11 @@ fn a_stranger_on_the_network_reads_nothing_forges_nothing_and_takes_no_slot() {
         &secret,
         // twice LONG's episodes: the insider replays and forges after ~8 s of probing, and
         // under load LONG's run had ended by then (nothing left to forge against)
-        &[&LONG[..4], &["--episodes", "40000", "--pace", "200000", "--json"]].concat(),
+        &[
+            &LONG[..4],
+            &["--episodes", "40000", "--pace", "200000", "--json"],
+        ]
+        .concat(),
     );
     // the stranger first: its joins, floods and idle connections come before the real host's
     std::thread::sleep(Duration::from_millis(1500));
