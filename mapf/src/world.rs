@@ -480,12 +480,12 @@ impl World {
             self.replan();
         } else if !following && self.plan_valid && self.config.refine_tick > 0 {
             // every agent is on the plan: improve the rest of it a little
-            self.planner.adaptive = self.config.refine_adaptive && self.config.refine_tick_adaptive;
+            let adaptive = self.config.refine_adaptive && self.config.refine_tick_adaptive;
             self.refine(
                 (self.tick - self.plan_tick) as usize,
                 self.config.refine_tick,
+                adaptive,
             );
-            self.planner.adaptive = self.config.refine_adaptive;
         }
         // candidates (they look at who stands where)
         self.pibt.begin(&self.pos);
@@ -768,7 +768,7 @@ impl World {
         if self.config.plan_ahead && !self.plan_valid && self.following.is_empty() {
             self.replan();
             if self.config.prepare_refine > 0 {
-                self.refine(0, self.config.prepare_refine);
+                self.refine(0, self.config.prepare_refine, self.config.refine_adaptive);
             }
         }
     }
@@ -802,7 +802,7 @@ impl World {
             self.planner.restore();
         }
         if self.config.plan_refine > 0 {
-            self.refine(0, self.config.plan_refine);
+            self.refine(0, self.config.plan_refine, self.config.refine_adaptive);
         }
         self.plan_tick = self.tick;
         self.plan_valid = true;
@@ -827,9 +827,11 @@ impl World {
         (&mut self.planner, &self.order, fleet)
     }
 
-    /// Improves the plan from its time index `t0` on, spending about `budget` A* expansions.
-    fn refine(&mut self, t0: usize, budget: u64) {
+    /// Improves the plan from its time index `t0` on, spending about `budget` A* expansions,
+    /// choosing neighbourhoods adaptively if `adaptive`.
+    fn refine(&mut self, t0: usize, budget: u64, adaptive: bool) {
         let nodes = self.config.refine_nodes;
+        self.planner.adaptive = adaptive;
         let (planner, _, fleet) = self.planning();
         planner.refine(t0, &fleet, nodes, budget);
     }
