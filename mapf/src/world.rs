@@ -126,10 +126,15 @@ pub struct WorldConfig {
     pub refine_tick: u64,
     /// A* expansions one agent's search may spend while improving a plan.
     pub refine_nodes: u32,
-    /// A* expansions [`World::prepare`] spends improving the first plan on top of
+    /// A* expansions [`World::prepare`] spends at least improving the first plan on top of
     /// `plan_refine` (it runs before the execution, while the robots learn, so it may spend
     /// far more than a tick).
     pub prepare_refine: u64,
+    /// A* expansions [`World::prepare`] may spend at most: past `prepare_refine` it goes on
+    /// in rounds of `prepare_refine` while the last round lowered the plan's cost and the
+    /// plan is above the lower bound (so an easy instance stops at the minimum, a hard one
+    /// keeps improving while it gains).
+    pub prepare_refine_max: u64,
     /// Whether the refinement chooses its neighbourhoods adaptively among the delayed agent's
     /// way, a junction's agents and random agents (MAPF-LNS's adaptive LNS), else always the
     /// delayed agent's way.
@@ -166,6 +171,7 @@ impl Default for WorldConfig {
             refine_tick: 2_000,
             refine_nodes: 4_000,
             prepare_refine: 1_000_000,
+            prepare_refine_max: 16_000_000,
             refine_adaptive: true,
             refine_tick_adaptive: false,
             free_first: false,
@@ -758,17 +764,39 @@ impl World {
     }
 
     /// Makes the look-ahead plan for the current configuration now, if one is kept and none
-    /// is valid (what the next [`World::step`] would do first), and improves it with
-    /// [`WorldConfig::prepare_refine`] more A* expansions of large neighbourhood search: a
-    /// coordinator calls it while the robots are still learning, so the first tick does not
-    /// wait for it and the plan the fleet starts on is better than a tick could afford. Its
-    /// work is bounded by A* expansion budgets (`plan_total`, `plan_refine`,
-    /// `prepare_refine`), never by a clock: the plan it makes is deterministic.
-    pub fn prepare(&mut self) {
-        if self.config.plan_ahead && !self.plan_valid && self.following.is_empty() {
-            self.replan();
-            if self.config.prepare_refine > 0 {
-                self.refine(0, self.config.prepare_refine, self.config.refine_adaptive);
+    /// is valid (what the next [`World::step`] would do first), and improves it by large
+    /// neighbourhood search: [`WorldConfig::prepare_refine`] A* expansions, then more rounds
+    /// of as many while the last one lowered the plan's cost and the plan is above the lower
+    /// bound, up to [`WorldConfig::prepare_refine_max`]. A coordinator calls it while the
+    /// robots are still learning, so the first tick does not wait for it and the plan the
+    /// fleet starts on is better than a tick could afford. Its work is bounded by A*
+    /// expansion budgets, never by a clock: the plan it makes is deterministic. Returns the
+    /// expansions the refinement spent.
+    pub fn prepare(&mut self) -> u64 {
+        if !(self.config.plan_ahead && !self.plan_valid && self.following.is_empty()) {
+            return 0;
+        }
+        self.replan();
+        let round = self.config.prepare_refine;
+        if round == 0 {
+            return 0;
+        }
+        let bound: u64 = (0..self.pos.len())
+            .filter(|&i| self.pos[i] != NIL && !self.hung[i])
+            .map(|i| u64::from(self.dist[i][self.pos[i] as usize]))
+            .sum();
+        let mut spent = 0u64;
+        let mut cost = self.plan_cost();
+        loop {
+            spent += self.refine(0, round, self.config.refine_adaptive);
+            let now = self.plan_cost();
+            let gained = now < cost;
+            cost = now;
+            if !gained
+                || (cost.0 == 0 && cost.1 <= bound)
+                || spent.saturating_add(round) > self.config.prepare_refine_max
+            {
+                return spent;
             }
         }
     }
@@ -828,12 +856,12 @@ impl World {
     }
 
     /// Improves the plan from its time index `t0` on, spending about `budget` A* expansions,
-    /// choosing neighbourhoods adaptively if `adaptive`.
-    fn refine(&mut self, t0: usize, budget: u64, adaptive: bool) {
+    /// choosing neighbourhoods adaptively if `adaptive`; returns the expansions spent.
+    fn refine(&mut self, t0: usize, budget: u64, adaptive: bool) -> u64 {
         let nodes = self.config.refine_nodes;
         self.planner.adaptive = adaptive;
         let (planner, _, fleet) = self.planning();
-        planner.refine(t0, &fleet, nodes, budget);
+        planner.refine(t0, &fleet, nodes, budget)
     }
 
     /// Plans every agent in priority order number `r`: agents the previous plan could not

@@ -351,3 +351,60 @@ fn a_plan_made_ahead_is_refined_deterministically_and_never_costlier() {
         r.0
     );
 }
+
+/// The plan made ahead keeps refining in rounds only while a round lowers its cost: a fleet
+/// already planned at the lower bound stops after the first round; a crowded one never spends
+/// more than [`WorldConfig::prepare_refine_max`], ends no costlier than after one round, and
+/// spends the same on every run (expansions, not a clock).
+#[test]
+fn a_plan_made_ahead_refines_in_rounds_while_it_gains_and_within_its_cap() {
+    // two agents that never meet: planned at the lower bound at once
+    let open = ".....\n.....\n.....\n";
+    let easy = inst(open, &[c(0, 0), c(0, 2)], &[c(4, 0), c(4, 2)]);
+    let round = 10_000;
+    let config = WorldConfig {
+        prepare_refine: round,
+        prepare_refine_max: 100 * round,
+        ..WorldConfig::default()
+    };
+    let mut w = World::new(&easy, config);
+    let spent = w.prepare();
+    assert!(
+        spent <= round + 64,
+        "an instance at its bound spent {spent}"
+    );
+    assert_eq!(w.planned_cost(), Some((easy.lower_bound(), 0)));
+
+    // 20 agents crossing a wall with two doors
+    let mut map = String::new();
+    for y in 0..12 {
+        for x in 0..12 {
+            map.push(if y == 6 && x != 3 && x != 8 { '#' } else { '.' });
+        }
+        map.push('\n');
+    }
+    let starts: Vec<Cell> = (0..20).map(|k| c(k % 12, k / 12)).collect();
+    let goals: Vec<Cell> = (0..20).map(|k| c(11 - k % 12, 11 - k / 12)).collect();
+    let crowded = inst(&map, &starts, &goals);
+    let capped = |max| {
+        let mut w = World::new(
+            &crowded,
+            WorldConfig {
+                prepare_refine: round,
+                prepare_refine_max: max,
+                ..WorldConfig::default()
+            },
+        );
+        let spent = w.prepare();
+        (spent, w.planned_cost().unwrap())
+    };
+    let (one, one_cost) = capped(round);
+    let (many, many_cost) = capped(100 * round);
+    // a round may overshoot its budget by the one search it ends in
+    let slack = u64::from(WorldConfig::default().refine_nodes) + 64;
+    assert!(one <= round + slack, "a cap of one round spent {one}");
+    assert!(many <= 100 * round + slack, "spent {many} over its cap");
+    assert!(many_cost.0 <= one_cost.0, "{many_cost:?} > {one_cost:?}");
+    assert!(many_cost.0 >= crowded.lower_bound());
+    assert_eq!(capped(100 * round), (many, many_cost), "deterministic");
+}
