@@ -335,9 +335,9 @@ impl Round {
 }
 
 /// The world of `plan` with its first look-ahead plan made and refined ([`World::prepare`]:
-/// `WorldConfig::prepare_refine` A* expansions of large neighbourhood search on top of the
-/// plan a tick would make; about 0.2–0.4 s at 128 robots on random-32-32-10 in a release
-/// build, see `mapf/README.md`). The coordinator makes it while the robots learn
+/// rounds of `WorldConfig::prepare_refine` A* expansions of large neighbourhood search on top
+/// of the plan a tick would make, while a round gains, up to `prepare_refine_max`; one round
+/// is about 0.2 s at 128 robots on random-32-32-10 in a release build, see `mapf/README.md`). The coordinator makes it while the robots learn
 /// ([`prepare_while`]).
 pub(crate) fn prepare(plan: &GridPlan) -> World {
     let mut world = World::new(&plan.instance, WorldConfig::default());
