@@ -15,9 +15,11 @@
 //!    With an intent horizon (`--intent-horizon H`, carried in `Execute`'s `episodes`), a robot
 //!    answers with an `IntentHorizon` instead: its rankings for every cell it may reach within
 //!    `r` ticks ([`accept_horizon`], kept in [`Horizons`]). Every tick the horizon still
-//!    answers, at the cell the robot stands on, is taken from there without asking; the grant
-//!    wakes the robots only when some robot on the grid has to answer anew (robots align their
-//!    horizons, so that is once per `H + 1` ticks) and at the end.
+//!    answers ([`Coverage::answers`]), at the cell the robot stands on, is taken from there
+//!    without asking; the grant wakes the robots only when some robot on the grid has to
+//!    answer anew (robots align their horizons, so that is at most once per `H + 1` ticks) and
+//!    at the end. Only robots that moved off the center of their last full horizon answer
+//!    then: one parked on its goal or queued behind another keeps its horizon.
 //! 3. When every robot on the grid answered, or the rest are past the heartbeat deadline
 //!    (`--hang-ms`; they are *hung*: obstacles that wait and are never pushed, not waited for
 //!    again until they answer), resolve the tick with [`mapf::World`] (PIBT on the intents, a
@@ -153,11 +155,12 @@ pub fn accept(
 /// `diamond_len(radius)` entries).
 ///
 /// A horizon answers the tick being collected if it was made for it (its center must then be
-/// the robot's cell), or for an earlier tick it still covers with the robot inside its
-/// diamond (a robot that answered late); one that no longer covers it is late
+/// the robot's cell), or for an earlier tick it still answers on the fleet's horizon `h`
+/// ([`Coverage::answers`]: a robot that answered late); one that no longer answers it is late
 /// (`Reject::Tick` with `got < want`), one for a tick not granted yet is refused.
 pub fn accept_horizon(
     m: &IntentHorizon,
+    h: u8,
     tick: u32,
     positions: &[Option<Cell>],
     out: &mut [mapf::Intent; HORIZON_CELLS],
@@ -190,7 +193,7 @@ pub fn accept_horizon(
             got: center,
         });
     }
-    if !cov.covers(tick, at) {
+    if cov.answers(h, tick, at).is_none() {
         // made for an earlier tick it no longer answers: late, not wrong
         return Err(Reject::Tick {
             want: tick,
@@ -211,6 +214,8 @@ pub fn accept_horizon(
 /// once, a tick allocates nothing).
 #[derive(Debug, Clone)]
 pub struct Horizons {
+    /// The fleet's horizon (`Execute`'s), which decides how long a horizon answers.
+    h: u8,
     cover: Vec<Option<Coverage>>,
     ranks: Vec<[mapf::Intent; HORIZON_CELLS]>,
     /// Where [`accept_horizon`] unpacks before the horizon is kept.
@@ -218,9 +223,10 @@ pub struct Horizons {
 }
 
 impl Horizons {
-    /// Room for `robots` robots, none with a horizon.
-    pub fn new(robots: usize) -> Self {
+    /// Room for `robots` robots on the fleet's horizon `h`, none with a horizon yet.
+    pub fn new(robots: usize, h: u8) -> Self {
         Horizons {
+            h,
             cover: vec![None; robots],
             ranks: vec![[mapf::Intent::NONE; HORIZON_CELLS]; robots],
             scratch: [mapf::Intent::NONE; HORIZON_CELLS],
@@ -242,10 +248,11 @@ impl Horizons {
         }
     }
 
-    /// Robot `id`'s ranking for `tick` standing on `cell`, if its horizon answers it.
+    /// Robot `id`'s ranking for `tick` standing on `cell`, if its horizon answers it
+    /// ([`Coverage::answers`]).
     pub fn intent_at(&self, id: usize, tick: u32, cell: Cell) -> Option<mapf::Intent> {
         let cov = (*self.cover.get(id)?)?;
-        let i = cov.index(tick, cell)?;
+        let i = cov.answers(self.h, tick, cell)?;
         Some(self.ranks[id][i])
     }
 }
@@ -406,11 +413,12 @@ pub(crate) fn execute(
         plan.max_ticks
     );
     // `episodes` carries the horizon asked for (a robot that knows none answers every tick)
+    let h = plan.horizon.min(HORIZON_RADIUS_CAP);
     let mut go = bus::control(Command::Execute, ROBOT_ID_ALL);
-    go.episodes = u32::from(plan.horizon.min(HORIZON_RADIUS_CAP));
+    go.episodes = u32::from(h);
     tolerate(bus.send_control(go))?;
     let mut round = Round::new(n);
-    let mut horizons = Horizons::new(n);
+    let mut horizons = Horizons::new(n, h);
     let mut wakes = 0u64;
     let mut tick_hist = new_hist();
     let mut intent_hist = new_hist();
@@ -578,7 +586,13 @@ fn collect(
             *rejected += 1;
             continue;
         }
-        match accept_horizon(m, tick, world.positions(), &mut horizons.scratch) {
+        match accept_horizon(
+            m,
+            horizons.h,
+            tick,
+            world.positions(),
+            &mut horizons.scratch,
+        ) {
             Ok((id, cov)) => {
                 horizons.keep(id, cov);
                 if let Some(at) = world.positions()[id]
@@ -868,66 +882,72 @@ mod tests {
     fn a_horizon_answers_the_ticks_and_cells_it_covers_and_nothing_else() {
         let at = Cell::new(3, 3);
         let pos = [Some(at), None];
-        let mut h = Horizons::new(2);
+        // the fleet's horizon 2: periods of 3 ticks (3..=5, 6..=8)
+        let mut h = Horizons::new(2, 2);
         let right = [Move::Right, Move::Wait];
-        // made for this tick
+        // made for this tick, at a period's start
         let (id, cov) =
-            accept_horizon(&horizon(0, 5, at, 2, &right), 5, &pos, &mut h.scratch).unwrap();
-        assert_eq!((id, cov.until()), (0, 7));
+            accept_horizon(&horizon(0, 3, at, 2, &right), 2, 3, &pos, &mut h.scratch).unwrap();
+        assert_eq!((id, cov.until()), (0, 5));
         h.keep(id, cov);
         let want = mapf::Intent::new(&right).unwrap();
-        assert_eq!(h.intent_at(0, 5, at), Some(want));
-        assert_eq!(h.intent_at(0, 7, Cell::new(5, 3)), Some(want));
+        assert_eq!(h.intent_at(0, 3, at), Some(want));
+        assert_eq!(h.intent_at(0, 5, Cell::new(5, 3)), Some(want));
         assert_eq!(
-            h.intent_at(0, 8, at),
+            h.intent_at(0, 6, Cell::new(4, 3)),
             None,
-            "used up: the robot answers anew"
+            "used up by a robot that moved: it answers anew"
         );
         assert_eq!(
-            h.intent_at(0, 6, Cell::new(5, 4)),
+            h.intent_at(0, 6, at),
+            Some(want),
+            "kept by a robot that did not move"
+        );
+        assert_eq!(
+            h.intent_at(0, 4, Cell::new(5, 4)),
             None,
             "outside its diamond"
         );
-        // made for an earlier tick it still covers (a robot that answered late)
+        // made for an earlier tick it still answers (a robot that answered late)
         let s = &mut h.scratch;
-        assert!(accept_horizon(&horizon(0, 4, at, 2, &right), 6, &pos, s).is_ok());
-        // late: no longer covers the tick; not an error
+        assert!(accept_horizon(&horizon(0, 3, at, 2, &right), 2, 4, &pos, s).is_ok());
+        // late: no longer answers the tick; not an error
         assert_eq!(
-            accept_horizon(&horizon(0, 2, at, 2, &right), 5, &pos, s),
-            Err(Reject::Tick { want: 5, got: 2 })
+            accept_horizon(&horizon(0, 1, at, 1, &right), 2, 6, &pos, s),
+            Err(Reject::Tick { want: 6, got: 1 })
         );
         // a tick not granted yet, a center that is not the robot's cell
         assert_eq!(
-            accept_horizon(&horizon(0, 6, at, 2, &right), 5, &pos, s),
+            accept_horizon(&horizon(0, 6, at, 2, &right), 2, 5, &pos, s),
             Err(Reject::Tick { want: 5, got: 6 })
         );
         assert!(matches!(
-            accept_horizon(&horizon(0, 5, Cell::new(3, 4), 2, &right), 5, &pos, s),
+            accept_horizon(&horizon(0, 5, Cell::new(3, 4), 2, &right), 2, 5, &pos, s),
             Err(Reject::Cell { .. })
         ));
         // the wire's capacity, rankings past the diamond, bad rankings, absent robots
         assert_eq!(
-            accept_horizon(&horizon(0, 5, at, 9, &right), 5, &pos, s),
+            accept_horizon(&horizon(0, 5, at, 9, &right), 2, 5, &pos, s),
             Err(Reject::Radius(9))
         );
         let mut tail = horizon(0, 5, at, 1, &right);
         tail.ranked[diamond_len(1)] = 1;
         assert_eq!(
-            accept_horizon(&tail, 5, &pos, s),
+            accept_horizon(&tail, 2, 5, &pos, s),
             Err(Reject::Tail(diamond_len(1)))
         );
         let mut bad = horizon(0, 5, at, 1, &right);
         bad.ranked[2] = 7;
         assert!(matches!(
-            accept_horizon(&bad, 5, &pos, s),
+            accept_horizon(&bad, 2, 5, &pos, s),
             Err(Reject::Moves(_))
         ));
         assert_eq!(
-            accept_horizon(&horizon(1, 5, at, 1, &right), 5, &pos, s),
+            accept_horizon(&horizon(1, 5, at, 1, &right), 2, 5, &pos, s),
             Err(Reject::Absent(1))
         );
         assert_eq!(
-            accept_horizon(&horizon(4, 5, at, 1, &right), 5, &pos, s),
+            accept_horizon(&horizon(4, 5, at, 1, &right), 2, 5, &pos, s),
             Err(Reject::Robot(4))
         );
         h.forget(0);

@@ -12,7 +12,9 @@
 //!   rank, best first from the low bits, 0 ends the ranking;
 //! - [`Coverage`]: which ticks and cells a horizon answers, and the radius a robot uses so that
 //!   every robot's horizon ends on the same tick ([`aligned_radius`]): the coordinator then
-//!   wakes the whole fleet once per `h + 1` ticks instead of every tick.
+//!   wakes the whole fleet once per `h + 1` ticks instead of every tick, and of the woken
+//!   robots only those that moved answer ([`Coverage::answers`]: a robot still on the center
+//!   of its last full horizon, parked on its goal or queued behind another, keeps it).
 
 use crate::moves::{Intent, IntentError, Move};
 use planner::Cell;
@@ -129,6 +131,30 @@ impl Coverage {
         self.index(tick, cell).is_some()
     }
 
+    /// The position of `cell` in the diamond if, in a fleet on horizon `h`, the horizon still
+    /// answers for a robot on `cell` at `tick`: its diamond holds every cell the robot can
+    /// reach (one move a tick) until the fleet's horizons end, `distance + aligned_radius(h,
+    /// tick) ≤ radius`. Rankings depend only on the cell, so a robot that has not moved off
+    /// the center of a full horizon keeps it into the next period and is not asked again; one
+    /// that moved answers with the fleet at the period's start, never in the middle of one (a
+    /// horizon that held at the start holds to its end). The robot (when to answer) and the
+    /// coordinator (when to wait for an answer) decide with this same rule. `h = 0` (one
+    /// intent a tick) is [`Coverage::index`]: its tick only.
+    pub fn answers(&self, h: u8, tick: u32, cell: Cell) -> Option<usize> {
+        if h == 0 {
+            return self.index(tick, cell);
+        }
+        if tick < self.from {
+            return None;
+        }
+        let dx = i32::from(cell.x) - i32::from(self.center.x);
+        let dy = i32::from(cell.y) - i32::from(self.center.y);
+        if dx.abs() + dy.abs() + i32::from(aligned_radius(h, tick)) > i32::from(self.radius) {
+            return None;
+        }
+        diamond_index(self.radius, dx, dy)
+    }
+
     /// The last tick it answers.
     pub fn until(&self) -> u32 {
         self.from.saturating_add(u32::from(self.radius))
@@ -202,6 +228,70 @@ mod tests {
             let end = t + u32::from(aligned_radius(h, t));
             assert_eq!((end + 1) % 5, 0, "tick {t}");
         }
+    }
+
+    #[test]
+    fn a_horizon_is_kept_by_a_robot_that_did_not_move_and_renewed_with_the_fleet_otherwise() {
+        let h = 2; // periods of 3 ticks: 0..=2, 3..=5, 6..=8
+        let at = Cell::new(5, 5);
+        let full = Coverage {
+            from: 3,
+            center: at,
+            radius: 2,
+        };
+        // inside its own period, as `index`
+        assert!(full.answers(h, 3, at).is_some());
+        assert!(full.answers(h, 4, Cell::new(6, 5)).is_some());
+        assert!(full.answers(h, 5, Cell::new(6, 6)).is_some());
+        assert_eq!(full.answers(h, 2, at), None, "before its tick");
+        assert_eq!(full.answers(h, 4, Cell::new(7, 6)), None, "outside");
+        // the next periods: kept on its center, renewed at the period's start once it moved
+        assert_eq!(full.answers(h, 6, at), full.index(3, at));
+        assert!(full.answers(h, 60, at).is_some());
+        assert_eq!(
+            full.answers(h, 6, Cell::new(6, 5)),
+            None,
+            "moved: answers anew"
+        );
+        // a horizon kept at a period's start holds to the period's end wherever the robot goes
+        for (tick, cell) in [
+            (7, Cell::new(6, 5)),
+            (8, Cell::new(7, 5)),
+            (8, Cell::new(5, 3)),
+        ] {
+            assert!(full.answers(h, tick, cell).is_some(), "{tick} {cell:?}");
+        }
+        // a late, short horizon (made mid-period) ends with its period
+        let late = Coverage {
+            from: 4,
+            center: at,
+            radius: aligned_radius(h, 4),
+        };
+        assert!(late.answers(h, 5, Cell::new(5, 6)).is_some());
+        assert_eq!(late.answers(h, 6, at), None, "a short horizon is renewed");
+        // every reachable cell of a period whose start kept the horizon stays answered
+        for start in [3u32, 6, 9] {
+            if full.answers(h, start, at).is_none() {
+                continue;
+            }
+            for k in 0..=u32::from(h) {
+                for dy in -(k as i32)..=(k as i32) {
+                    let w = k as i32 - dy.abs();
+                    for dx in [-w, w] {
+                        let c = offset_cell(at, dx, dy).unwrap();
+                        assert!(full.answers(h, start + k, c).is_some(), "{start}+{k} {c:?}");
+                    }
+                }
+            }
+        }
+        // horizon 0: its own tick only
+        let one = Coverage {
+            from: 4,
+            center: at,
+            radius: 0,
+        };
+        assert!(one.answers(0, 4, at).is_some());
+        assert_eq!(one.answers(0, 5, at), None);
     }
 
     #[test]

@@ -23,9 +23,12 @@
 //! ([`mapf::horizon::aligned_radius`]), so the coordinator resolves up to `r + 1` ticks without
 //! it and every robot's horizon runs out on the same tick. The coordinator wakes the robots
 //! only on the ticks where it needs answers; a robot reads the newest grant when woken (or
-//! every 10 ms) and answers only when that grant is past what its last horizon covers, in
-//! time or in space ([`Answering`]). Grants it does not answer still give its cell: it
-//! publishes it on `robot/state` as before.
+//! every 10 ms) and answers only when its last horizon no longer answers that grant
+//! ([`Answering`], by [`Coverage::answers`], the rule the coordinator waits by): a robot that
+//! has not moved off the center of its last full horizon (parked on its goal, queued behind
+//! another) keeps it and is not asked again; one that moved answers with the fleet at the
+//! start of a period. Grants it does not answer still give its cell: it publishes it on
+//! `robot/state` as before.
 //!
 //! Grants count only from the node whose `Ack` accepted this robot (its coordinator); others
 //! are dropped and counted (`grants_foreign`).
@@ -159,8 +162,9 @@ impl Ranker {
     }
 }
 
-/// When a robot answers a grant (IO-free): never answered, or the grant's tick or its cell
-/// is past what its last answer covered.
+/// When a robot answers a grant (IO-free): never answered, or its last answer no longer
+/// answers the grant's tick at its cell ([`Coverage::answers`], the rule the coordinator
+/// waits by).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Answering {
     horizon: u8,
@@ -182,9 +186,12 @@ impl Answering {
     }
 
     /// The radius to answer the grant of `tick` with, the robot standing on `cell`; `None`
-    /// while the last answer still covers it (nothing to send).
+    /// while the last answer still answers it (nothing to send).
     pub fn due(&self, tick: u32, cell: Cell) -> Option<u8> {
-        if self.last.is_some_and(|c| c.covers(tick, cell)) {
+        if self
+            .last
+            .is_some_and(|c| c.answers(self.horizon, tick, cell).is_some())
+        {
             return None;
         }
         Some(aligned_radius(self.horizon, tick))
@@ -373,13 +380,16 @@ mod tests {
         assert_eq!(
             a.due(4, Cell::new(8, 5)),
             Some(3),
-            "used up: the next period"
+            "moved: answers with the fleet in the next period"
         );
+        assert_eq!(a.due(4, at), None, "did not move: keeps its horizon");
+        assert_eq!(a.due(40, at), None);
         // a late answer (a robot that was slow) ends with the others' period
-        assert_eq!(a.due(6, at), Some(1));
-        a.answered(6, at, 1);
-        assert_eq!(a.due(7, Cell::new(7, 5)), Some(0), "left its diamond");
-        assert_eq!(a.due(8, at), Some(3));
+        let away = Cell::new(8, 5);
+        assert_eq!(a.due(6, away), Some(1));
+        a.answered(6, away, 1);
+        assert_eq!(a.due(7, Cell::new(10, 5)), Some(0), "left its diamond");
+        assert_eq!(a.due(8, away), Some(3), "a short horizon is renewed");
         // horizon 0: every tick
         let mut b = Answering::new(0);
         b.answered(4, at, 0);
