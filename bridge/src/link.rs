@@ -69,7 +69,8 @@ pub unsafe fn prefer_runtime_threads() {
 /// [`Secret::session_password`](crate::seal::Secret::session_password) derives from the join
 /// secret, so a stranger's TCP connection is closed at Zenoh's handshake: it never gets a
 /// session to subscribe, query or publish on, and cannot hold one of the session slots.
-/// Half-open connections are dropped after `accept_timeout` (1 s) as before.
+/// Before that, every connection passes the hub's front door ([`crate::relay::FrontDoor`]):
+/// per-source limits, and a connection silent for a second never reaches Zenoh.
 #[derive(Clone)]
 pub struct SessionAuth {
     password: String,
@@ -173,7 +174,8 @@ fn base_config(tuning: Tuning) -> Result<zenoh::Config, BridgeError> {
     set("adminspace/permissions/read", "false")?;
     // a connection that has not finished Zenoh's handshake within a second is dropped, and
     // enough may wait that a burst of half-open ones does not shut the real host out;
-    // sessions are capped (a run has at most a few hundred hosts)
+    // sessions are capped (a run has at most a few hundred hosts). On the hub these are the
+    // second line: its front door limits connections per source first (`crate::door`)
     set("transport/unicast/accept_timeout", "1000")?;
     set("transport/unicast/accept_pending", "1024")?;
     set("transport/unicast/max_sessions", "512")?;
