@@ -166,13 +166,16 @@ pub fn source_of(ip: IpAddr) -> IpAddr {
 }
 
 impl Gate {
-    /// A gate with `limits`, made consistent: every count at least 1, `tracked` more than
-    /// `global` (so the table always has an idle source to drop when it is full).
+    /// A gate with `limits`, made consistent: every count at least 1, the refill between 1 µs
+    /// and an hour (so no instant arithmetic can overflow), `tracked` more than `global` (so
+    /// the table always has an idle source to drop when it is full).
     pub fn new(limits: Limits) -> Gate {
         let mut l = limits;
         l.per_source = l.per_source.max(1);
         l.burst = l.burst.max(1);
-        l.refill_every = l.refill_every.max(Duration::from_micros(1));
+        l.refill_every = l
+            .refill_every
+            .clamp(Duration::from_micros(1), Duration::from_secs(3600));
         l.global = l.global.max(1);
         l.tracked = l.tracked.max(l.global as usize + 1);
         Gate {
@@ -228,7 +231,7 @@ impl Gate {
         if tat.duration_since(now) > tolerance {
             return Verdict::Refuse(Refusal::SourceRate);
         }
-        s.tat = tat + l.refill_every;
+        s.tat = tat.checked_add(l.refill_every).unwrap_or(tat);
         s.open += 1;
         self.open += 1;
         self.report.peak_sources = self.report.peak_sources.max(self.sources.len() as u64);
@@ -483,6 +486,15 @@ mod tests {
         let l = g.limits();
         assert_eq!((l.per_source, l.burst, l.global, l.tracked), (1, 1, 1, 2));
         assert!(!l.refill_every.is_zero());
+        // a refill too long to add to an instant is cut to an hour, never a panic
+        let mut g = Gate::new(Limits {
+            refill_every: Duration::MAX,
+            burst: u32::MAX,
+            ..Limits::default()
+        });
+        assert_eq!(g.limits().refill_every, Duration::from_secs(3600));
+        let t = Instant::now();
+        assert_eq!(g.admit(ip(1), t), Verdict::Admit);
     }
 
     #[test]
