@@ -138,6 +138,23 @@ impl TwoHosts {
         c
     }
 
+    /// Gives `host`'s end of the link one more address (`10.77.0.N/24`): a third party's
+    /// sockets bound to it come from another source than the host's own.
+    fn add_address(&self, host: Host, cidr: &str) {
+        let i = host as usize;
+        sh(&[
+            "ip",
+            "-n",
+            &self.ns[i],
+            "addr",
+            "add",
+            cidr,
+            "dev",
+            &self.veth[i],
+        ])
+        .unwrap_or_else(|e| panic!("{e}"));
+    }
+
     /// Sets host A's end of the link down or up.
     fn link(&self, up: bool) {
         let state = if up { "up" } else { "down" };
@@ -622,19 +639,22 @@ struct Stranger {
     idle_closed: u64,
     redials: u64,
     /// Zenoh sessions it opened to host A (its own and a flood of more), and how many of them
-    /// host A admitted as peers.
+    /// host A admitted as peers; of those, how many of the flood were admitted at once.
     sessions_opened: u64,
     sessions_admitted: u64,
+    flood_admitted: u64,
 }
 
-/// The stranger itself: does nothing unless `QFLEET_STRANGER=ENDPOINT;RUN_ID[;PASSWORD]` is set
-/// (then it is the copy of this test binary that the stranger test starts inside host B's
-/// namespace). A plain Zenoh peer on host A's endpoint, or, with `PASSWORD`, one that holds the
-/// run's Zenoh session password (as if it had leaked; the join secret it does not have): it
-/// opens a flood of sessions, subscribes to everything, asks the admin space who is there, asks
-/// to join without the secret (and floods the join key), and replays every frame it saw and
-/// forges goodbyes and heartbeats on the keys it saw; the one without the password also keeps a
-/// flood of half-open TCP connections going ([`redial_flood`]).
+/// The stranger itself: does nothing unless `QFLEET_STRANGER=ENDPOINT;RUN_ID;SOURCE[;PASSWORD]`
+/// is set (then it is the copy of this test binary that the stranger test starts inside host
+/// B's namespace; every socket it opens is bound to the address `SOURCE`, so host A sees it as
+/// a source of its own, not as host B). A plain Zenoh peer on host A's endpoint, or, with
+/// `PASSWORD`, one that holds the run's Zenoh session password (as if it had leaked; the join
+/// secret it does not have): it opens a flood of sessions, subscribes to everything, asks the
+/// admin space who is there, asks to join without the secret (and floods the join key), and
+/// replays every frame it saw and forges goodbyes and heartbeats on the keys it saw; the one
+/// without the password also keeps a flood of half-open TCP connections going
+/// ([`redial_flood`]).
 #[test]
 fn stranger_role() {
     use zenoh::Wait;
@@ -642,25 +662,31 @@ fn stranger_role() {
         return;
     };
     let mut parts = spec.split(';');
-    let (endpoint, run_id) = (
+    let (endpoint, run_id, source) = (
         parts.next().expect("ENDPOINT"),
         parts.next().expect("RUN_ID"),
+        parts.next().expect("SOURCE"),
     );
     let password = parts.next();
     let mut seen = Stranger::default();
     let addr = endpoint.trim_start_matches("tcp/");
+    let source: std::net::IpAddr = source.parse().expect("SOURCE is an address");
     // the connection flood is the stranger's (the insider reads and forges in time for the run)
     let stop_flood = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let flood_conns = password.is_none().then(|| {
         let (addr, stop) = (addr.to_string(), stop_flood.clone());
-        std::thread::spawn(move || redial_flood(&addr, &stop))
+        std::thread::spawn(move || redial_flood(source, &addr, &stop))
     });
     let mut c = zenoh::Config::default();
     for (k, v) in [
         ("mode", "\"peer\"".to_string()),
         ("scouting/multicast/enabled", "false".into()),
         ("listen/endpoints", "[]".into()),
-        ("connect/endpoints", format!("[\"{endpoint}\"]")),
+        // Zenoh binds the connecting socket to the stranger's own address
+        (
+            "connect/endpoints",
+            format!("[\"{endpoint}#bind={source}:0\"]"),
+        ),
     ] {
         c.insert_json5(k, &v).expect("config");
     }
@@ -670,20 +696,25 @@ fn stranger_role() {
         c.insert_json5("transport/auth/usrpwd/password", &format!("\"{p}\""))
             .expect("password");
     }
-    // a flood of sessions first (Zenoh's own limit is 1000 per host; the run's 512)
+    // a flood of sessions first (Zenoh's own limit is 1000 per host; the run's 512; host A's
+    // front door lets one source hold 8 connections), closed before its own session opens
+    let admitted = |x: &zenoh::Session| x.info().peers_zid().wait().next().is_some();
     let flood: Vec<zenoh::Session> = (0..20)
         .filter_map(|_| zenoh::open(c.clone()).wait().ok())
         .collect();
-    let s = zenoh::open(c).wait().expect("the stranger's session");
     std::thread::sleep(Duration::from_millis(500));
-    seen.sessions_opened = flood.len() as u64 + 1;
-    seen.sessions_admitted = flood
-        .iter()
-        .chain([&s])
-        .filter(|x| x.info().peers_zid().wait().next().is_some())
-        .count() as u64;
-    for f in flood {
+    seen.flood_admitted = flood.iter().filter(|x| admitted(x)).count() as u64;
+    for f in flood.iter() {
         let _ = f.close().wait();
+    }
+    seen.sessions_opened = flood.len() as u64 + 1;
+    drop(flood);
+    let s = zenoh::open(c).wait().expect("the stranger's session");
+    // the insider's own session may find its source's slots still held by the closing flood:
+    // Zenoh dials again (about a second later)
+    let until = Instant::now() + Duration::from_secs(5);
+    while password.is_some() && !admitted(&s) && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(50));
     }
     let sub = s.declare_subscriber("**").wait().expect("subscribe");
     let plain = |b: &[u8]| {
@@ -775,6 +806,7 @@ fn stranger_role() {
             }
         }
     }
+    seen.sessions_admitted = seen.flood_admitted + u64::from(admitted(&s));
     let _ = s.close().wait();
     stop_flood.store(true, Ordering::Relaxed);
     if let Some(flood) = flood_conns {
@@ -786,13 +818,23 @@ fn stranger_role() {
 /// TCP connections the stranger keeps open to host A's endpoint at once.
 const FLOOD_CONNECTIONS: usize = 300;
 
-/// Keeps [`FLOOD_CONNECTIONS`] TCP connections to `addr` that never send a byte, re-dialing
-/// each one host A closes, for 4 s (or until `stop`); then waits up to 5 s for host A to close the last
-/// ones. Returns (dials, closed by host A, re-dials).
-fn redial_flood(addr: &str, stop: &std::sync::atomic::AtomicBool) -> (u64, u64, u64) {
+/// Keeps [`FLOOD_CONNECTIONS`] TCP connections from `source` to `addr` that never send a byte,
+/// re-dialing each one host A closes (or refuses), for 4 s (or until `stop`); then waits up to
+/// 5 s for host A to close the last ones. Returns (dials, closed by host A, re-dials).
+fn redial_flood(
+    source: std::net::IpAddr,
+    addr: &str,
+    stop: &std::sync::atomic::AtomicBool,
+) -> (u64, u64, u64) {
     use std::io::{ErrorKind, Read};
     use std::net::{SocketAddr, TcpStream};
     let addr: SocketAddr = addr.parse().expect("a socket address");
+    let dial = || -> std::io::Result<TcpStream> {
+        let s = socket2::Socket::new(socket2::Domain::IPV4, socket2::Type::STREAM, None)?;
+        s.bind(&SocketAddr::new(source, 0).into())?;
+        s.connect_timeout(&addr.into(), Duration::from_millis(200))?;
+        Ok(s.into())
+    };
     let closed = |mut t: &TcpStream| match t.read(&mut [0u8; 64]) {
         Ok(0) => true,
         Ok(_) => false,
@@ -812,7 +854,7 @@ fn redial_flood(addr: &str, stop: &std::sync::atomic::AtomicBool) -> (u64, u64, 
                 }
                 Some(_) => {}
                 None => {
-                    if let Ok(t) = TcpStream::connect_timeout(&addr, Duration::from_millis(200)) {
+                    if let Ok(t) = dial() {
                         let _ = t.set_nonblocking(true);
                         redials += u64::from(dials >= FLOOD_CONNECTIONS as u64);
                         dials += 1;
@@ -883,13 +925,17 @@ fn a_stranger_on_the_network_reads_nothing_forges_nothing_and_takes_no_slot() {
         c.env("QFLEET_STRANGER", spec);
         c.spawn().expect("spawn the stranger")
     };
-    let stranger = spawn_stranger(format!("{ENDPOINT};{id}"));
+    // each from an address of its own on host B's link, so host A's front door sees three
+    // sources: host B (10.77.0.2), the stranger (.3) and the insider (.4)
+    hosts.add_address(Host::B, "10.77.0.3/24");
+    hosts.add_address(Host::B, "10.77.0.4/24");
+    let stranger = spawn_stranger(format!("{ENDPOINT};{id};10.77.0.3"));
     // and one that holds the session password (leaked), not the join secret
     let password =
         bridge::Secret::parse(&std::fs::read_to_string(&secret).expect("the secret file"))
             .expect("a secret")
             .session_password();
-    let insider = spawn_stranger(format!("{ENDPOINT};{id};{password}"));
+    let insider = spawn_stranger(format!("{ENDPOINT};{id};10.77.0.4;{password}"));
     std::thread::sleep(Duration::from_millis(1500));
     let b = start_b(&hosts, 2, &db, &secret, &[]);
     let out_s = wait_bounded(stranger, LIMIT);
@@ -927,9 +973,13 @@ fn a_stranger_on_the_network_reads_nothing_forges_nothing_and_takes_no_slot() {
     assert!(seen.redials > 0, "{seen:?}");
     assert_eq!(seen.idle_closed, seen.idle_opened, "{seen:?}");
     // what the insider (session password, no join secret) got: frames, but no plaintext; no
-    // slot; no admin space
+    // slot; no admin space; of its flood of sessions, no more than one source may hold
     let seen = seen_by(&out_i, "insider");
     assert!(seen.sessions_admitted > 0, "{seen:?}");
+    assert!(
+        (1..=u64::from(bridge::DoorLimits::default().per_source)).contains(&seen.flood_admitted),
+        "{seen:?}"
+    );
     assert!(
         seen.samples > 0,
         "the insider saw no frame at all: {seen:?}"
@@ -950,6 +1000,20 @@ fn a_stranger_on_the_network_reads_nothing_forges_nothing_and_takes_no_slot() {
     )
     .expect("bridge.json is JSON");
     assert!(bridge["unauthenticated"].as_u64() >= Some(1), "{bridge}");
+    // host A's front door refused the stranger's and the insider's floods by their sources,
+    // and never host B, which joined from its own address through them
+    let refused = |source: &str| -> u64 {
+        bridge["door"]["refused_by_source"]
+            .as_array()
+            .and_then(|a| a.iter().find(|s| s["source"] == source))
+            .and_then(|s| s["refused"].as_u64())
+            .unwrap_or(0)
+    };
+    eprintln!("host A's front door: {}", bridge["door"]);
+    assert!(refused("10.77.0.3") > 0, "{bridge}");
+    assert!(refused("10.77.0.4") > 0, "{bridge}");
+    assert_eq!(refused("10.77.0.2"), 0, "{bridge}");
+    assert!(bridge["door"]["silent"].as_u64() > Some(0), "{bridge}");
     // host A's memory under the attack stays bounded: the launcher holding the hub (its
     // coordinator and robots are processes of their own) peaked under 256 MiB
     let rss = bridge["peak_rss_kib"].as_u64().expect("peak_rss_kib");

@@ -33,10 +33,12 @@ use zenoh::pubsub::Subscriber;
 use zenoh::query::{Query, Queryable};
 use zenoh::sample::Sample;
 
+use crate::door::{DoorReport, Limits as DoorLimits};
 use crate::end::{Got, LinkEnd, Put};
 use crate::health::{ClockSync, LinkEvent, LinkState};
 use crate::join::{Admission, Door, JOIN_KEY, JoinPlan, JoinReply, Knock, RefusedLog, RemotePlan};
 use crate::link::{self, Tuning};
+use crate::relay::FrontDoor;
 use crate::seal::{self, Secret};
 use crate::stats::{HostEntry, HostReport};
 use crate::topics::{FromRobot, ToRobot};
@@ -69,6 +71,8 @@ pub struct HubOptions {
     pub secret: Secret,
     /// Frames travel unsealed (`--insecure-plain`): a host still proves the secret to join.
     pub plain: bool,
+    /// The front door's per-source limits on connections to `listen`.
+    pub door: DoorLimits,
 }
 
 /// What the hub saw, for the run's result.
@@ -100,6 +104,8 @@ pub struct HubReport {
     /// Peak resident memory of this host's launcher process (the hub runs in it) when the hub
     /// finished, KiB (`getrusage`): what strangers' floods did to host A's memory shows here.
     pub peak_rss_kib: u64,
+    /// What the front door on `listen` admitted and refused, per reason and per source.
+    pub door: DoorReport,
 }
 
 /// This process's peak resident memory so far, KiB (0 when it cannot be read).
@@ -129,16 +135,18 @@ pub struct Hub {
     /// Ends the hub thread's wait at once when the hub is stopped.
     waker: Waker,
     thread: Option<JoinHandle<Result<HubReport, BridgeError>>>,
+    /// The acceptor on `listen`, relaying to the session's loopback listener.
+    door: Option<FrontDoor>,
 }
 
 impl Hub {
-    /// Listens on `opts.listen` (an error at once if it cannot) and starts the hub thread.
+    /// Listens on `opts.listen` (an error at once if it cannot) through the front door, which
+    /// relays what it admits to the hub's session on a loopback port, and starts the hub thread.
     pub fn start(opts: HubOptions) -> Result<Hub, BridgeError> {
-        let session = link::listen(
-            &opts.listen,
-            opts.tuning,
-            &link::SessionAuth::of(&opts.secret),
-        )?;
+        let at = link::listen_address(&opts.listen)?;
+        let (session, upstream) =
+            link::listen_loopback(opts.tuning, &link::SessionAuth::of(&opts.secret))?;
+        let door = FrontDoor::open(at, upstream, opts.door)?;
         let stop = Arc::new(AtomicBool::new(false));
         let flag = Arc::clone(&stop);
         let (waker, wakes) = wake_pair()?;
@@ -155,6 +163,7 @@ impl Hub {
             stop,
             waker,
             thread: Some(thread),
+            door: Some(door),
         })
     }
 
@@ -162,12 +171,28 @@ impl Hub {
     pub fn finish(mut self) -> Result<HubReport, BridgeError> {
         self.stop.store(true, Ordering::SeqCst);
         self.waker.wake();
-        match self.thread.take() {
+        let mut report = match self.thread.take() {
             Some(t) => t
                 .join()
-                .map_err(|_| BridgeError::Thread("the hub thread panicked".into()))?,
-            None => Ok(HubReport::default()),
+                .map_err(|_| BridgeError::Thread("the hub thread panicked".into()))??,
+            None => HubReport::default(),
+        };
+        if let Some(door) = self.door.take() {
+            report.door = door.finish();
+            let d = &report.door;
+            if d.refused() > 0 || d.silent > 0 {
+                report::log_line!(
+                    "qfleet: the front door on {} refused {} connection(s) ({} from a source holding its limit, {} too fast, {} past the global cap) and closed {} silent one(s)",
+                    d.listen,
+                    d.refused(),
+                    d.refused_source_busy,
+                    d.refused_source_rate,
+                    d.refused_full,
+                    d.silent
+                );
+            }
         }
+        Ok(report)
     }
 }
 

@@ -14,6 +14,11 @@
 //! reconnect) or is lost past a deadline ([`health`]), and estimate the two clocks' offset so
 //! every time stamp is moved onto the receiving host's clock ([`wire`]).
 //!
+//! Strangers' TCP connections meet a front door first ([`relay::FrontDoor`], deciding with
+//! [`door::Gate`]): per-source limits on connections, so a flood from one address cannot take
+//! the slots a real host needs; admitted connections are relayed to the Zenoh session, which
+//! listens on loopback only.
+//!
 //! Every host proves it holds the run's join secret before it gets a slot, and every frame after
 //! the join is sealed with keys of that host and direction ([`seal`]); the frame handling,
 //! ordering and figures both sides share are one [`end::LinkEnd`].
@@ -23,11 +28,13 @@
 
 #![deny(missing_docs)]
 
+pub mod door;
 pub mod end;
 pub mod health;
 pub mod hub;
 pub mod join;
 pub mod link;
+pub mod relay;
 pub mod reliable;
 pub mod remote;
 pub mod seal;
@@ -37,6 +44,7 @@ pub mod wire;
 
 use std::time::Duration;
 
+pub use door::{DoorReport, Limits as DoorLimits};
 pub use end::{Got, LinkEnd, Sink};
 pub use health::{ClockSync, LinkState, LinkWatch};
 pub use hub::{Hub, HubOptions, HubReport};
@@ -100,6 +108,14 @@ pub enum BridgeError {
     /// A bridge thread.
     #[error("bridge thread: {0}")]
     Thread(String),
+    /// The front door: binding the `--listen` address, or starting its runtime.
+    #[error("front door: {what}: {source}")]
+    Door {
+        /// What was being done.
+        what: String,
+        /// The system's error.
+        source: std::io::Error,
+    },
 }
 
 /// Zenoh's error text without the source location it appends (` at /…/src/lib.rs:62.`), which

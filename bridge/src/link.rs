@@ -1,7 +1,9 @@
 //! The Zenoh session and the settings that decide the link's latency floor.
 //!
-//! One peer-to-peer session per host: the coordinator's host listens on the `--listen`
-//! endpoint, a joining host connects to it. Multicast scouting and gossip are off, so a bridge
+//! One peer-to-peer session per host: on the coordinator's host the session listens on an
+//! ephemeral loopback port ([`listen_loopback`]) behind the front door, which owns the
+//! `--listen` address ([`listen_address`], [`crate::relay::FrontDoor`]) and relays the
+//! connections it admits; a joining host connects to `--listen`. Multicast scouting and gossip are off, so a bridge
 //! talks only to the endpoint it was given (never to whatever else is on the network), and a
 //! joining host does not listen at all. Zenoh's own reliability (TCP) carries frames while a
 //! session lasts; what a broken session loses, [`crate::reliable`] resends.
@@ -67,7 +69,8 @@ pub unsafe fn prefer_runtime_threads() {
 /// [`Secret::session_password`](crate::seal::Secret::session_password) derives from the join
 /// secret, so a stranger's TCP connection is closed at Zenoh's handshake: it never gets a
 /// session to subscribe, query or publish on, and cannot hold one of the session slots.
-/// Half-open connections are dropped after `accept_timeout` (1 s) as before.
+/// Before that, every connection passes the hub's front door ([`crate::relay::FrontDoor`]):
+/// per-source limits, and a connection silent for a second never reaches Zenoh.
 #[derive(Clone)]
 pub struct SessionAuth {
     password: String,
@@ -171,7 +174,8 @@ fn base_config(tuning: Tuning) -> Result<zenoh::Config, BridgeError> {
     set("adminspace/permissions/read", "false")?;
     // a connection that has not finished Zenoh's handshake within a second is dropped, and
     // enough may wait that a burst of half-open ones does not shut the real host out;
-    // sessions are capped (a run has at most a few hundred hosts)
+    // sessions are capped (a run has at most a few hundred hosts). On the hub these are the
+    // second line: its front door limits connections per source first (`crate::door`)
     set("transport/unicast/accept_timeout", "1000")?;
     set("transport/unicast/accept_pending", "1024")?;
     set("transport/unicast/max_sessions", "512")?;
@@ -194,8 +198,62 @@ pub fn check_endpoint(endpoint: &str) -> Result<(), BridgeError> {
         })
 }
 
-/// A session listening on `endpoint` (the coordinator's host) that admits only peers holding
-/// `auth`; fails at once if it cannot bind.
+/// The socket address the front door binds for a `--listen` endpoint: `tcp/ADDR:PORT` (a
+/// host name is resolved; the first address is taken), without Zenoh's `?`/`#` options, which
+/// the door could not honour.
+pub fn listen_address(endpoint: &str) -> Result<std::net::SocketAddr, BridgeError> {
+    use std::net::ToSocketAddrs;
+    let bad = |detail: String| BridgeError::Endpoint {
+        endpoint: endpoint.to_string(),
+        detail,
+    };
+    let ep = endpoint
+        .parse::<zenoh::config::EndPoint>()
+        .map_err(|e| bad(crate::zenoh_text(&e)))?;
+    if ep.protocol().as_str() != "tcp" {
+        return Err(bad("only tcp/ADDR:PORT can be listened on".into()));
+    }
+    if !ep.metadata().as_str().is_empty() || !ep.config().as_str().is_empty() {
+        return Err(bad(
+            "options after `?` or `#` are not supported on --listen".into(),
+        ));
+    }
+    let address = ep.address();
+    let mut found = address
+        .as_str()
+        .to_socket_addrs()
+        .map_err(|e| bad(format!("resolving {}: {e}", address.as_str())))?;
+    found
+        .next()
+        .ok_or_else(|| bad(format!("{} resolves to no address", address.as_str())))
+}
+
+/// A session for the front door to relay to: listening on a loopback port nobody else chose,
+/// admitting only peers holding `auth`. Zenoh cannot say which port it bound, so a free one is
+/// found first (bound and let go); if another process takes it in between, another is tried.
+pub fn listen_loopback(
+    tuning: Tuning,
+    auth: &SessionAuth,
+) -> Result<(zenoh::Session, std::net::SocketAddr), BridgeError> {
+    const TRIES: usize = 8;
+    let mut last = None;
+    for _ in 0..TRIES {
+        let free = std::net::TcpListener::bind(("127.0.0.1", 0))
+            .and_then(|l| l.local_addr())
+            .map_err(|e| BridgeError::Door {
+                what: "finding a free loopback port for the hub's session".into(),
+                source: e,
+            })?;
+        match listen(&format!("tcp/{free}"), tuning, auth) {
+            Ok(session) => return Ok((session, free)),
+            Err(e) => last = Some(e),
+        }
+    }
+    Err(last.unwrap_or_else(|| BridgeError::Link("no loopback port for the hub".into())))
+}
+
+/// A session listening on `endpoint` that admits only peers holding `auth`; fails at once if
+/// it cannot bind. The hub listens through [`listen_loopback`], behind its front door.
 pub fn listen(
     endpoint: &str,
     tuning: Tuning,

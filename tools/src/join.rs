@@ -230,6 +230,7 @@ impl RemoteArgs {
             out: Some(out.to_path_buf()),
             secret,
             plain: self.insecure_plain,
+            door: bridge::DoorLimits::default(),
         })
         .with_context(|| format!("listening for other hosts on {listen}"))?;
         Ok(Some(hub))

@@ -269,6 +269,7 @@ pub fn bridged_coordinator(
         out: None,
         secret: auth.secret.clone(),
         plain: auth.plain,
+        door: bridge::DoorLimits::default(),
     })
     .map_err(|e| BenchError::Input(e.to_string()))?;
     let r = super::fleet::coordinator(inner);

@@ -1,0 +1,274 @@
+//! The front door's IO: a TCP acceptor on the user's `--listen` address that asks the
+//! [`Gate`] about every connection and relays each admitted one, byte for byte, to the hub's
+//! Zenoh listener on loopback. Zenoh's handshake (its user–password authentication) still runs
+//! end to end through the relay; the door reads no byte of it.
+//!
+//! One thread with a single-threaded Tokio runtime (Tokio is already in the build, through
+//! Zenoh): one task per admitted connection, so what it holds is bounded by
+//! [`Limits::global`]; a refused connection is closed at once with a reset, unread. A
+//! connection that sends no byte within [`Limits::first_byte_within`] is closed by the door
+//! and never reaches Zenoh. Both sockets of a relayed connection have `TCP_NODELAY`; bytes are
+//! copied through one buffer per direction, made once per connection.
+
+use std::net::{IpAddr, SocketAddr};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::Notify;
+
+use crate::BridgeError;
+use crate::door::{DoorReport, Gate, Limits, Verdict};
+
+/// How long the door waits for the hub's own listener to take a relayed connection (it is on
+/// this host: anything slower means it is gone).
+const UPSTREAM_WITHIN: Duration = Duration::from_secs(2);
+
+/// After `accept` fails (e.g. out of file descriptors) the door waits this long before it
+/// accepts again, instead of spinning.
+const ACCEPT_BACKOFF: Duration = Duration::from_millis(20);
+
+/// The running front door; [`FrontDoor::finish`] closes it and returns its report.
+#[derive(Debug)]
+pub struct FrontDoor {
+    listen: SocketAddr,
+    gate: Arc<Mutex<Gate>>,
+    stop: Arc<Notify>,
+    thread: Option<JoinHandle<()>>,
+}
+
+fn lock(gate: &Mutex<Gate>) -> MutexGuard<'_, Gate> {
+    gate.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn io_error(what: String) -> impl FnOnce(std::io::Error) -> BridgeError {
+    move |e| BridgeError::Door { what, source: e }
+}
+
+impl FrontDoor {
+    /// Binds `listen` (an error at once if it cannot) and relays what `limits` admit to
+    /// `upstream`.
+    pub fn open(
+        listen: SocketAddr,
+        upstream: SocketAddr,
+        limits: Limits,
+    ) -> Result<FrontDoor, BridgeError> {
+        let std_listener = std::net::TcpListener::bind(listen)
+            .map_err(io_error(format!("listening on {listen}")))?;
+        std_listener
+            .set_nonblocking(true)
+            .map_err(io_error(format!("listening on {listen}")))?;
+        let bound = std_listener
+            .local_addr()
+            .map_err(io_error(format!("listening on {listen}")))?;
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_io()
+            .enable_time()
+            .build()
+            .map_err(io_error("starting the front door's runtime".into()))?;
+        let listener = {
+            let _in = rt.enter();
+            TcpListener::from_std(std_listener)
+                .map_err(io_error(format!("listening on {listen}")))?
+        };
+        let gate = Arc::new(Mutex::new(Gate::new(limits)));
+        let stop = Arc::new(Notify::new());
+        let (g, s) = (Arc::clone(&gate), Arc::clone(&stop));
+        let thread = std::thread::Builder::new()
+            .name("qfleet-door".into())
+            .spawn(move || rt.block_on(accept(listener, upstream, g, s)))
+            .map_err(|e| BridgeError::Thread(e.to_string()))?;
+        Ok(FrontDoor {
+            listen: bound,
+            gate,
+            stop,
+            thread: Some(thread),
+        })
+    }
+
+    /// The address it listens on (the port the system chose, if `listen` named port 0).
+    pub fn local_addr(&self) -> SocketAddr {
+        self.listen
+    }
+
+    /// What it did so far.
+    pub fn report(&self) -> DoorReport {
+        lock(&self.gate).report(&self.listen.to_string())
+    }
+
+    /// Stops accepting, closes every connection it relays and returns its report.
+    pub fn finish(mut self) -> DoorReport {
+        self.stop_and_join();
+        self.report()
+    }
+
+    fn stop_and_join(&mut self) {
+        self.stop.notify_one();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for FrontDoor {
+    fn drop(&mut self) {
+        self.stop_and_join();
+    }
+}
+
+/// Accepts until `stop`: every connection goes to the gate; refused ones are reset unread,
+/// admitted ones relayed by a task of their own.
+async fn accept(
+    listener: TcpListener,
+    upstream: SocketAddr,
+    gate: Arc<Mutex<Gate>>,
+    stop: Arc<Notify>,
+) {
+    let first_byte = lock(&gate).limits().first_byte_within;
+    let mut tasks = tokio::task::JoinSet::new();
+    loop {
+        tokio::select! {
+            _ = stop.notified() => break,
+            // finished relays are reaped as they end, so the set holds only live ones
+            Some(_) = tasks.join_next(), if !tasks.is_empty() => {}
+            r = listener.accept() => match r {
+                Ok((stream, peer)) => {
+                    let src = peer.ip();
+                    let verdict = lock(&gate).admit(src, Instant::now());
+                    if verdict == Verdict::Admit {
+                        let open = Open { gate: Arc::clone(&gate), src };
+                        tasks.spawn(relay(stream, open, upstream, first_byte));
+                    } else {
+                        // a reset, not a FIN: nothing of it lingers on this host
+                        let _ = stream.set_zero_linger();
+                    }
+                }
+                Err(_) => tokio::time::sleep(ACCEPT_BACKOFF).await,
+            },
+        }
+    }
+    tasks.shutdown().await;
+}
+
+/// An admitted connection, counted open at the gate until dropped.
+struct Open {
+    gate: Arc<Mutex<Gate>>,
+    src: IpAddr,
+}
+
+impl Drop for Open {
+    fn drop(&mut self) {
+        lock(&self.gate).closed(self.src);
+    }
+}
+
+/// Waits for the first byte, then copies both ways until either side ends; then both close.
+async fn relay(inbound: TcpStream, open: Open, upstream: SocketAddr, first_byte: Duration) {
+    let _ = inbound.set_nodelay(true);
+    let mut one = [0u8; 1];
+    match tokio::time::timeout(first_byte, inbound.peek(&mut one)).await {
+        Ok(Ok(n)) if n > 0 => {}
+        Ok(_) => return, // closed (or failed) before a byte
+        Err(_) => {
+            lock(&open.gate).silent();
+            let _ = inbound.set_zero_linger();
+            return;
+        }
+    }
+    let outbound = match tokio::time::timeout(UPSTREAM_WITHIN, TcpStream::connect(upstream)).await {
+        Ok(Ok(s)) => s,
+        _ => {
+            lock(&open.gate).upstream_failed();
+            return;
+        }
+    };
+    let _ = outbound.set_nodelay(true);
+    let (mut in_r, mut in_w) = inbound.into_split();
+    let (mut out_r, mut out_w) = outbound.into_split();
+    // Zenoh never half-closes a link: when either direction ends, the connection is over, and
+    // closing both frees the source's slot even if the other end stays silent
+    tokio::select! {
+        _ = tokio::io::copy(&mut in_r, &mut out_w) => {}
+        _ = tokio::io::copy(&mut out_r, &mut in_w) => {}
+    }
+    drop(open);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::{ErrorKind, Read, Write};
+    use std::net::TcpStream as StdStream;
+
+    /// An echo server on loopback standing in for the hub's listener.
+    fn echo() -> SocketAddr {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = l.local_addr().unwrap();
+        std::thread::spawn(move || {
+            for s in l.incoming().flatten() {
+                std::thread::spawn(move || {
+                    let mut s = s;
+                    let mut b = [0u8; 4096];
+                    while let Ok(n) = s.read(&mut b) {
+                        if n == 0 || s.write_all(&b[..n]).is_err() {
+                            break;
+                        }
+                    }
+                });
+            }
+        });
+        addr
+    }
+
+    fn closed_by_door(s: &mut StdStream) -> bool {
+        s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+        match s.read(&mut [0u8; 8]) {
+            Ok(0) => true,
+            Ok(_) => false,
+            Err(e) => e.kind() != ErrorKind::WouldBlock && e.kind() != ErrorKind::TimedOut,
+        }
+    }
+
+    #[test]
+    fn admitted_bytes_cross_both_ways_and_the_rest_is_refused_or_dropped_silent() {
+        let limits = Limits {
+            per_source: 2,
+            first_byte_within: Duration::from_millis(200),
+            ..Limits::default()
+        };
+        let door = FrontDoor::open("127.0.0.1:0".parse().unwrap(), echo(), limits).unwrap();
+        let at = door.local_addr();
+        // a client that speaks gets its bytes back through the relay
+        let mut a = StdStream::connect(at).unwrap();
+        a.write_all(b"hello zenoh").unwrap();
+        let mut got = [0u8; 11];
+        a.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+        a.read_exact(&mut got).unwrap();
+        assert_eq!(&got, b"hello zenoh");
+        // a silent one is closed by the door; a third one from the same source is refused
+        let mut b = StdStream::connect(at).unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+        let mut c = StdStream::connect(at).unwrap();
+        assert!(closed_by_door(&mut c));
+        assert!(closed_by_door(&mut b));
+        // the speaking client still works
+        a.write_all(b"again").unwrap();
+        let mut got = [0u8; 5];
+        a.read_exact(&mut got).unwrap();
+        assert_eq!(&got, b"again");
+        drop(a);
+        let r = door.finish();
+        assert_eq!(r.admitted, 2, "{r:?}");
+        assert_eq!(r.silent, 1, "{r:?}");
+        assert_eq!(r.refused_source_busy, 1, "{r:?}");
+        assert_eq!(r.refused_by_source[0].source, "127.0.0.1");
+    }
+
+    #[test]
+    fn a_port_in_use_is_an_error_at_once() {
+        let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let e = FrontDoor::open(taken.local_addr().unwrap(), echo(), Limits::default());
+        assert!(matches!(e, Err(BridgeError::Door { .. })), "{e:?}");
+    }
+}
