@@ -540,6 +540,72 @@ fn a_shared_grid_across_two_hosts_arrives_without_a_conflict() {
 }
 
 #[test]
+fn a_remote_robot_killed_on_a_shared_grid_leaves_it_and_the_others_arrive() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(hosts) = TwoHosts::new("shared-grid-kill") else {
+        return;
+    };
+    let _ = bin("qfleet");
+    let id = run_id("mh-gkill");
+    let (da, db) = scratch_pair(&id);
+    let (_s, secret) = secret_file(&id);
+    let (map, scen) = warehouse();
+    let (m, s) = (map.display().to_string(), scen.display().to_string());
+    // 150 ms a tick: the execution lasts seconds, time to kill robot 6 (on host B) in it
+    let grid = [
+        "--world",
+        "shared",
+        "--map",
+        &m,
+        "--scen",
+        &s,
+        "--agents",
+        "8",
+        "--episodes",
+        "300",
+        "--tick-ms",
+        "150",
+        "--json",
+    ];
+    let a = start_a(&hosts, &id, &da, 4, 4, &secret, &grid);
+    let b = start_b(&hosts, 4, &db, &secret, &[]);
+    let log = da.join("coordinator.log");
+    let deadline = Instant::now() + Duration::from_secs(90);
+    while !std::fs::read_to_string(&log).is_ok_and(|l| l.contains("shared grid:")) {
+        assert!(Instant::now() < deadline, "the execution never started");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    std::thread::sleep(Duration::from_millis(300));
+    let pid = qfleet_suite::pid_with_arg(&id, "--robot-id", "6").expect("robot 6 alive on B");
+    // SAFETY: a plain kill(2) of a process of this test's run.
+    unsafe { libc::kill(pid, libc::SIGKILL) };
+    let _ = wait_bounded(b, LIMIT);
+    let out_a = wait_bounded(a, LIMIT);
+    // a lost robot is a run that completed without all its robots: exit 1 with the result
+    assert_eq!(out_a.status.code(), Some(1), "host A: {}", describe(&out_a));
+    let r = result(&da, &out_a);
+    let g = &r["grid"];
+    assert_eq!(g["robots"][6]["left"], true, "{g}");
+    assert_eq!(g["all_arrived"], false, "{g}");
+    for i in [0, 1, 2, 3, 4, 5, 7] {
+        assert!(
+            g["robots"][i]["arrived_at"].as_u64().is_some(),
+            "robot {i}: {g}"
+        );
+    }
+    assert_eq!(g["conflicts"], 0, "{g}");
+    assert_eq!(robot(&r, 6)["status"], "lost", "{r}");
+    let stderr = String::from_utf8_lossy(&out_a.stderr);
+    let coordinator = std::fs::read_to_string(&log).unwrap_or_default();
+    assert!(
+        coordinator.contains("robot 6 left the shared grid"),
+        "{coordinator}\n{stderr}"
+    );
+    drop(hosts);
+    assert_no_leftovers(&id);
+}
+
+#[test]
 fn a_join_with_another_schema_version_is_refused_clearly_on_both_hosts() {
     let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
     let Some(hosts) = TwoHosts::new("schema") else {
