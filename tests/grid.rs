@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-use qfleet_suite::mapf_check::{self, Map};
+use qfleet_suite::mapf_check::{self, Map, validate};
 use qfleet_suite::{
     PROCESS_TIMEOUT, bin, describe, leftovers, pid_with_arg, run_bounded, run_id, scratch, skip,
     spawn, wait_bounded, wait_until,
@@ -82,32 +82,6 @@ fn shared_run(
         .arg(out)
         .args(extra);
     cmd
-}
-
-/// Checks a finished shared-grid run's `paths.txt` independently and against its result.
-fn validate(out: &Path, map: &Path, scen: &Path, agents: usize, grid: &Value) {
-    let m = Map::parse(&std::fs::read_to_string(map).unwrap());
-    let pairs = mapf_check::scen_pairs(&std::fs::read_to_string(scen).unwrap(), agents);
-    let paths = mapf_check::parse_paths(&std::fs::read_to_string(out.join("paths.txt")).unwrap());
-    let c = mapf_check::check(&m, &pairs, &paths);
-    assert_eq!(
-        (c.vertex, c.swap, c.illegal, c.bad_start),
-        (0, 0, 0, 0),
-        "{c:?}"
-    );
-    assert_eq!(grid["conflicts"], 0, "{grid}");
-    if grid["all_arrived"] == true {
-        assert_eq!(c.not_arrived, 0, "{c:?}");
-        assert_eq!(
-            grid["sum_of_costs"].as_u64(),
-            Some(c.sum_of_costs),
-            "{grid}"
-        );
-        assert_eq!(grid["makespan"].as_u64(), Some(c.makespan), "{grid}");
-        // the paths file runs from tick 0 to the makespan
-        assert_eq!(paths[0].len() as u64, c.makespan + 1);
-    }
-    assert_eq!(grid["lower_bound"].as_u64(), Some(c.lower_bound), "{grid}");
 }
 
 #[test]
@@ -207,12 +181,36 @@ fn an_instance_that_cannot_run_is_refused_before_anything_starts() {
         assert!(err.contains(needle), "{name}: {err}");
         assert!(pid_with_arg(&id, "--run-id", &id).is_none());
     }
-    // more agents than scenario lines, and --agents without a shared world
+    // more agents than scenario lines, and --agents without a shared world; with robots of
+    // other hosts: the agents are the whole fleet's (checked as one instance), this host's
+    // robots and theirs must make the agents, and one robot runs here
     let (map, scen) = room(&dir, &ROOM_PAIRS[..2]);
+    let far = ["--listen", "tcp/127.0.0.1:1"];
     for extra in [
         &["--world", "shared", "--agents", "3"][..],
         &["--agents", "2"][..],
         &["--world", "shared", "--agents", "2", "--robots", "3"][..],
+        &[
+            &["--world", "shared", "--agents", "3", "--remote-robots", "1"][..],
+            &far,
+        ]
+        .concat(),
+        &[
+            &["--world", "shared", "--robots", "2", "--remote-robots", "1"][..],
+            &far,
+        ]
+        .concat(),
+        &[
+            &["--world", "shared", "--agents", "2", "--robots", "2"][..],
+            &["--remote-robots", "1"],
+            &far,
+        ]
+        .concat(),
+        &[
+            &["--world", "shared", "--agents", "2", "--remote-robots", "2"][..],
+            &far,
+        ]
+        .concat(),
     ] {
         let o = qfleet(
             &[
@@ -500,22 +498,25 @@ fn a_shared_world_manifest_that_cannot_run_is_refused_before_anything_starts() {
             "{name}: a seed directory was made"
         );
     }
-    // a shared grid runs on one host: robots of other hosts are refused before anything starts
+    // with robots of other hosts the instance is checked the same, before anything starts
+    // (robots across hosts on one grid: tests/multihost.rs)
+    let (name, body, needles) = cases[0];
+    let file = room_manifest(&dir, "bad", body);
+    let id = run_id("grid-exp-bad");
+    let out = dir.join("out-remote");
     let o = run_bounded(
         Command::new(bin("qfleet"))
-            .args([
-                "experiment",
-                "--remote-robots",
-                "1",
-                "--listen",
-                "tcp/127.0.0.1:1",
-            ])
-            .arg(example_manifest()),
+            .args(["experiment", "--run-id", &id, "--remote-robots", "1"])
+            .args(["--listen", "tcp/127.0.0.1:1", "--out"])
+            .arg(&out)
+            .arg(&file),
     );
-    assert_eq!(o.status.code(), Some(2), "{}", describe(&o));
-    assert!(
-        String::from_utf8_lossy(&o.stderr).contains("runs on one host"),
-        "{}",
-        describe(&o)
-    );
+    assert_eq!(o.status.code(), Some(2), "{name}: {}", describe(&o));
+    let err = String::from_utf8_lossy(&o.stderr);
+    for n in needles {
+        assert!(err.contains(n), "{name}: {n:?} not in {err}");
+    }
+    assert!(pid_with_arg(&id, "--run-id", &id).is_none());
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+    assert!(!out.join("seed-1").exists(), "a seed directory was made");
 }

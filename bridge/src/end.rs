@@ -55,6 +55,16 @@ pub enum Put {
     Skipped,
 }
 
+/// What a data frame says besides its message, for the caller that writes the message into
+/// its host's bus.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Meta {
+    /// What to add to the peer's times to move them onto this host's clock.
+    pub shift: i64,
+    /// The sender's bus woke the message's readers ([`wire::FLAG_WAKE`]): wake them here too.
+    pub wake: bool,
+}
+
 /// What a received frame asks of the caller besides its messages.
 #[derive(Debug, PartialEq, Eq)]
 pub enum Got {
@@ -165,8 +175,8 @@ impl LinkEnd {
 
     /// Takes one frame that arrived at `now` (`t_ns` on the monotonic clock of the messages).
     /// A frame that does not open, or is not a frame, is dropped and counted. A latest-wins
-    /// message goes to `latest(topic, bytes, shift)` at once (`shift`: what to add to the
-    /// peer's times to move them onto this host's clock); a lossless one waits for
+    /// message goes to `latest(topic, bytes, meta)` at once ([`Meta`]: the clock shift and the
+    /// wake flag); a lossless one waits for
     /// [`LinkEnd::deliver`]. The first frame after a silence brings the link back: everything
     /// unacknowledged goes again at once through `sink`, and the returned flag is set for the
     /// caller to say so.
@@ -176,7 +186,7 @@ impl LinkEnd {
         now: Instant,
         t_ns: u64,
         sink: &mut impl Sink,
-        latest: impl FnOnce(Topic, &[u8], i64) -> Put,
+        latest: impl FnOnce(Topic, &[u8], Meta) -> Put,
     ) -> (Got, bool) {
         self.counts.frames_in += 1;
         let frame: &[u8] = match &mut self.opener {
@@ -232,7 +242,11 @@ impl LinkEnd {
                 Got::Nothing
             }
             Kind::Latest => {
-                let put = latest(h.topic, &frame[HEADER..], self.clock.to_local());
+                let meta = Meta {
+                    shift: self.clock.to_local(),
+                    wake: h.wake,
+                };
+                let put = latest(h.topic, &frame[HEADER..], meta);
                 count(&mut self.counts, &mut self.one_way, put, t_ns);
                 Got::Nothing
             }
@@ -243,10 +257,10 @@ impl LinkEnd {
         (got, came_back)
     }
 
-    /// Hands the lossless frames received in order to `put(topic, bytes, shift)` until it
+    /// Hands the lossless frames received in order to `put(topic, bytes, meta)` until it
     /// says [`Put::Later`] (that frame stays first, for the next call); `t_ns` is now on the
     /// messages' clock. Whether any was handed on.
-    pub fn deliver(&mut self, t_ns: u64, mut put: impl FnMut(Topic, &[u8], i64) -> Put) -> bool {
+    pub fn deliver(&mut self, t_ns: u64, mut put: impl FnMut(Topic, &[u8], Meta) -> Put) -> bool {
         let shift = self.clock.to_local();
         let LinkEnd {
             pending,
@@ -256,7 +270,11 @@ impl LinkEnd {
         } = self;
         pending.deliver(|frame| match wire::header(frame) {
             Ok(h) => {
-                let p = put(h.topic, &frame[HEADER..], shift);
+                let meta = Meta {
+                    shift,
+                    wake: h.wake,
+                };
+                let p = put(h.topic, &frame[HEADER..], meta);
                 count(counts, one_way, p, t_ns);
                 p != Put::Later
             }
@@ -268,8 +286,29 @@ impl LinkEnd {
     /// Sends a latest-wins message (once, may drop; not while the link is down).
     pub fn send_latest<T: Message>(&mut self, m: &T, sink: &mut impl Sink) {
         if self.up() {
-            wire::write_data_frame(&mut self.scratch, m, 0);
+            wire::write_data_frame_as(&mut self.scratch, Kind::Latest, m, 0, false);
             self.emit_scratch(sink);
+        }
+    }
+
+    /// Sends a message the way [`wire::link_kind`] says its topic crosses, flagged
+    /// [`wire::FLAG_WAKE`] when `wake` (the receiving host then wakes its readers).
+    pub fn send<T: Message>(
+        &mut self,
+        m: &T,
+        wake: bool,
+        now: Instant,
+        sink: &mut impl Sink,
+    ) -> Result<(), Overflow> {
+        match wire::link_kind(T::TOPIC) {
+            Kind::Lossless => self.send_lossless_flagged(m, wake, now, sink),
+            _ => {
+                if self.up() {
+                    wire::write_data_frame_as(&mut self.scratch, Kind::Latest, m, 0, wake);
+                    self.emit_scratch(sink);
+                }
+                Ok(())
+            }
         }
     }
 
@@ -281,10 +320,20 @@ impl LinkEnd {
         now: Instant,
         sink: &mut impl Sink,
     ) -> Result<(), Overflow> {
+        self.send_lossless_flagged(m, false, now, sink)
+    }
+
+    fn send_lossless_flagged<T: Message>(
+        &mut self,
+        m: &T,
+        wake: bool,
+        now: Instant,
+        sink: &mut impl Sink,
+    ) -> Result<(), Overflow> {
         let up = self.up();
-        let f = self
-            .out
-            .push_with(now, |seq, buf| wire::write_data_frame(buf, m, seq))?;
+        let f = self.out.push_with(now, |seq, buf| {
+            wire::write_data_frame_as(buf, Kind::Lossless, m, seq, wake)
+        })?;
         emit(&mut self.sealer, &mut self.counts, sink, up, f);
         Ok(())
     }
@@ -402,7 +451,7 @@ mod tests {
 
     const MS: Duration = Duration::from_millis(1);
 
-    fn skip(_: Topic, _: &[u8], _: i64) -> Put {
+    fn skip(_: Topic, _: &[u8], _: Meta) -> Put {
         Put::Skipped
     }
 
@@ -485,6 +534,48 @@ mod tests {
         assert!(delivered(&mut host).is_empty());
         assert_eq!(host.counts.forged, 4, "replays are dropped before reading");
         assert_eq!(host.counts.frames_in, 8);
+    }
+
+    #[test]
+    fn grid_messages_go_lossless_in_order_with_the_senders_wake() {
+        use bus::bus_schema::{Grant, Intent};
+        let t0 = Instant::now();
+        let (mut hub, mut host) = pair(t0);
+        let mut wire = Vec::new();
+        for (tick, wake) in [(0, true), (1, false), (2, false), (3, true)] {
+            let g = Grant {
+                tick,
+                ..Grant::ZEROED
+            };
+            hub.send(&g, wake, t0, &mut wire).unwrap();
+        }
+        assert_eq!(hub.unacked(), 4, "kept until acknowledged, as control is");
+        // the second grant is lost on the way: nothing after it is delivered before the resend
+        wire.remove(1);
+        feed(&mut host, &mut wire, t0);
+        let mut got = Vec::new();
+        let take = |host: &mut LinkEnd, got: &mut Vec<(u32, bool)>| {
+            host.deliver(1, |t, b, meta| {
+                assert_eq!(t, Topic::Grant);
+                let mut g = Grant::ZEROED;
+                wire::read_into(b, &mut g).unwrap();
+                got.push((g.tick, meta.wake));
+                Put::Done { sent_ns: 0 }
+            });
+        };
+        take(&mut host, &mut got);
+        assert_eq!(got, [(0, true)]);
+        // the resend (sealed anew, with a heartbeat) brings the rest, in order
+        let mut again = Vec::new();
+        hub.tick(t0 + crate::reliable::RESEND_AFTER, 1, &[], &mut again);
+        feed(&mut host, &mut again, t0);
+        take(&mut host, &mut got);
+        assert_eq!(got, [(0, true), (1, false), (2, false), (3, true)]);
+        // the robots' answers go the same way, never flagged
+        let mut up = Vec::new();
+        host.send(&Intent::ZEROED, false, t0, &mut up).unwrap();
+        assert_eq!(host.unacked(), 1);
+        assert_eq!(feed(&mut hub, &mut up, t0), ["Nothing"]);
     }
 
     #[test]

@@ -7,7 +7,8 @@
 //! admits, acks and watches remote robots exactly as local ones. A proxy publishes what its
 //! robot sends over the link, and its subscribers receive what the coordinator sends; the hub
 //! forwards that to the robot's host (control and acks only to the host whose robot is
-//! addressed, broadcasts once per host). A proxy is dropped — its node disappears, and the
+//! addressed, broadcasts once per host; a shared grid's grants once per host, with the wake
+//! the coordinator gave them). A proxy is dropped — its node disappears, and the
 //! coordinator's liveness check reports the robot `lost` unless its final report came first —
 //! when the joining host says the robot's process is gone, or when the host stays silent past
 //! the deadline.
@@ -20,8 +21,8 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::{
-    Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
-    QHintBatch, ROBOT_ID_ALL, Register, RobotState, Topic,
+    Control, DiscoveryAck, DiscoveryRelay, FinalReport, Grant, Intent, IntentHorizon,
+    MergedHintBatch, PseudoTargetDiscovery, QHintBatch, ROBOT_ID_ALL, Register, RobotState, Topic,
 };
 use std::sync::mpsc::Receiver;
 
@@ -34,7 +35,7 @@ use zenoh::query::{Query, Queryable};
 use zenoh::sample::Sample;
 
 use crate::door::{DoorReport, Limits as DoorLimits};
-use crate::end::{Got, LinkEnd, Put};
+use crate::end::{Got, LinkEnd, Meta, Put};
 use crate::health::{ClockSync, LinkEvent, LinkState};
 use crate::join::{Admission, Door, JOIN_KEY, JoinPlan, JoinReply, Knock, RefusedLog, RemotePlan};
 use crate::link::{self, Tuning};
@@ -273,6 +274,12 @@ struct Host {
     expired: bool,
     last_control: Option<u64>,
     last_relay: Option<u64>,
+    /// Shared grid: grants were forwarded to this host, so the coordinator's grant wakeups are
+    /// looked at on every pass ([`Host::forward_down`]).
+    grid: bool,
+    /// The last grant forwarded, sent again with the wake flag when the coordinator's wakeup
+    /// for it is seen only after the grant went (it notifies after it sends).
+    last_grant: Grant,
     left: bool,
     deadline: Duration,
     report: HostReport,
@@ -284,6 +291,9 @@ struct Stand {
     proxies: BTreeMap<u32, Proxy>,
     registered: BTreeSet<u32>,
     gone: BTreeSet<u32>,
+    /// Intents or horizons were written since the last [`Host::wake`]: the coordinator's
+    /// grant (not always notified) answers them.
+    answered: bool,
 }
 
 fn waitset_error(e: impl std::fmt::Debug) -> BridgeError {
@@ -426,12 +436,15 @@ fn run(
         // one proxy's inboxes are enough to hear the coordinator: a notify wakes every
         // listener of a topic, and every proxy subscribes to every coordinator topic
         let anchor = hosts.iter().find_map(|h| h.stand.proxies.values().next());
+        // (its grant wakeups are consumed by `forward_down`, which needs to see them)
         let guards = match anchor {
             Some(p) => p
                 .bus
                 .listeners()
                 .into_iter()
-                .map(|(_, l)| waitset.attach_notification(l).map_err(waitset_error))
+                .map(|(_, l)| l)
+                .chain([p.bus.grant.listener()])
+                .map(|l| waitset.attach_notification(l).map_err(waitset_error))
                 .collect::<Result<Vec<_>, _>>()?,
             None => Vec::new(),
         };
@@ -585,6 +598,7 @@ impl Joining<'_> {
                 proxies: BTreeMap::new(),
                 registered: BTreeSet::new(),
                 gone: BTreeSet::new(),
+                answered: false,
             },
             up_key: keys.up_key(index),
             publisher,
@@ -600,6 +614,8 @@ impl Joining<'_> {
             expired: false,
             last_control: None,
             last_relay: None,
+            grid: false,
+            last_grant: Grant::ZEROED,
             left: false,
             deadline: opts.deadline,
         });
@@ -621,7 +637,7 @@ impl Host {
             now,
             monotonic_ns(),
             &mut self.publisher,
-            |topic, b, shift| stand.put(topic, b, shift, cfg),
+            |topic, b, meta| stand.put(topic, b, meta, cfg),
         );
         if came_back {
             report::log_line!(
@@ -645,8 +661,8 @@ impl Host {
     /// Writes the in-order lossless frames into the bus until one has to wait.
     fn deliver_in_order(&mut self, cfg: &BusConfig) -> bool {
         let stand = &mut self.stand;
-        self.end.deliver(monotonic_ns(), |topic, b, shift| {
-            stand.put(topic, b, shift, cfg)
+        self.end.deliver(monotonic_ns(), |topic, b, meta| {
+            stand.put(topic, b, meta, cfg)
         })
     }
 
@@ -686,6 +702,14 @@ impl Host {
     /// Reads what the coordinator sent through the proxies and publishes it to the host
     /// straight from the proxies' shared memory (one reused frame buffer; lossless frames are
     /// kept in the resend window's reused buffers).
+    ///
+    /// Grants carry the coordinator's wake: it notifies only the grants the robots must answer
+    /// (the rest they read when they look), and it sends before it notifies. So the reader
+    /// proxy's grant wakeups are consumed *before* its grants are drained: a wakeup seen means
+    /// its grant is drained now or went before; the grants drained with it go flagged, and if
+    /// none is drained the last one goes again, flagged (a robot answers a tick once: the copy
+    /// only wakes it). The first grants wake too. A spurious wake costs a look; a missed one
+    /// would cost a robot's 10 ms poll.
     fn forward_down(&mut self, now: Instant) -> bool {
         if self.stand.proxies.is_empty() || self.lost() || self.expired {
             return false;
@@ -697,6 +721,8 @@ impl Host {
             last_control,
             last_relay,
             name,
+            grid,
+            last_grant,
             ..
         } = self;
         let ids = &stand.ids;
@@ -704,6 +730,11 @@ impl Host {
         let mut overflow = None;
         for (i, proxy) in stand.proxies.values().enumerate() {
             let reader = i == 0;
+            // the grant's wake, looked at before its grants (see above); nothing to look at
+            // before the first grant (a run on separate maps never pays for it)
+            let owed = reader
+                && (*grid || proxy.bus.grant.has_samples().unwrap_or(false))
+                && proxy.bus.grant.clear_wakeups().is_ok_and(|w| w.data > 0);
             drain::<Control>(&proxy.bus, |c| {
                 let mine = c.robot_id == ROBOT_ID_ALL || ids.contains(&c.robot_id);
                 if mine && last_control.is_none_or(|s| c.seq > s) {
@@ -735,6 +766,25 @@ impl Host {
                     end.send_latest(a, publisher);
                 }
             });
+            let first = !*grid;
+            let mut granted = false;
+            drain::<Grant>(&proxy.bus, |g| {
+                if reader {
+                    any = true;
+                    granted = true;
+                    *grid = true;
+                    *last_grant = *g;
+                    if let Err(e) = end.send(g, owed || first, now, publisher) {
+                        overflow = Some(e);
+                    }
+                }
+            });
+            if owed && !granted {
+                any = true;
+                if let Err(e) = end.send(last_grant, true, now, publisher) {
+                    overflow = Some(e);
+                }
+            }
         }
         if let Some(e) = overflow {
             report::log_line!("qfleet: warning: host {}: {e}", report::escape(name));
@@ -766,9 +816,11 @@ impl Host {
         }
     }
 
-    /// Notifies the coordinator of what was written into the proxies; whether anything was.
+    /// Notifies the coordinator of what was written into the proxies; whether anything was
+    /// (intents and horizons are not notified: the coordinator polls for them while it
+    /// collects a tick, and answers with a grant).
     fn wake(&mut self) -> bool {
-        let mut any = false;
+        let mut any = std::mem::take(&mut self.stand.answered);
         for p in self.stand.proxies.values_mut() {
             let b = &p.bus;
             let w = std::mem::take(&mut p.wake);
@@ -796,33 +848,45 @@ impl Host {
 }
 
 impl Stand {
-    /// Writes a robot's message into its proxy (opened on its first message); `shift` moves
-    /// its times onto this host's clock.
-    fn put(&mut self, topic: Topic, payload: &[u8], shift: i64, cfg: &BusConfig) -> Put {
+    /// Writes a robot's message into its proxy (opened on its first message); `meta.shift`
+    /// moves its times onto this host's clock.
+    fn put(&mut self, topic: Topic, payload: &[u8], meta: Meta, cfg: &BusConfig) -> Put {
         match topic {
-            Topic::Register => self.put_as::<Register>(payload, shift, cfg, 0),
-            Topic::RobotState => self.put_as::<RobotState>(payload, shift, cfg, 1),
-            Topic::Discovery => self.put_as::<PseudoTargetDiscovery>(payload, shift, cfg, 2),
-            Topic::Hints => self.put_as::<QHintBatch>(payload, shift, cfg, 3),
-            Topic::Report => self.put_as::<FinalReport>(payload, shift, cfg, 4),
+            Topic::Register => self.put_as::<Register>(payload, meta, cfg, Some(0)),
+            Topic::RobotState => self.put_as::<RobotState>(payload, meta, cfg, Some(1)),
+            Topic::Discovery => self.put_as::<PseudoTargetDiscovery>(payload, meta, cfg, Some(2)),
+            Topic::Hints => self.put_as::<QHintBatch>(payload, meta, cfg, Some(3)),
+            Topic::Report => self.put_as::<FinalReport>(payload, meta, cfg, Some(4)),
+            // polled by the coordinator while it collects a tick: no wakeup
+            Topic::Intent => self.put_as::<Intent>(payload, meta, cfg, None),
+            Topic::Horizon => self.put_as::<IntentHorizon>(payload, meta, cfg, None),
             // coordinator topics never come from a joined host
             _ => Put::Rejected,
         }
     }
 
+    /// Reads a `T` from `payload` and checks it: readable, in a shape a robot writes
+    /// ([`Checked`]), and from a robot of this host. `None` when not.
+    fn read<T: FromRobot>(&self, payload: &[u8], fleet: u32) -> Option<T> {
+        let mut m = T::default();
+        let ok = crate::wire::read_into(payload, &mut m).is_ok()
+            && m.check(fleet).is_ok()
+            && self.ids.contains(&m.robot_id());
+        // a robot of another host (or of this one) cannot be impersonated from there
+        ok.then_some(m)
+    }
+
     fn put_as<T: FromRobot>(
         &mut self,
         payload: &[u8],
-        shift: i64,
+        meta: Meta,
         cfg: &BusConfig,
-        slot: usize,
+        slot: Option<usize>,
     ) -> Put {
-        let mut m = T::default();
-        if crate::wire::read_into(payload, &mut m).is_err() || !self.ids.contains(&m.robot_id()) {
-            // a robot of another host (or of this one) cannot be impersonated from there
+        let Some(mut m) = self.read::<T>(payload, cfg.robots) else {
             return Put::Rejected;
-        }
-        m.shift(shift);
+        };
+        m.shift(meta.shift);
         let id = m.robot_id();
         if self.gone.contains(&id) {
             return Put::Skipped;
@@ -847,7 +911,10 @@ impl Stand {
         };
         match T::outbox(&proxy.bus).send(&m) {
             Ok(_) => {
-                proxy.wake[slot] = true;
+                match slot {
+                    Some(i) => proxy.wake[i] = true,
+                    None => self.answered = true,
+                }
                 if T::TOPIC == Topic::Register {
                     self.registered.insert(id);
                 }
@@ -869,7 +936,61 @@ fn drain<T: ToRobot>(bus: &RobotBus, mut f: impl FnMut(&T)) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::wire::{Heartbeat, heartbeat_frame, read_heartbeat};
+    use crate::wire::{HEADER, Heartbeat, heartbeat_frame, read_heartbeat};
+
+    #[test]
+    fn a_host_speaks_only_for_its_own_robots_and_only_in_shapes_they_write() {
+        use bus::bus_schema::{Intent, IntentHorizon};
+        let cfg = BusConfig::new("hub-stand-test".to_string(), 8).unwrap();
+        let mut stand = Stand {
+            ids: vec![4, 5],
+            proxies: BTreeMap::new(),
+            registered: BTreeSet::new(),
+            gone: BTreeSet::new(),
+            answered: false,
+        };
+        let frame = |m: &dyn Fn(&mut Vec<u8>)| {
+            let mut f = Vec::new();
+            m(&mut f);
+            f
+        };
+        let intent = |robot_id, count| Intent {
+            robot_id,
+            count,
+            ranked: [1, 0, 0, 0, 0],
+            ..Intent::ZEROED
+        };
+        for (what, m) in [
+            ("a robot of this host", intent(0, 1)),
+            ("a robot of another host", intent(6, 1)),
+            ("a robot outside the fleet", intent(9, 1)),
+            ("a robot of the host, with no move", intent(4, 0)),
+        ] {
+            let f = frame(&|f| crate::wire::write_data_frame(f, &m, 0));
+            let put = stand.put(Topic::Intent, &f[HEADER..], Meta::default(), &cfg);
+            assert_eq!(put, Put::Rejected, "{what}");
+        }
+        let h = IntentHorizon {
+            robot_id: 5,
+            radius: 9,
+            ..IntentHorizon::ZEROED
+        };
+        let f = frame(&|f| crate::wire::write_data_frame(f, &h, 0));
+        assert_eq!(
+            stand.put(Topic::Horizon, &f[HEADER..], Meta::default(), &cfg),
+            Put::Rejected
+        );
+        // a grant never comes from a joined host
+        let f = frame(&|f| crate::wire::write_data_frame(f, &bus::bus_schema::Grant::ZEROED, 0));
+        assert_eq!(
+            stand.put(Topic::Grant, &f[HEADER..], Meta::default(), &cfg),
+            Put::Rejected
+        );
+        assert!(
+            stand.proxies.is_empty() && !stand.answered,
+            "nothing reached the bus"
+        );
+    }
 
     #[test]
     fn gone_reports_hold_one_entry_per_own_robot_whatever_a_peer_sends() {

@@ -45,7 +45,7 @@ pub mod wire;
 use std::time::Duration;
 
 pub use door::{DoorReport, Limits as DoorLimits};
-pub use end::{Got, LinkEnd, Sink};
+pub use end::{Got, LinkEnd, Meta, Sink};
 pub use health::{ClockSync, LinkState, LinkWatch};
 pub use hub::{Hub, HubOptions, HubReport};
 pub use join::{JoinPlan, JoinReply, JoinRequest, PlanError, RemotePlan};

@@ -15,8 +15,8 @@ use std::sync::mpsc::Receiver;
 use std::time::{Duration, Instant};
 
 use bus::bus_schema::{
-    Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
-    QHintBatch, Register, RobotState, Topic,
+    Control, DiscoveryAck, DiscoveryRelay, FinalReport, Grant, Intent, IntentHorizon,
+    MergedHintBatch, PseudoTargetDiscovery, QHintBatch, Register, RobotState, Topic,
 };
 use bus::iceoryx2::prelude::{CallbackProgression, SignalHandlingMode, WaitSetBuilder, ipc};
 use bus::{
@@ -27,13 +27,14 @@ use zenoh::Wait;
 use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
 
-use crate::end::{Got, LinkEnd, Put};
+use crate::end::{Got, LinkEnd, Meta, Put};
 use crate::health::{ClockSync, LinkEvent};
 use crate::join::{JOIN_KEY, JoinAsk, JoinPlan, JoinReply, JoinRequest, Knocker};
 use crate::link::{self, Tuning};
 use crate::seal::{HostKeys, Secret};
 use crate::stats::HostReport;
 use crate::topics::{FromRobot, ToRobot};
+use crate::wire::Kind;
 use crate::{BridgeError, HEARTBEAT_EVERY};
 
 /// How often the joining side looks at this host's robot processes (a full listing at most
@@ -165,7 +166,10 @@ pub struct Joiner {
 /// This host's bus as the robots' coordinator, and which of its topics need a wakeup.
 struct Local {
     bus: CoordinatorBus,
-    wake: [bool; 4],
+    /// Control, merged, ack, relay, grant.
+    wake: [bool; 5],
+    /// The run's fleet size (what a message's robot ids and counts are checked against).
+    fleet: u32,
 }
 
 /// How [`Joiner::serve`] ended.
@@ -220,11 +224,12 @@ impl Joiner {
         };
         Ok(Joiner {
             session,
-            plan,
             local: Local {
                 bus,
-                wake: [false; 4],
+                wake: [false; 5],
+                fleet: plan.robots_total,
             },
+            plan,
             publisher,
             end,
             frames,
@@ -294,7 +299,10 @@ impl Joiner {
                 // the coordinator's answer (merged hints, acks, relays) comes back over the link
                 pacing.expect_reply(now);
             }
-            self.wake_robots();
+            if self.wake_robots() {
+                // the robots answer a woken grant with intents they do not notify
+                pacing.expect_reply(now);
+            }
             if now.duration_since(last_list) >= LIST_EVERY {
                 last_list = now;
                 if let Some(listing) = lister.poll() {
@@ -368,7 +376,7 @@ impl Joiner {
     /// Handles one frame; true when the hub said goodbye.
     fn on_frame(&mut self, frame: &[u8], now: Instant) -> bool {
         let local = &mut self.local;
-        let put = |t, b: &[u8], shift| local.put(t, b, shift);
+        let put = |t, b: &[u8], meta| local.put(t, b, meta);
         match self
             .end
             .on_frame(frame, now, monotonic_ns(), &mut self.publisher, put)
@@ -387,10 +395,11 @@ impl Joiner {
     fn deliver_in_order(&mut self) -> bool {
         let local = &mut self.local;
         self.end
-            .deliver(monotonic_ns(), |t, b, shift| local.put(t, b, shift))
+            .deliver(monotonic_ns(), |t, b, meta| local.put(t, b, meta))
     }
 
-    fn wake_robots(&mut self) {
+    /// Notifies the robots of what was written for them; whether a grant woke them.
+    fn wake_robots(&mut self) -> bool {
         let w = std::mem::take(&mut self.local.wake);
         let b = &self.local.bus;
         let r = [
@@ -398,8 +407,10 @@ impl Joiner {
             w[1].then(|| b.merged.notify()),
             w[2].then(|| b.ack.notify()),
             w[3].then(|| b.relay.notify()),
+            w[4].then(|| b.grant.notify()),
         ];
         drop(r);
+        w[4]
     }
 
     /// Reads what the robots sent and publishes it to the hub straight from shared memory
@@ -431,6 +442,8 @@ impl Joiner {
         up::<PseudoTargetDiscovery>(bus, &mut sent, |_| {});
         up::<QHintBatch>(bus, &mut sent, |_| {});
         up::<FinalReport>(bus, &mut sent, |_| {});
+        up::<Intent>(bus, &mut sent, |_| {});
+        up::<IntentHorizon>(bus, &mut sent, |_| {});
         match sent.overflow {
             Some(e) => Err(BridgeError::Link(e.to_string())),
             None => Ok(sent.any),
@@ -457,27 +470,31 @@ impl Joiner {
 }
 
 impl Local {
-    /// Writes a coordinator message into this host's bus; `shift` moves its times onto this
-    /// host's clock.
-    fn put(&mut self, topic: Topic, payload: &[u8], shift: i64) -> Put {
+    /// Writes a coordinator message into this host's bus; `meta.shift` moves its times onto
+    /// this host's clock. A grant wakes the robots only when the coordinator woke its own
+    /// readers with it (`meta.wake`): the others they read when they look.
+    fn put(&mut self, topic: Topic, payload: &[u8], meta: Meta) -> Put {
         match topic {
-            Topic::Control => self.put_as::<Control>(payload, shift, 0),
-            Topic::Merged => self.put_as::<MergedHintBatch>(payload, shift, 1),
-            Topic::Ack => self.put_as::<DiscoveryAck>(payload, shift, 2),
-            Topic::Relay => self.put_as::<DiscoveryRelay>(payload, shift, 3),
+            Topic::Control => self.put_as::<Control>(payload, meta, Some(0)),
+            Topic::Merged => self.put_as::<MergedHintBatch>(payload, meta, Some(1)),
+            Topic::Ack => self.put_as::<DiscoveryAck>(payload, meta, Some(2)),
+            Topic::Relay => self.put_as::<DiscoveryRelay>(payload, meta, Some(3)),
+            Topic::Grant => self.put_as::<Grant>(payload, meta, meta.wake.then_some(4)),
             _ => Put::Rejected,
         }
     }
 
-    fn put_as<T: ToRobot>(&mut self, payload: &[u8], shift: i64, slot: usize) -> Put {
+    fn put_as<T: ToRobot>(&mut self, payload: &[u8], meta: Meta, slot: Option<usize>) -> Put {
         let mut m = T::default();
-        if crate::wire::read_into(payload, &mut m).is_err() {
+        if crate::wire::read_into(payload, &mut m).is_err() || m.check(self.fleet).is_err() {
             return Put::Rejected;
         }
-        m.shift(shift);
+        m.shift(meta.shift);
         match T::outbox(&self.bus).send(&m) {
             Ok(_) => {
-                self.wake[slot] = true;
+                if let Some(i) = slot {
+                    self.wake[i] = true;
+                }
                 Put::Done {
                     sent_ns: m.send_ns(),
                 }
@@ -501,7 +518,7 @@ struct Sent<'a> {
 
 /// Drains one robot topic and publishes each message.
 fn up<T: FromRobot>(bus: &CoordinatorBus, sent: &mut Sent<'_>, mut seen: impl FnMut(&T)) {
-    let lossless = T::TOPIC.delivery() == bus::bus_schema::Delivery::Lossless;
+    let lossless = crate::wire::link_kind(T::TOPIC) == Kind::Lossless;
     let _ = T::inbox(bus).drain(usize::MAX, |m| {
         seen(m);
         sent.any = true;

@@ -1,17 +1,20 @@
 //! Which port carries each topic on each side of the link, so the bridge loops are written once
 //! per direction instead of once per topic.
+//!
+//! Every topic crosses, the shared grid's included (`robot/intent`, `robot/horizon`,
+//! `coord/grant`); how each travels on the link is [`crate::wire::link_kind`]'s choice.
 
 use bus::bus_schema::{
-    Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
-    QHintBatch, Register, RobotState,
+    Control, DiscoveryAck, DiscoveryRelay, FinalReport, Grant, Intent, IntentHorizon,
+    MergedHintBatch, PseudoTargetDiscovery, QHintBatch, Register, RobotState,
 };
 use bus::{CoordinatorBus, Inbox, Outbox, RobotBus};
 
-use crate::wire::Stamped;
+use crate::wire::{Checked, Stamped};
 
 /// A robot→coordinator message: read from the joining host's coordinator stand-in, written by
 /// the hub's proxy of the sending robot.
-pub trait FromRobot: Stamped + Default {
+pub trait FromRobot: Stamped + Checked + Default {
     /// The robot that sent it.
     fn robot_id(&self) -> u32;
     /// Its send time (0 = none).
@@ -24,7 +27,7 @@ pub trait FromRobot: Stamped + Default {
 
 /// A coordinator→robot message: read by the hub's proxies, written by the joining host's
 /// coordinator stand-in.
-pub trait ToRobot: Stamped + Default {
+pub trait ToRobot: Stamped + Checked + Default {
     /// Its send time (0 = none).
     fn send_ns(&self) -> u64;
     /// Where the hub reads it.
@@ -60,6 +63,8 @@ from_robot! {
     PseudoTargetDiscovery => discovery, send_time_ns;
     QHintBatch => hints, send_time_ns;
     FinalReport => report, send_time_ns;
+    Intent => intent, send_time_ns;
+    IntentHorizon => horizon, send_time_ns;
 }
 
 to_robot! {
@@ -67,4 +72,5 @@ to_robot! {
     MergedHintBatch => merged, send_time_ns;
     DiscoveryAck => ack, time_ns;
     DiscoveryRelay => relay, send_time_ns;
+    Grant => grant, send_time_ns;
 }

@@ -5,7 +5,8 @@
 //! |---|---|
 //! | 0 | [`Kind`]: 0 lossless data, 1 latest-wins data, 2 heartbeat, 3 goodbye |
 //! | 1 | topic index in [`Topic::ALL`] (data frames; 0 otherwise) |
-//! | 2..8 | zero |
+//! | 2 | flags: bit 0 [`FLAG_WAKE`] (the sender's bus woke the message's readers); other bits zero |
+//! | 3..8 | zero |
 //! | 8..16 | link sequence number, little-endian (lossless frames; 0 otherwise) |
 //! | 16.. | payload: the message's bytes with their zero runs left out (below), or the JSON [`Heartbeat`] |
 //!
@@ -18,11 +19,16 @@
 //! one's p50 to BENCHMARKS.md's figure.
 //! Every monotonic time in a message is moved onto the receiving host's clock on arrival
 //! ([`Stamped::shift`]), so the coordinator's and the robots' latency figures stay meaningful.
+//!
+//! Which topics travel lossless on the link is the bridge's choice ([`link_kind`]), not always
+//! the bus's: the shared grid's topics are latest-wins on a bus and lossless on the link. What a
+//! decoded message may hold is checked before it reaches a bus ([`Checked`]).
 
 use bus::Message;
 use bus::bus_schema::{
-    Control, DiscoveryAck, DiscoveryRelay, FinalReport, MergedHintBatch, PseudoTargetDiscovery,
-    QHintBatch, Register, RobotState, Topic,
+    Control, Delivery, DiscoveryAck, DiscoveryRelay, FinalReport, GRANT_CAP, Grant, GridState,
+    HORIZON_CELLS, HORIZON_RADIUS_CAP, Intent, IntentHorizon, MergedHintBatch,
+    PseudoTargetDiscovery, QHintBatch, Register, RobotState, Topic,
 };
 use serde::{Deserialize, Serialize};
 
@@ -42,6 +48,10 @@ pub enum Kind {
     Goodbye = 3,
 }
 
+/// Header flag: the sender's bus woke the readers of this message (a notified grant), so the
+/// receiving host wakes its readers too; unflagged messages are read when they look.
+pub const FLAG_WAKE: u8 = 1;
+
 /// A frame header, decoded.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Header {
@@ -51,6 +61,30 @@ pub struct Header {
     pub topic: Topic,
     /// The link sequence number of a lossless frame.
     pub seq: u64,
+    /// [`FLAG_WAKE`] was set: wake the message's readers on this host.
+    pub wake: bool,
+}
+
+/// How a topic's messages cross the link: as its bus delivers them, except the shared grid's.
+///
+/// `robot/intent`, `robot/horizon` and `coord/grant` are latest-wins on a bus (only the newest
+/// matters, and a bus never drops the newest: a full buffer drops the oldest), but on the link
+/// they travel **lossless** ([`crate::reliable`]). A latest-wins frame may be dropped whole —
+/// the newest included — while the link is down or Zenoh's queue is full, and nothing in the
+/// tick protocol asks again: a robot answers each grant once, the coordinator publishes each
+/// tick once. A dropped grant or intent would hold the whole grid until the coordinator's
+/// per-tick deadline (`--hang-ms`, raised past the host deadline with remote robots: 12 s)
+/// made the robot hung; resent, it costs a resend period (300 ms) at worst. A late copy is
+/// harmless on both ends: a robot answers only a grant newer than the last it answered, and
+/// the coordinator drops an answer to an older tick as late.
+pub const fn link_kind(topic: Topic) -> Kind {
+    match topic {
+        Topic::Intent | Topic::Horizon | Topic::Grant => Kind::Lossless,
+        t => match t.delivery() {
+            Delivery::Lossless => Kind::Lossless,
+            Delivery::LatestWins => Kind::Latest,
+        },
+    }
 }
 
 /// Why a frame could not be read (a peer of another build, or garbage): dropped and counted.
@@ -65,6 +99,17 @@ pub enum FrameError {
     /// Unknown topic byte.
     #[error("unknown topic index {0}")]
     Topic(u8),
+    /// Flag bits this version does not know.
+    #[error("unknown frame flags {0:#04x}")]
+    Flags(u8),
+    /// A decoded message holds a value it never holds when a qfleet process writes it.
+    #[error("{topic:?} message with {what}")]
+    Field {
+        /// Topic of the message.
+        topic: Topic,
+        /// What is wrong.
+        what: &'static str,
+    },
     /// A heartbeat larger than [`MAX_HEARTBEAT`] or not a heartbeat.
     #[error("heartbeat of {0} bytes is too large or unreadable")]
     Heartbeat(usize),
@@ -87,9 +132,15 @@ pub fn topic_index(topic: Topic) -> u8 {
 
 /// Appends a frame header to `out` (which should be empty).
 pub fn put_header(out: &mut Vec<u8>, kind: Kind, topic: Topic, seq: u64) {
+    put_header_flagged(out, kind, topic, seq, false);
+}
+
+/// [`put_header`] with [`FLAG_WAKE`] set when `wake`.
+pub fn put_header_flagged(out: &mut Vec<u8>, kind: Kind, topic: Topic, seq: u64, wake: bool) {
     out.push(kind as u8);
     out.push(topic_index(topic));
-    out.extend_from_slice(&[0; 6]);
+    out.push(if wake { FLAG_WAKE } else { 0 });
+    out.extend_from_slice(&[0; 5]);
     out.extend_from_slice(&seq.to_le_bytes());
 }
 
@@ -108,12 +159,16 @@ pub fn header(frame: &[u8]) -> Result<Header, FrameError> {
     let topic = *Topic::ALL
         .get(frame[1] as usize)
         .ok_or(FrameError::Topic(frame[1]))?;
+    if frame[2] & !FLAG_WAKE != 0 {
+        return Err(FrameError::Flags(frame[2]));
+    }
     let mut seq = [0u8; 8];
     seq.copy_from_slice(&frame[8..16]);
     Ok(Header {
         kind,
         topic,
         seq: u64::from_le_bytes(seq),
+        wake: frame[2] & FLAG_WAKE != 0,
     })
 }
 
@@ -125,14 +180,22 @@ pub fn data_frame<T: Message>(msg: &T, seq: u64) -> Vec<u8> {
 }
 
 /// Writes [`data_frame`]`(msg, seq)` into `out` (cleared first; no allocation once `out` has
-/// grown to the largest message).
+/// grown to the largest message), of the kind [`link_kind`] says.
 pub fn write_data_frame<T: Message>(out: &mut Vec<u8>, msg: &T, seq: u64) {
-    let kind = match T::TOPIC.delivery() {
-        bus::bus_schema::Delivery::Lossless => Kind::Lossless,
-        bus::bus_schema::Delivery::LatestWins => Kind::Latest,
-    };
+    write_data_frame_as(out, link_kind(T::TOPIC), msg, seq, false);
+}
+
+/// Writes a data frame of `kind` for `msg` into `out` (cleared first), flagged [`FLAG_WAKE`]
+/// when `wake`.
+pub fn write_data_frame_as<T: Message>(
+    out: &mut Vec<u8>,
+    kind: Kind,
+    msg: &T,
+    seq: u64,
+    wake: bool,
+) {
     out.clear();
-    put_header(out, kind, T::TOPIC, seq);
+    put_header_flagged(out, kind, T::TOPIC, seq, wake);
     // SAFETY: `T: Message` is a `#[repr(C)]` bus-schema type whose padding is spelled out as
     // zeroed fields (checked by bus-schema's layout test), so all `size_of::<T>()` bytes are
     // initialised and may be read as `u8`.
@@ -243,6 +306,9 @@ stamped!(
     Control => [time_ns],
     DiscoveryAck => [time_ns],
     DiscoveryRelay => [origin_ns, send_time_ns],
+    Intent => [send_time_ns],
+    IntentHorizon => [send_time_ns],
+    Grant => [send_time_ns],
 );
 
 impl Stamped for MergedHintBatch {
@@ -253,6 +319,145 @@ impl Stamped for MergedHintBatch {
         for t in &mut self.origin_ns[..n] {
             shift_ns(t, delta);
         }
+    }
+}
+
+/// What a message decoded from the network may hold, checked before it is written into a bus
+/// (a peer that holds the link's keys can still send anything; its messages are taken only in
+/// the shapes a qfleet process writes them). Which host may speak for which robot is checked
+/// where the message lands (the hub takes a robot's messages only from the host that runs it).
+pub trait Checked {
+    /// `Ok` when every field is one a qfleet process of a fleet of `fleet` robots writes.
+    fn check(&self, fleet: u32) -> Result<(), FrameError>;
+}
+
+/// The coordinator validates these itself on arrival (admission, sequence numbers, counts
+/// clamped to their arrays); the bridge checks only that their bytes fit the message.
+macro_rules! checked_by_the_coordinator {
+    ($($ty:ty),* $(,)?) => {$(
+        impl Checked for $ty {
+            fn check(&self, _fleet: u32) -> Result<(), FrameError> {
+                Ok(())
+            }
+        }
+    )*};
+}
+
+checked_by_the_coordinator!(
+    Register,
+    RobotState,
+    PseudoTargetDiscovery,
+    QHintBatch,
+    FinalReport,
+    Control,
+    MergedHintBatch,
+    DiscoveryAck,
+    DiscoveryRelay,
+);
+
+/// Largest move code (0 wait, 1 up, 2 right, 3 down, 4 left).
+pub const MAX_MOVE: u8 = 4;
+
+fn field(topic: Topic, what: &'static str) -> Result<(), FrameError> {
+    Err(FrameError::Field { topic, what })
+}
+
+/// Whether `codes` are move codes, each at most once.
+fn distinct_moves(codes: &[u8]) -> bool {
+    let mut seen = 0u8;
+    codes.iter().all(|&c| {
+        let ok = c <= MAX_MOVE && seen & (1 << c) == 0;
+        seen |= 1 << c.min(7);
+        ok
+    })
+}
+
+impl Checked for Intent {
+    /// A robot of the fleet, 1 to 5 distinct move codes and nothing after them.
+    fn check(&self, fleet: u32) -> Result<(), FrameError> {
+        let n = usize::from(self.count);
+        if self.robot_id >= fleet {
+            return field(Topic::Intent, "a robot id outside the fleet");
+        }
+        if !(1..=self.ranked.len()).contains(&n) {
+            return field(Topic::Intent, "a move count outside 1..=5");
+        }
+        if !distinct_moves(&self.ranked[..n]) {
+            return field(Topic::Intent, "a move code past 4 or named twice");
+        }
+        if self.ranked[n..].iter().any(|&b| b != 0) || self._pad0 != [0; 6] {
+            return field(Topic::Intent, "bytes past its moves");
+        }
+        Ok(())
+    }
+}
+
+/// Whether a packed horizon ranking (3 bits per rank, move code + 1, a zero group ends it) is
+/// one a robot writes: move codes only, each at most once, nothing after the end.
+pub fn packed_ranking_ok(bits: u16) -> bool {
+    let mut rest = bits;
+    let mut codes = [0u8; 5];
+    let mut n = 0;
+    while rest & 7 != 0 {
+        if n == codes.len() {
+            return false;
+        }
+        codes[n] = (rest & 7) as u8 - 1;
+        n += 1;
+        rest >>= 3;
+    }
+    rest == 0 && distinct_moves(&codes[..n])
+}
+
+impl Checked for IntentHorizon {
+    /// A robot of the fleet, a radius ≤ [`HORIZON_RADIUS_CAP`], a ranking a robot writes at
+    /// every cell of its diamond and nothing past it.
+    fn check(&self, fleet: u32) -> Result<(), FrameError> {
+        if self.robot_id >= fleet {
+            return field(Topic::Horizon, "a robot id outside the fleet");
+        }
+        if self.radius > HORIZON_RADIUS_CAP {
+            return field(Topic::Horizon, "a radius past 8");
+        }
+        let r = usize::from(self.radius);
+        let cells = (2 * r * r + 2 * r + 1).min(HORIZON_CELLS);
+        if !self.ranked[..cells].iter().all(|&b| packed_ranking_ok(b)) {
+            return field(
+                Topic::Horizon,
+                "a ranking that is no list of distinct moves",
+            );
+        }
+        if self.ranked[cells..].iter().any(|&b| b != 0)
+            || self._pad0 != [0; 3]
+            || self._pad1 != [0; 6]
+        {
+            return field(Topic::Horizon, "bytes past its diamond");
+        }
+        Ok(())
+    }
+}
+
+impl Checked for Grant {
+    /// At most the fleet's robots, a known state, presence 0 or 1, nothing past its robots.
+    fn check(&self, fleet: u32) -> Result<(), FrameError> {
+        let n = self.robots as usize;
+        if self.robots > fleet || n > GRANT_CAP {
+            return field(Topic::Grant, "more robots than the fleet");
+        }
+        if GridState::try_from(self.state).is_err() {
+            return field(Topic::Grant, "an unknown grid state");
+        }
+        if self.present[..n].iter().any(|&p| p > 1) {
+            return field(Topic::Grant, "a presence other than 0 or 1");
+        }
+        let past = self.present[n..].iter().any(|&p| p != 0)
+            || self.cell_x[n..].iter().any(|&c| c != 0)
+            || self.cell_y[n..].iter().any(|&c| c != 0)
+            || self._pad0 != [0; 7];
+        if past {
+            return field(Topic::Grant, "bytes past its robots");
+        }
+        Ok(())
     }
 }
 
@@ -512,5 +717,260 @@ mod tests {
         assert!(f.len() - HEADER <= MAX_HEARTBEAT);
         assert!(read_heartbeat(&f[HEADER..]).is_err());
         assert!(read_heartbeat(b"not json").is_err());
+    }
+    #[test]
+    fn the_shared_grids_topics_cross_lossless_the_others_as_their_bus_delivers() {
+        for t in Topic::ALL {
+            let want = match t {
+                Topic::Intent | Topic::Horizon | Topic::Grant => Kind::Lossless,
+                t if t.delivery() == Delivery::Lossless => Kind::Lossless,
+                _ => Kind::Latest,
+            };
+            assert_eq!(link_kind(t), want, "{t:?}");
+        }
+        let f = data_frame(&Grant::ZEROED, 3);
+        assert_eq!(
+            (header(&f).unwrap().kind, header(&f).unwrap().seq),
+            (Kind::Lossless, 3)
+        );
+    }
+
+    #[test]
+    fn the_wake_flag_round_trips_and_unknown_flags_are_refused() {
+        let mut f = Vec::new();
+        write_data_frame_as(&mut f, Kind::Lossless, &Grant::ZEROED, 9, true);
+        let h = header(&f).unwrap();
+        assert!(h.wake && h.topic == Topic::Grant && h.seq == 9, "{h:?}");
+        assert!(!header(&data_frame(&Grant::ZEROED, 9)).unwrap().wake);
+        for bad in [2u8, 4, 0x80, 0xFF] {
+            f[2] = bad;
+            assert_eq!(header(&f), Err(FrameError::Flags(bad)));
+        }
+    }
+
+    fn intent() -> Intent {
+        Intent {
+            robot_id: 3,
+            tick: 7,
+            cell_x: 4,
+            cell_y: 5,
+            count: 3,
+            ranked: [2, 0, 4, 0, 0],
+            ..Intent::ZEROED
+        }
+    }
+
+    /// Decodes `m` as a peer's frame would arrive, then checks it against a fleet of 4.
+    fn arrives<T: Message + Checked + Default>(m: &T) -> Result<(), FrameError> {
+        let f = data_frame(m, 0);
+        let mut back = T::default();
+        read_into(&f[HEADER..], &mut back)?;
+        back.check(4)
+    }
+
+    fn refused<T: Message + Checked + Default>(m: &T) -> bool {
+        matches!(arrives(m), Err(FrameError::Field { .. }))
+    }
+
+    #[test]
+    fn an_intent_is_taken_only_as_a_robot_writes_it() {
+        assert_eq!(arrives(&intent()), Ok(()));
+        let five = Intent {
+            count: 5,
+            ranked: [4, 3, 2, 1, 0],
+            ..intent()
+        };
+        assert_eq!(arrives(&five), Ok(()));
+        let cases: [(&str, Intent); 7] = [
+            (
+                "a robot outside the fleet",
+                Intent {
+                    robot_id: 4,
+                    ..intent()
+                },
+            ),
+            (
+                "no move",
+                Intent {
+                    count: 0,
+                    ranked: [0; 5],
+                    ..intent()
+                },
+            ),
+            (
+                "more moves than there are",
+                Intent {
+                    count: 6,
+                    ..intent()
+                },
+            ),
+            (
+                "a move code past 4",
+                Intent {
+                    ranked: [2, 5, 4, 0, 0],
+                    ..intent()
+                },
+            ),
+            (
+                "a move named twice",
+                Intent {
+                    ranked: [2, 2, 4, 0, 0],
+                    ..intent()
+                },
+            ),
+            (
+                "a move past the count",
+                Intent {
+                    ranked: [2, 0, 4, 1, 0],
+                    ..intent()
+                },
+            ),
+            (
+                "padding",
+                Intent {
+                    _pad0: [0, 0, 1, 0, 0, 0],
+                    ..intent()
+                },
+            ),
+        ];
+        for (what, m) in cases {
+            assert!(refused(&m), "{what}: {m:?}");
+        }
+    }
+
+    fn horizon(radius: u8) -> IntentHorizon {
+        let mut h = IntentHorizon {
+            robot_id: 2,
+            tick: 9,
+            radius,
+            ..IntentHorizon::ZEROED
+        };
+        let r = usize::from(radius);
+        // wait, then right, then up: (0+1) | (2+1) << 3 | (1+1) << 6
+        for x in &mut h.ranked[..2 * r * r + 2 * r + 1] {
+            *x = 1 | 3 << 3 | 2 << 6;
+        }
+        h
+    }
+
+    #[test]
+    fn packed_rankings_are_move_codes_each_once_with_nothing_after_the_end() {
+        assert!(packed_ranking_ok(0), "no preference");
+        assert!(packed_ranking_ok(1 | 3 << 3 | 2 << 6));
+        assert!(packed_ranking_ok(5 | 4 << 3 | 3 << 6 | 2 << 9 | 1 << 12));
+        assert!(!packed_ranking_ok(6), "code 5");
+        assert!(!packed_ranking_ok(7 << 3 | 1), "code 6");
+        assert!(!packed_ranking_ok(1 | 1 << 3), "wait twice");
+        assert!(!packed_ranking_ok(1 | 1 << 9), "a group after the end");
+        assert!(!packed_ranking_ok(1 << 15), "the 16th bit");
+    }
+
+    #[test]
+    fn a_horizon_is_taken_only_as_a_robot_writes_it() {
+        for r in [0, 1, 8] {
+            assert_eq!(arrives(&horizon(r)), Ok(()), "radius {r}");
+        }
+        let mut past_diamond = horizon(1);
+        past_diamond.ranked[5] = 1;
+        let mut bad_ranking = horizon(2);
+        bad_ranking.ranked[12] = 6;
+        let cases: [(&str, IntentHorizon); 5] = [
+            (
+                "a robot outside the fleet",
+                IntentHorizon {
+                    robot_id: 9,
+                    ..horizon(1)
+                },
+            ),
+            (
+                "a radius past the cap",
+                IntentHorizon {
+                    radius: 9,
+                    ..horizon(1)
+                },
+            ),
+            ("a ranking past the diamond", past_diamond),
+            ("a ranking that is no list of moves", bad_ranking),
+            (
+                "padding",
+                IntentHorizon {
+                    _pad1: [0, 0, 0, 0, 0, 9],
+                    ..horizon(1)
+                },
+            ),
+        ];
+        for (what, m) in cases {
+            assert!(refused(&m), "{what}");
+        }
+    }
+
+    fn grant() -> Grant {
+        let mut g = Grant {
+            tick: 12,
+            robots: 3,
+            state: GridState::Moving.as_u8(),
+            seq: 12,
+            ..Grant::ZEROED
+        };
+        for i in 0..3 {
+            g.cell_x[i] = 10 + i as u16;
+            g.cell_y[i] = 1;
+            g.present[i] = u8::from(i != 1);
+        }
+        g
+    }
+
+    #[test]
+    fn a_grant_is_taken_only_as_the_coordinator_writes_it() {
+        assert_eq!(arrives(&grant()), Ok(()));
+        assert_eq!(
+            arrives(&Grant {
+                state: GridState::Ended.as_u8(),
+                robots: 4,
+                ..grant()
+            }),
+            Ok(())
+        );
+        let mut present_past = grant();
+        present_past.present[3] = 1;
+        let mut cell_past = grant();
+        cell_past.cell_x[200] = 1;
+        let mut two = grant();
+        two.present[0] = 2;
+        let cases: [(&str, Grant); 6] = [
+            (
+                "more robots than the fleet",
+                Grant {
+                    robots: 5,
+                    ..grant()
+                },
+            ),
+            (
+                "an unknown state",
+                Grant {
+                    state: 3,
+                    ..grant()
+                },
+            ),
+            ("a presence of 2", two),
+            ("a robot present past its count", present_past),
+            ("a cell past its count", cell_past),
+            (
+                "padding",
+                Grant {
+                    _pad0: [1, 0, 0, 0, 0, 0, 0],
+                    ..grant()
+                },
+            ),
+        ];
+        for (what, m) in cases {
+            assert!(refused(&m), "{what}");
+        }
+        // a fleet of the largest size: every entry may be used, none past it
+        let mut full = grant();
+        full.robots = GRANT_CAP as u32;
+        full.present = [1; GRANT_CAP];
+        assert_eq!(full.check(GRANT_CAP as u32), Ok(()));
+        assert!(full.check(GRANT_CAP as u32 - 1).is_err());
     }
 }

@@ -4,6 +4,9 @@
 //! itself, and checks starts, goals, legal moves, vertex and swap conflicts and the costs.
 
 use std::collections::VecDeque;
+use std::path::Path;
+
+use serde_json::Value;
 
 /// A cell as (x, y) = (column, row).
 pub type Xy = (i64, i64);
@@ -193,4 +196,31 @@ pub fn check(map: &Map, pairs: &[(Xy, Xy)], paths: &[Vec<Xy>]) -> Checked {
         }
     }
     c
+}
+
+/// Checks a finished shared-grid run's `paths.txt` (in `out`) independently and against its
+/// result's `grid` section (used by `tests/grid.rs` and `tests/multihost.rs`).
+pub fn validate(out: &Path, map: &Path, scen: &Path, agents: usize, grid: &Value) {
+    let m = Map::parse(&std::fs::read_to_string(map).unwrap());
+    let pairs = scen_pairs(&std::fs::read_to_string(scen).unwrap(), agents);
+    let paths = parse_paths(&std::fs::read_to_string(out.join("paths.txt")).unwrap());
+    let c = check(&m, &pairs, &paths);
+    assert_eq!(
+        (c.vertex, c.swap, c.illegal, c.bad_start),
+        (0, 0, 0, 0),
+        "{c:?}"
+    );
+    assert_eq!(grid["conflicts"], 0, "{grid}");
+    if grid["all_arrived"] == true {
+        assert_eq!(c.not_arrived, 0, "{c:?}");
+        assert_eq!(
+            grid["sum_of_costs"].as_u64(),
+            Some(c.sum_of_costs),
+            "{grid}"
+        );
+        assert_eq!(grid["makespan"].as_u64(), Some(c.makespan), "{grid}");
+        // the paths file runs from tick 0 to the makespan
+        assert_eq!(paths[0].len() as u64, c.makespan + 1);
+    }
+    assert_eq!(grid["lower_bound"].as_u64(), Some(c.lower_bound), "{grid}");
 }

@@ -388,13 +388,6 @@ impl ExperimentCmd {
         if let Some(s) = self.seed {
             plan.manifest.seeds = vec![s];
         }
-        if plan.manifest.world == qfleet_args::World::Shared && self.remote.remote_robots > 0 {
-            return Err(anyhow!(
-                "world = \"shared\" runs on one host: its intents and grants do not cross the \
-                 bridge yet (drop --remote-robots)"
-            )
-            .context(Exit::BadInput));
-        }
         let grace = Duration::try_from_secs_f64(self.grace)
             .map_err(|_| {
                 anyhow!(

@@ -35,7 +35,8 @@ pub struct RunCmd {
     #[arg(long = "robots", value_parser = clap::value_parser!(u32).range(1..=bus::MAX_ROBOTS as i64))]
     robots_asked: Option<u32>,
     /// Shared grid: the first N start/goal pairs of `--scen` (MovingAI's "first N agents"),
-    /// one robot each; `--robots` defaults to N.
+    /// one robot each; `--robots` defaults to N (less `--remote-robots`: the robots of this
+    /// host).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=bus::MAX_ROBOTS as i64))]
     agents: Option<u32>,
     /// The fleet size `--robots` and `--agents` resolve to (set by [`RunCmd::run`]).
@@ -286,13 +287,26 @@ impl RunCmd {
         self.merge.unwrap_or(MergeRule::Max)
     }
 
-    /// `--robots`, or `--agents`, or 4; the two must agree when both are given.
+    /// The robots of this host: `--robots`, or `--agents` less `--remote-robots` (the agents
+    /// other hosts run), or 4; both given, they must agree.
     fn fleet_size(&self) -> Result<u32> {
+        let remote = self.remote.remote_robots;
         match (self.robots_asked, self.agents) {
-            (Some(r), Some(a)) if r != a => Err(anyhow!(
+            (Some(r), Some(a)) if r != a && remote == 0 => Err(anyhow!(
                 "--robots {r} and --agents {a} disagree: one robot per agent (give one of them)"
             )),
-            (Some(n), _) | (None, Some(n)) => Ok(n),
+            (Some(r), Some(a)) if u64::from(r) + u64::from(remote) != u64::from(a) => {
+                Err(anyhow!(
+                    "--robots {r} on this host and --remote-robots {remote} make {} robots,                      but --agents is {a}: one robot per agent",
+                    u64::from(r) + u64::from(remote)
+                ))
+            }
+            (Some(n), _) => Ok(n),
+            (None, Some(a)) => a.checked_sub(remote).filter(|&n| n > 0).ok_or_else(|| {
+                anyhow!(
+                    "--agents {a} with --remote-robots {remote} leaves no robot on this host                      (at least one runs here, beside the coordinator)"
+                )
+            }),
             (None, None) => Ok(4),
         }
     }
@@ -309,14 +323,9 @@ impl RunCmd {
     )> {
         let task = self.map.task()?;
         if self.world.shared() {
-            if self.remote.remote_robots > 0 {
-                return Err(anyhow!(
-                    "--world shared runs on one host: its intents and grants do not cross the \
-                     bridge yet (drop --remote-robots)"
-                ));
-            }
-            // two robots on one start, a goal walled in, too few scenario lines: said now
-            self.map.instance(self.robots)?;
+            // two robots on one start, a goal walled in, too few scenario lines: said now, for
+            // the whole fleet (robots of other hosts take the scenario lines after this host's)
+            self.map.instance(self.remote.total(self.robots)?)?;
         } else if self.agents.is_some() {
             return Err(anyhow!(
                 "--agents picks the first N start/goal pairs of --scen for a shared grid: give \
