@@ -437,6 +437,12 @@ pub(crate) fn execute(
             publish(bus, &world, tick, state, true)?;
             break GridEnd::Arrived;
         }
+        // a robot whose process is gone leaves even while the others answer without waiting
+        // for it (a hung robot is not waited for, so the wait below may never look)
+        if let Some(listing) = lister.poll() {
+            engine.liveness(bus, listing)?;
+            leave_lost(engine, &mut world, &mut horizons, tick, |_| {});
+        }
         round.begin(|i| world.positions()[i].is_some());
         // what the robots' horizons already answer is not asked again
         for (i, p) in world.positions().iter().enumerate() {
@@ -474,16 +480,7 @@ pub(crate) fn execute(
             }
             if let Some(listing) = lister.poll() {
                 engine.liveness(bus, listing)?;
-                for (id, slot) in engine.robots.iter().enumerate() {
-                    if slot.lost && world.remove(id) {
-                        round.left(id);
-                        horizons.forget(id);
-                        report::log_line!(
-                            "qfleet-coordinator: robot {id} left the shared grid at tick {tick} \
-                             (its process is gone)"
-                        );
-                    }
-                }
+                leave_lost(engine, &mut world, &mut horizons, tick, |id| round.left(id));
             }
             if stop.load(Ordering::Relaxed) || engine.halted() {
                 break;
@@ -640,6 +637,27 @@ fn collect(
     }
     engine.messages += n as u64;
     Ok(n)
+}
+
+/// Takes every robot the engine declared lost off the grid (its cell is free from the next
+/// tick) and forgets its horizon; `left` hears each one.
+fn leave_lost(
+    engine: &Engine,
+    world: &mut World,
+    horizons: &mut Horizons,
+    tick: u32,
+    mut left: impl FnMut(usize),
+) {
+    for (id, slot) in engine.robots.iter().enumerate() {
+        if slot.lost && world.remove(id) {
+            left(id);
+            horizons.forget(id);
+            report::log_line!(
+                "qfleet-coordinator: robot {id} left the shared grid at tick {tick} (its process \
+                 is gone)"
+            );
+        }
+    }
 }
 
 /// Publishes the configuration of `tick` with `state` and, if `wake`, wakes the robots;
