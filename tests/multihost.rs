@@ -556,13 +556,13 @@ fn a_shared_grid_across_two_hosts_arrives_without_a_conflict() {
     assert_no_leftovers(&id);
 }
 
-/// Known to fail intermittently (3 of 8 runs on 2026-12-03): the killed robot's death does not
-/// reach the coordinator within the per-tick deadline (12 s with remote robots), so it turns
-/// hung, and a hung robot is not looked for on the node listings while the rest of the round
-/// completes, so it never leaves the grid and the run ends at the tick limit. In the failed
-/// runs host A's `bridge.json` counts no repeated gone report (`capped` 0): host B never said
-/// the robot was gone, so the lead is B's listing of its robots (`Joiner::robots_listed`);
-/// reaping every dead child at once in `qfleet join` did not help (1 of 5 passed).
+/// Known to fail intermittently (3 of 8 runs on 2026-12-03, before the coordinator looked at
+/// the node listings every tick): the killed robot's death does not reach the coordinator
+/// within the per-tick deadline (12 s with remote robots), so it turns hung, never leaves the
+/// grid, and the run ends at the tick limit. In the failed runs host A's `bridge.json` counts
+/// no repeated gone report (`capped` 0): host B never said the robot was gone, so the lead is
+/// B's listing of its robots (`Joiner::robots_listed`); reaping every dead child at once in
+/// `qfleet join` did not help (1 of 5 passed).
 #[test]
 #[ignore = "intermittent: a remote robot's death can reach the coordinator too late; see the doc"]
 fn a_remote_robot_killed_on_a_shared_grid_leaves_it_and_the_others_arrive() {
