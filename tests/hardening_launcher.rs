@@ -342,7 +342,16 @@ fn a_restart_that_cannot_create_its_log_stops_the_fleet_with_an_error() {
     );
     let lid = launcher.id();
     wait_children(&id, lid, 3);
-    let robot = pid_with_arg(&id, "--robot-id", "1").expect("robot 1");
+    // a child is counted from its fork, its arguments are readable from its exec
+    let mut robot = None;
+    assert!(
+        wait_until(PROCESS_TIMEOUT, || {
+            robot = pid_with_arg(&id, "--robot-id", "1");
+            robot.is_some()
+        }),
+        "robot 1 never came up"
+    );
+    let robot = robot.unwrap_or_default();
     // its log cannot be created again: a directory takes its place
     let log = out_dir.join("robot-1.log");
     std::fs::remove_file(&log).unwrap();
