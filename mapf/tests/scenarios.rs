@@ -301,11 +301,8 @@ fn a_plan_made_ahead_is_the_one_the_first_step_would_make() {
     checked(&i, &w);
 }
 
-/// The refinement a plan made ahead gets ([`WorldConfig::prepare_refine`]) never makes it
-/// costlier, is deterministic (expansions, not a clock), and the fleet follows it to the goals.
-#[test]
-fn a_plan_made_ahead_is_refined_deterministically_and_never_costlier() {
-    // a 12x12 room with a wall across the middle (two doors) and 20 agents crossing it
+/// A 12x12 room with a wall across the middle (two doors) and 20 agents crossing it.
+fn two_doors() -> Instance {
     let mut map = String::new();
     for y in 0..12 {
         for x in 0..12 {
@@ -315,7 +312,14 @@ fn a_plan_made_ahead_is_refined_deterministically_and_never_costlier() {
     }
     let starts: Vec<Cell> = (0..20).map(|k| c(k % 12, k / 12)).collect();
     let goals: Vec<Cell> = (0..20).map(|k| c(11 - k % 12, 11 - k / 12)).collect();
-    let i = inst(&map, &starts, &goals);
+    inst(&map, &starts, &goals)
+}
+
+/// The refinement a plan made ahead gets ([`WorldConfig::prepare_refine`]) never makes it
+/// costlier, is deterministic (expansions, not a clock), and the fleet follows it to the goals.
+#[test]
+fn a_plan_made_ahead_is_refined_deterministically_and_never_costlier() {
+    let i = two_doors();
     let made = |prepare_refine| {
         let mut w = World::new(
             &i,
@@ -375,17 +379,7 @@ fn a_plan_made_ahead_refines_in_rounds_while_it_gains_and_within_its_cap() {
     );
     assert_eq!(w.planned_cost(), Some((easy.lower_bound(), 0)));
 
-    // 20 agents crossing a wall with two doors
-    let mut map = String::new();
-    for y in 0..12 {
-        for x in 0..12 {
-            map.push(if y == 6 && x != 3 && x != 8 { '#' } else { '.' });
-        }
-        map.push('\n');
-    }
-    let starts: Vec<Cell> = (0..20).map(|k| c(k % 12, k / 12)).collect();
-    let goals: Vec<Cell> = (0..20).map(|k| c(11 - k % 12, 11 - k / 12)).collect();
-    let crowded = inst(&map, &starts, &goals);
+    let crowded = two_doors();
     let capped = |max| {
         let mut w = World::new(
             &crowded,
