@@ -355,21 +355,8 @@ checked_by_the_coordinator!(
     DiscoveryRelay,
 );
 
-/// Largest move code (0 wait, 1 up, 2 right, 3 down, 4 left).
-pub const MAX_MOVE: u8 = 4;
-
 fn field(topic: Topic, what: &'static str) -> Result<(), FrameError> {
     Err(FrameError::Field { topic, what })
-}
-
-/// Whether `codes` are move codes, each at most once.
-fn distinct_moves(codes: &[u8]) -> bool {
-    let mut seen = 0u8;
-    codes.iter().all(|&c| {
-        let ok = c <= MAX_MOVE && seen & (1 << c) == 0;
-        seen |= 1 << c.min(7);
-        ok
-    })
 }
 
 impl Checked for Intent {
@@ -382,7 +369,7 @@ impl Checked for Intent {
         if !(1..=self.ranked.len()).contains(&n) {
             return field(Topic::Intent, "a move count outside 1..=5");
         }
-        if !distinct_moves(&self.ranked[..n]) {
+        if mapf::Intent::from_bytes(&self.ranked[..n]).is_err() {
             return field(Topic::Intent, "a move code past 4 or named twice");
         }
         if self.ranked[n..].iter().any(|&b| b != 0) || self._pad0 != [0; 6] {
@@ -392,21 +379,10 @@ impl Checked for Intent {
     }
 }
 
-/// Whether a packed horizon ranking (3 bits per rank, move code + 1, a zero group ends it) is
-/// one a robot writes: move codes only, each at most once, nothing after the end.
+/// Whether a packed horizon ranking is one a robot writes (`mapf::horizon::unpack`, the
+/// coordinator's own reading): move codes only, each at most once, nothing after the end.
 pub fn packed_ranking_ok(bits: u16) -> bool {
-    let mut rest = bits;
-    let mut codes = [0u8; 5];
-    let mut n = 0;
-    while rest & 7 != 0 {
-        if n == codes.len() {
-            return false;
-        }
-        codes[n] = (rest & 7) as u8 - 1;
-        n += 1;
-        rest >>= 3;
-    }
-    rest == 0 && distinct_moves(&codes[..n])
+    mapf::horizon::unpack(bits).is_ok()
 }
 
 impl Checked for IntentHorizon {
