@@ -297,14 +297,16 @@ impl RunCmd {
             )),
             (Some(r), Some(a)) if u64::from(r) + u64::from(remote) != u64::from(a) => {
                 Err(anyhow!(
-                    "--robots {r} on this host and --remote-robots {remote} make {} robots,                      but --agents is {a}: one robot per agent",
+                    "--robots {r} on this host and --remote-robots {remote} make {} robots, but \
+                     --agents is {a}: one robot per agent",
                     u64::from(r) + u64::from(remote)
                 ))
             }
             (Some(n), _) => Ok(n),
             (None, Some(a)) => a.checked_sub(remote).filter(|&n| n > 0).ok_or_else(|| {
                 anyhow!(
-                    "--agents {a} with --remote-robots {remote} leaves no robot on this host                      (at least one runs here, beside the coordinator)"
+                    "--agents {a} with --remote-robots {remote} leaves no robot on this host (at \
+                     least one runs here, beside the coordinator)"
                 )
             }),
             (None, None) => Ok(4),
