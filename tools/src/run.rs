@@ -295,13 +295,11 @@ impl RunCmd {
             (Some(r), Some(a)) if r != a && remote == 0 => Err(anyhow!(
                 "--robots {r} and --agents {a} disagree: one robot per agent (give one of them)"
             )),
-            (Some(r), Some(a)) if u64::from(r) + u64::from(remote) != u64::from(a) => {
-                Err(anyhow!(
-                    "--robots {r} on this host and --remote-robots {remote} make {} robots, but \
+            (Some(r), Some(a)) if u64::from(r) + u64::from(remote) != u64::from(a) => Err(anyhow!(
+                "--robots {r} on this host and --remote-robots {remote} make {} robots, but \
                      --agents is {a}: one robot per agent",
-                    u64::from(r) + u64::from(remote)
-                ))
-            }
+                u64::from(r) + u64::from(remote)
+            )),
             (Some(n), _) => Ok(n),
             (None, Some(a)) => a.checked_sub(remote).filter(|&n| n > 0).ok_or_else(|| {
                 anyhow!(
