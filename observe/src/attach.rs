@@ -115,16 +115,7 @@ impl OwnOnly {
     fn judge(&mut self, sender: u128, m: &Msg<'_>) -> Verdict {
         match self.members.judge(sender, m) {
             Verdict::Resolve => {
-                let listing = bus::check_nodes(&self.cfg, false)
-                    .map(|r| r.nodes)
-                    .unwrap_or_default();
-                for n in &listing {
-                    if let Some(id) = n.id {
-                        let origin =
-                            members::origin_of(id, &listing, self.launcher, members::parent_of);
-                        self.members.learn(id, origin);
-                    }
-                }
+                let listing = self.learn_listed();
                 if !listing.iter().any(|n| n.id == Some(sender)) {
                     self.members.learn(sender, Origin::Other);
                 }
@@ -132,6 +123,20 @@ impl OwnOnly {
             }
             v => v,
         }
+    }
+
+    /// Learns the origin of every node of the run listed now; returns the listing.
+    fn learn_listed(&mut self) -> Vec<bus::NodeInfo> {
+        let listing = bus::check_nodes(&self.cfg, false)
+            .map(|r| r.nodes)
+            .unwrap_or_default();
+        for n in &listing {
+            if let Some(id) = n.id {
+                let origin = members::origin_of(id, &listing, self.launcher, members::parent_of);
+                self.members.learn(id, origin);
+            }
+        }
+        listing
     }
 }
 
@@ -275,6 +280,15 @@ impl Observer {
             + drain(&self.grant, o, f, |m| Msg::Grant(m))?
             + drain(&self.intent, o, f, |m| Msg::Intent(m))?
             + drain(&self.horizon, o, f, |m| Msg::Horizon(m))?)
+    }
+
+    /// With [`only_own`](Self::only_own), learns now whose every node of the run listed now is,
+    /// so that their samples read after they left are still told apart (a node no longer
+    /// listed when first read proves nothing and is not shown); else nothing.
+    pub fn learn_senders(&self) {
+        if let Some(own) = &self.own {
+            own.borrow_mut().learn_listed();
+        }
     }
 
     /// Connects every subscriber of this observer to the publishers that appeared since its

@@ -228,14 +228,6 @@ fn watch_thread(
     let (observer, lossless) = match joining {
         Ok(both) => {
             joined.store(JOINED, Ordering::SeqCst);
-            // Joined (before the robots started: see `Watch::wait_joined`), a recorder reads the
-            // latest-wins topics at the lowest priority, so it takes from a run that fills every
-            // core only what the run leaves: their older samples are dropped for us alone. The
-            // lossless topics have a thread of their own that a wakeup runs (see
-            // `LosslessReader`). The live view keeps its priority: a person is watching it.
-            if !opts.live {
-                crate::record::lower_priority();
-            }
             both
         }
         Err(e) => {
@@ -247,9 +239,29 @@ fn watch_thread(
     };
     let mut lossless = Some(lossless);
     let mut lossless_others = [0u64; bus_schema::names::Topic::ALL.len()];
+    // Joined (before the robots started: see `Watch::wait_joined`), a recorder reads the
+    // latest-wins topics at the lowest priority, so it takes from a run that fills every core
+    // only what the run leaves: their older samples are dropped for us alone. The lossless
+    // topics have a thread of their own that a wakeup runs (see `LosslessReader`). The live
+    // view keeps its priority: a person is watching it.
+    let mut idle = LowerOnceConnected::new(
+        !opts.live,
+        opts.own_fleet.map_or(0, |r| r as usize),
+        Instant::now() + CONNECT_BEFORE_IDLE,
+    );
     let mut feed = |vm: &mut ViewModel| -> Result<Feed, ObserveError> {
         let over = done.load(Ordering::SeqCst);
+        if idle.due(Instant::now()) {
+            // connected and told whose the senders are first: a connected reader keeps the
+            // last samples of a publisher that leaves before it reads again, and a sender is
+            // told to be the run's own only while it is listed, so even a reader the run
+            // starves records each robot's latest state and hints (read after the run)
+            observer.connect_all()?;
+            observer.learn_senders();
+            crate::record::lower_priority();
+        }
         let mut take = |t: u64, m: Msg<'_>| {
+            idle.saw(m);
             vm.apply(t, m);
             if let Some(r) = rec.as_mut() {
                 r.record(t, m);
@@ -305,6 +317,61 @@ fn watch_thread(
     }
     Ok(report)
 }
+
+/// How long the watch thread waits at normal priority for every robot's registration before it
+/// moves to the idle class anyway (a robot that never starts must not keep it there).
+const CONNECT_BEFORE_IDLE: Duration = Duration::from_secs(5);
+
+/// When the watch thread of a recording moves to the idle class: once its latest-wins readers
+/// can connect to every robot's publishers (a robot opens them all before it registers, so
+/// after the last robot's registration), or at the deadline. A reader that never connected to
+/// a publisher loses that publisher's samples when it leaves (see [`crate::attach`]), and an
+/// idle-class reader on a machine whose cores are busy may first run after the robots exited.
+#[derive(Debug)]
+struct LowerOnceConnected {
+    /// Whether to lower at all (not for the live view).
+    wanted: bool,
+    /// Robots whose registration was seen (ids below `robots`).
+    seen: Vec<bool>,
+    /// How many of them.
+    count: usize,
+    deadline: Instant,
+}
+
+impl LowerOnceConnected {
+    fn new(wanted: bool, robots: usize, deadline: Instant) -> Self {
+        Self {
+            wanted,
+            seen: vec![false; robots.min(MAX_WATCHED_ROBOTS)],
+            count: 0,
+            deadline,
+        }
+    }
+
+    /// Notes a message (a registration counts its robot).
+    fn saw(&mut self, m: Msg<'_>) {
+        if let Msg::Register(r) = m
+            && let Some(s) = self.seen.get_mut(r.robot_id as usize)
+            && !*s
+        {
+            *s = true;
+            self.count += 1;
+        }
+    }
+
+    /// Whether to connect and lower now; true once.
+    fn due(&mut self, now: Instant) -> bool {
+        let due = self.wanted && (self.count == self.seen.len() || now >= self.deadline);
+        if due {
+            self.wanted = false;
+        }
+        due
+    }
+}
+
+/// Robots whose registrations [`LowerOnceConnected`] tracks at most (a fleet's size is checked
+/// elsewhere; this only bounds the table).
+const MAX_WATCHED_ROBOTS: usize = 1 << 16;
 
 /// How long the lossless reader may take to join once the watch thread has joined.
 const JOIN_LOSSLESS: Duration = Duration::from_secs(10);
@@ -468,7 +535,7 @@ pub fn view_of_recording(r: &crate::replay::Recording) -> Result<ViewModel, Obse
 #[cfg(test)]
 mod tests {
     use bus::bus_schema::names::Topic;
-    use bus::bus_schema::{FinalReport, PseudoTargetDiscovery, Register};
+    use bus::bus_schema::{FinalReport, PseudoTargetDiscovery, Register, RobotState};
     use bus::{BusConfig, CoordinatorBus, Outbox, leftover_files, unique_run_id};
 
     use super::*;
@@ -497,6 +564,83 @@ mod tests {
 
     fn topics_of(msgs: &[(u64, Owned)]) -> Vec<Topic> {
         msgs.iter().map(|(_, m)| m.as_msg().topic()).collect()
+    }
+
+    fn register(robot_id: u32) -> Register {
+        Register {
+            robot_id,
+            ..Register::default()
+        }
+    }
+
+    #[test]
+    fn a_recording_reader_lowers_itself_once_every_robot_registered_or_at_the_deadline() {
+        let t0 = Instant::now();
+        let mut all = LowerOnceConnected::new(true, 2, t0 + Duration::from_secs(5));
+        assert!(!all.due(t0), "no robot registered yet");
+        all.saw(Msg::Register(&register(1)));
+        all.saw(Msg::Register(&register(1)));
+        assert!(!all.due(t0), "a robot registering twice counts once");
+        // a robot id the fleet does not have counts for nothing
+        all.saw(Msg::Register(&register(7)));
+        assert!(!all.due(t0));
+        all.saw(Msg::Register(&register(0)));
+        assert!(all.due(t0), "every robot registered");
+        assert!(!all.due(t0), "once only");
+        let mut late = LowerOnceConnected::new(true, 2, t0 + Duration::from_secs(5));
+        late.saw(Msg::Register(&register(0)));
+        assert!(!late.due(t0 + Duration::from_secs(4)));
+        assert!(
+            late.due(t0 + Duration::from_secs(5)),
+            "a robot that never came"
+        );
+        let mut live = LowerOnceConnected::new(false, 0, t0);
+        assert!(
+            !live.due(t0 + Duration::from_secs(9)),
+            "the live view keeps its priority"
+        );
+    }
+
+    #[test]
+    fn a_connected_latest_wins_reader_keeps_the_last_sample_of_a_publisher_that_left() {
+        let cfg = BusConfig::new(unique_run_id("obs-connected"), 1).unwrap();
+        let coordinator = CoordinatorBus::create(&cfg).expect("the run's services");
+        let connected = Observer::open(&cfg.run_id, Topics::LatestWins).expect("joins");
+        let unconnected = Observer::open(&cfg.run_id, Topics::LatestWins).expect("joins");
+        let (opened_tx, opened) = mpsc::channel();
+        let (go, wait) = mpsc::channel::<()>();
+        let c = cfg.clone();
+        let robot = std::thread::spawn(move || {
+            let node = c.create_node("visitor").expect("node");
+            let state = Outbox::<RobotState>::open(&node, &c).expect("state outbox");
+            opened_tx.send(()).unwrap();
+            wait.recv_timeout(Duration::from_secs(20)).expect("go");
+            for episode in [1, 2] {
+                state.send_with(|m| m.episode = episode).expect("send");
+            }
+        });
+        opened
+            .recv_timeout(Duration::from_secs(20))
+            .expect("opened");
+        // what `LowerOnceConnected` makes the watch thread do before it goes idle
+        connected.connect_all().unwrap();
+        go.send(()).unwrap();
+        robot.join().expect("robot");
+        let episodes = |o: &Observer| {
+            let mut seen = Vec::new();
+            o.poll(|_, m| {
+                if let Msg::State(s) = m {
+                    seen.push(s.episode);
+                }
+            })
+            .unwrap();
+            seen
+        };
+        assert_eq!(episodes(&connected).last(), Some(&2), "the latest sample");
+        assert_eq!(episodes(&unconnected), Vec::<u32>::new());
+        drop((connected, unconnected));
+        coordinator.close().unwrap();
+        assert!(leftover_files(&cfg.prefix()).is_empty());
     }
 
     #[test]
