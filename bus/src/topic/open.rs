@@ -45,10 +45,14 @@ fn pubsub_open_error(
             schema_version: SCHEMA_VERSION,
         },
         // the coordinator is creating it right now (a robot of a large fleet opens while the
-        // coordinator still creates the last services): not there yet, retried like a missing one
-        E::DoesNotExist | E::HangsInCreation => BusError::ServiceMissing {
-            service: service.to_string(),
-        },
+        // coordinator still creates the last services), or a dead coordinator's service is
+        // being removed right now (a restarted coordinator cleans up its predecessor while a
+        // robot reopens: seen in a reliability test): not there yet, retried like a missing one
+        E::DoesNotExist | E::HangsInCreation | E::IsMarkedForDestruction => {
+            BusError::ServiceMissing {
+                service: service.to_string(),
+            }
+        }
         E::IncompatibleMessagingPattern
         | E::IncompatibleAttributes
         | E::DoesNotSupportRequestedMinBufferSize
@@ -72,9 +76,12 @@ fn pubsub_open_error(
 fn event_open_error(service: &str, e: EventOpenError) -> BusError {
     use EventOpenError as E;
     match e {
-        E::DoesNotExist | E::HangsInCreation => BusError::ServiceMissing {
-            service: service.to_string(),
-        },
+        // as for a publish-subscribe service
+        E::DoesNotExist | E::HangsInCreation | E::IsMarkedForDestruction => {
+            BusError::ServiceMissing {
+                service: service.to_string(),
+            }
+        }
         E::IncompatibleMessagingPattern
         | E::IncompatibleAttributes
         | E::IncompatibleDeadline
