@@ -135,10 +135,12 @@ pub fn wait_bounded(mut child: Child, timeout: Duration) -> Output {
     let out = drain(child.stdout.take());
     let err = drain(child.stderr.take());
     let deadline = Instant::now() + timeout;
+    let mut stuck = String::new();
     let (status, timed_out) = loop {
         match child.try_wait().expect("try_wait") {
             Some(status) => break (status, false),
             None if Instant::now() >= deadline => {
+                stuck = where_stuck(child.id());
                 let _ = child.kill();
                 break (child.wait().expect("wait"), true);
             }
@@ -152,10 +154,46 @@ pub fn wait_bounded(mut child: Child, timeout: Duration) -> Output {
     };
     assert!(
         !timed_out,
-        "process did not finish within {timeout:?}; stderr:\n{}",
-        String::from_utf8_lossy(&output.stderr)
+        "process did not finish within {timeout:?}; stderr:\n{}\nstdout:\n{}\nwhere it was:\n{stuck}",
+        String::from_utf8_lossy(&output.stderr),
+        String::from_utf8_lossy(&output.stdout),
     );
     output
+}
+
+/// Where a process that does not finish is stuck, for the failure message: each thread's name,
+/// kernel wait channel and system call from `/proc`, and the threads' stacks when `gdb` is on
+/// the PATH (a hang seen once in CI left nothing else to go on).
+pub fn where_stuck(pid: u32) -> String {
+    let mut said = String::new();
+    let read = |p: std::path::PathBuf| std::fs::read_to_string(p).unwrap_or_default();
+    if let Ok(tasks) = std::fs::read_dir(format!("/proc/{pid}/task")) {
+        for t in tasks.flatten() {
+            let d = t.path();
+            said.push_str(&format!(
+                "thread {} {}: wchan {} syscall {}\n",
+                t.file_name().to_string_lossy(),
+                read(d.join("comm")).trim(),
+                read(d.join("wchan")).trim(),
+                read(d.join("syscall")).trim()
+            ));
+        }
+    }
+    let gdb = Command::new("gdb")
+        .args([
+            "-p",
+            &pid.to_string(),
+            "-batch",
+            "-ex",
+            "thread apply all bt",
+        ])
+        .stdin(Stdio::null())
+        .output();
+    match gdb {
+        Ok(o) => said.push_str(&String::from_utf8_lossy(&o.stdout)),
+        Err(e) => said.push_str(&format!("(no stacks: gdb: {e})\n")),
+    }
+    said
 }
 
 /// Starts `cmd` with piped stdout/stderr.
