@@ -50,6 +50,11 @@ pub struct AgentArgs {
     /// follow the robot in the live view; it then also publishes its state at every pause.
     #[arg(long, value_name = "STEPS_PER_S", value_parser = qfleet_args::parse_pace)]
     pub pace: Option<f64>,
+    /// The robot moves on a shared grid after learning (`--world shared`): it sends its answer
+    /// to the execution's first tick while it waits for `Execute`, so that tick waits for
+    /// nobody.
+    #[arg(long)]
+    pub shared_grid: bool,
 }
 
 /// The robot-agent's command line as clap reads it.
@@ -83,6 +88,7 @@ impl AgentArgs {
             schema_version_override: None,
             stop_at_optimum: false,
             pace: None,
+            shared_grid: false,
         }
     }
 
@@ -99,6 +105,7 @@ impl AgentArgs {
             .opt("--timeout", self.timeout.to_string())
             .maybe("--schema-version-override", self.schema_version_override)
             .flag("--stop-at-optimum", self.stop_at_optimum)
+            .flag("--shared-grid", self.shared_grid)
             .extend(qfleet_args::pace_cli(self.pace));
         if let Some(out) = &self.out {
             w.path("--out", out);
@@ -169,6 +176,7 @@ mod tests {
         a.schema_version_override = Some(9);
         a.stop_at_optimum = true;
         a.pace = Some(5.0);
+        a.shared_grid = true;
         let words: Vec<String> = a
             .to_args()
             .iter()
@@ -251,6 +259,7 @@ mod tests {
                     a.out = out.map(Into::into);
                     a.timeout = timeout;
                     a.stop_at_optimum = stop;
+                    a.shared_grid = !stop;
                     a.pace = pace;
                     a
                 },

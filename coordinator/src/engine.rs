@@ -118,6 +118,9 @@ pub(crate) struct Engine {
     pub(crate) started_ns: Option<u64>,
     /// A shared grid: where each robot must start (a robot registering elsewhere is refused).
     pub(crate) starts: Option<Vec<Cell>>,
+    /// CLOCK_MONOTONIC ns when this coordinator began the current phase (0: it took the phase
+    /// over): a robot's early answer to the execution's first tick counts from then on.
+    pub(crate) phase_ns: u64,
     /// Fleet-table changes counted by the coordinators before this one.
     changes_before: u64,
     merged_buffer: usize,
@@ -167,7 +170,7 @@ pub(crate) fn tolerate(r: Result<usize, BusError>) -> Result<(), CoordError> {
     }
 }
 
-/// The launcher's note that robot `id`'s process ended (see [`Engine::exited_early`]).
+/// The launcher's note that robot `id`'s process ended (see `Engine::exited_early`).
 pub fn exited_file(out: &std::path::Path, id: u32) -> PathBuf {
     out.join(format!("robot-{id}.exited"))
 }
@@ -199,6 +202,7 @@ impl Engine {
             touched: vec![false; goals as usize],
             assignment: Vec::new(),
             go: None,
+            phase_ns: 0,
             disc: Discoveries::new(robots),
             life,
             h: Hists {
@@ -559,6 +563,7 @@ impl Engine {
         go: Command,
     ) -> Result<(), CoordError> {
         self.assignment = assignment;
+        self.phase_ns = monotonic_ns();
         for r in &mut self.robots {
             r.report = None;
             r.finished = false;

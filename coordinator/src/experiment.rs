@@ -1,4 +1,4 @@
-//! The driver of an experiment over the [`Engine`], in the coordinator process
+//! The driver of an experiment over the engine (`Engine`), in the coordinator process
 //! (`qfleet-coordinator --plan plan.json`, started and restarted by `qfleet experiment` through
 //! the launcher as `qfleet run` starts its coordinator): robots go through the phases of the
 //! [`ExperimentPlan`] over the control topic; one fleet table per goal (merged only within the
@@ -19,7 +19,7 @@
 //! 4. Keep the phase's result in `experiment-checkpoint.json` ([`Checkpoint`]).
 //!
 //! 5. On a shared grid (`world: "shared"` in the plan): the coordinator executes the phase as
-//!    a plain run's execution ([`grid::execute`], the same engine): `Execute`, then tick by
+//!    a plain run's execution (`grid::execute`, the same engine): `Execute`, then tick by
 //!    tick from the plan's starts to this phase's goals, or with `phase_start: "previous"`
 //!    from where the phase before left the robots. The phase's result carries the grid section
 //!    and the paths go to `paths-phase-<p>.txt`. Robots learn every phase from their start in

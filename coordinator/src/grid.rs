@@ -3,7 +3,7 @@
 //! collisions. The robot's side of the protocol is `robot_agent::execute`.
 //!
 //! The execution's first look-ahead plan is made before it, while the robots learn, on a
-//! thread of its own ([`prepare_while`]); the execution waits for it if they finish first.
+//! thread of its own (`prepare_while`); the execution waits for it if they finish first.
 //!
 //! # A tick
 //! 1. Publish a `Grant` with every robot's cell at tick `t` (tick 0: the starts) and wake the
@@ -20,6 +20,11 @@
 //!    answer anew (robots align their horizons, so that is at most once per `H + 1` ticks) and
 //!    at the end. Only robots that moved off the center of their last full horizon answer
 //!    then: one parked on its goal or queued behind another keeps its horizon.
+//!
+//!    Tick 0 is usually answered before it: robots started with `--shared-grid` send their
+//!    first horizon while they wait for `Execute` (`robot_agent::execute`, "The first tick,
+//!    answered early"); those sent since the phase began (the engine's `phase_ns`) are kept
+//!    when the execution starts, and the first grant wakes nobody when they answer it.
 //! 3. When every robot on the grid answered, or the rest are past the heartbeat deadline
 //!    (`--hang-ms`; they are *hung*: obstacles that wait and are never pushed, not waited for
 //!    again until they answer), resolve the tick with [`mapf::World`] (PIBT on the intents, a
@@ -30,7 +35,7 @@
 //! last grant says so. A robot whose process dies (the liveness listing) leaves the grid: its
 //! cell is free from the next tick, and it counts as not arrived.
 //!
-//! The executed paths are checked again by [`mapf::check`], code that shares nothing with the
+//! The executed paths are checked again by [`mapf::check`](mod@mapf::check), code that shares nothing with the
 //! resolver: the vertex and swap conflicts it finds among the robots that stayed on the grid are
 //! the result's `conflicts` (0 unless something is broken). A robot that left stays on its last
 //! cell in `paths.txt` (the format has no "gone"), where others may pass later.
@@ -404,16 +409,27 @@ pub(crate) fn execute(
         }
     }
     bus.connect_all()?;
-    // answers to an earlier execution (the phase before, in an experiment) are not this one's
+    // answers to an earlier execution (the phase before, in an experiment) are not this one's;
+    // a robot's answer to the first tick sent since this phase began (while it waited for
+    // `Execute`, see `robot_agent::execute`) is kept for that tick
     while bus.intent.receive_sample()?.is_some() {}
-    while bus.horizon.receive_sample()?.is_some() {}
+    let h = plan.horizon.min(HORIZON_RADIUS_CAP);
+    let mut early: Vec<(Sender, IntentHorizon)> = Vec::new();
+    let mut answered_early = vec![false; n];
+    let mut early_answers = 0usize;
+    while let Some(s) = bus.horizon.receive_sample()? {
+        let m = s.payload();
+        // (not with one intent per tick, `h = 0`: that asks every robot every tick)
+        if h > 0 && m.tick == 0 && m.send_time_ns >= engine.phase_ns {
+            early.push((s.header().node_id().value(), *m));
+        }
+    }
     report::log_line!(
         "qfleet-coordinator: shared grid: {} robots move from their starts (at most {} ticks)",
         n,
         plan.max_ticks
     );
     // `episodes` carries the horizon asked for (a robot that knows none answers every tick)
-    let h = plan.horizon.min(HORIZON_RADIUS_CAP);
     let mut go = bus::control(Command::Execute, ROBOT_ID_ALL);
     go.episodes = u32::from(h);
     tolerate(bus.send_control(go))?;
@@ -444,6 +460,16 @@ pub(crate) fn execute(
             leave_lost(engine, &mut world, &mut horizons, tick, |_| {});
         }
         round.begin(|i| world.positions()[i].is_some());
+        // the answers to the first tick that came before it: one centered elsewhere (an
+        // experiment's phase that starts where the one before ended) is not an answer
+        for (from, m) in early.drain(..) {
+            if let Ok(id) = take_horizon(engine, &world, &mut horizons, tick, from, &m)
+                && !answered_early[id]
+            {
+                answered_early[id] = true;
+                early_answers += 1;
+            }
+        }
         // what the robots' horizons already answer is not asked again
         for (i, p) in world.positions().iter().enumerate() {
             if let Some(at) = *p
@@ -527,7 +553,7 @@ pub(crate) fn execute(
     let exec_s = t0.elapsed().as_secs_f64();
     report::log_line!(
         "qfleet-coordinator: shared grid: {} ticks, the robots were woken on {wakes} of them \
-         (horizon {})",
+         (horizon {}; {early_answers} of {n} robots answered the first tick before it)",
         world.tick(),
         plan.horizon
     );
@@ -579,19 +605,8 @@ fn collect(
         n += 1;
         let from: Sender = s.header().node_id().value();
         let m = s.payload();
-        if engine.trusted(m.robot_id, from).is_none() {
-            *rejected += 1;
-            continue;
-        }
-        match accept_horizon(
-            m,
-            horizons.h,
-            tick,
-            world.positions(),
-            &mut horizons.scratch,
-        ) {
-            Ok((id, cov)) => {
-                horizons.keep(id, cov);
+        match take_horizon(engine, world, horizons, tick, from, m) {
+            Ok(id) => {
                 if let Some(at) = world.positions()[id]
                     && let Some(intent) = horizons.intent_at(id, tick, at)
                     && round.take(id, intent)
@@ -599,8 +614,9 @@ fn collect(
                     record(hist, monotonic_ns().saturating_sub(sent_ns));
                 }
             }
-            Err(Reject::Tick { got, want }) if got < want => {}
-            Err(why) => {
+            Err(None) => *rejected += 1,
+            Err(Some(Reject::Tick { got, want })) if got < want => {}
+            Err(Some(why)) => {
                 *rejected += 1;
                 report::log_line!(
                     "qfleet-coordinator: dropped a horizon of robot {}: {why:?}",
@@ -637,6 +653,32 @@ fn collect(
     }
     engine.messages += n as u64;
     Ok(n)
+}
+
+/// Keeps robot `m.robot_id`'s horizon `m` from node `from` if it is the robot's own and
+/// [`accept_horizon`] accepts it for `tick`; returns the robot's index, or why not (`None`:
+/// not its node).
+fn take_horizon(
+    engine: &mut Engine,
+    world: &World,
+    horizons: &mut Horizons,
+    tick: u32,
+    from: Sender,
+    m: &IntentHorizon,
+) -> Result<usize, Option<Reject>> {
+    if engine.trusted(m.robot_id, from).is_none() {
+        return Err(None);
+    }
+    let (id, cov) = accept_horizon(
+        m,
+        horizons.h,
+        tick,
+        world.positions(),
+        &mut horizons.scratch,
+    )
+    .map_err(Some)?;
+    horizons.keep(id, cov);
+    Ok(id)
 }
 
 /// Takes every robot the engine declared lost off the grid (its cell is free from the next

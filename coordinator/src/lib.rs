@@ -5,10 +5,10 @@
 //! Decisions live in IO-free types tested as specifications: [`admission`] (who belongs to
 //! the fleet, bound to the iceoryx2 node that registered), [`discovery`] (ordering, dedup,
 //! acks, relays), [`validate`] (every message field), [`liveness`] (lost, hung, restarted),
-//! [`merge`] (the fleet table), [`checkpoint`] (an experiment's progress across coordinator
+//! [`sharing::merge`] (the fleet table), [`checkpoint`] (an experiment's progress across coordinator
 //! restarts), [`grid`] (a shared grid's intents and rounds; the resolver is the `mapf`
-//! crate's). One engine (`engine`) carries them out on the bus; [`run`] and [`experiment`]
-//! are two small drivers over it; an experiment's driver reads its [`plan`]; a run with
+//! crate's). One engine (`engine`) carries them out on the bus; [`run`](mod@run) and [`experiment`]
+//! are two small drivers over it; an experiment's driver reads its plan (`contract::plan`); a run with
 //! `--world shared` ends with [`grid`]'s execution.
 
 pub mod admission;

@@ -1,4 +1,4 @@
-//! The driver of a plain run: a one-goal, one-phase plan over the [`Engine`]. Create the run's
+//! The driver of a plain run: a one-goal, one-phase plan over the engine (`Engine`). Create the run's
 //! services, admit the fleet, assign the goal and `Start`, serve until every robot finished,
 //! hand out the whole fleet table, `Stop`, collect the reports, write the result.
 //!

@@ -30,6 +30,18 @@
 //! start of a period. Grants it does not answer still give its cell: it publishes it on
 //! `robot/state` as before.
 //!
+//! # The first tick, answered early
+//! A robot started for a shared grid (`--shared-grid`) does not wait for `Execute` to answer
+//! the first tick: while it waits after learning, it makes what it ranks with ([`Prepared`])
+//! and sends the horizon of radius `HORIZON_RADIUS_CAP` at its start for tick 0 (again when
+//! merged hints change its values). That horizon answers tick 0 on any fleet horizon, so a
+//! coordinator that has every robot's wakes nobody for tick 0 (64 robot processes woken at
+//! once held the first tick to 4–11 ms on two cores). The coordinator takes only answers sent
+//! since the phase began and centered where the robot starts. The robot counts it as its last
+//! answer ([`Answering::answered_early`]) but still answers tick 0's grant if it reads it: an
+//! early answer that was not taken then costs one wakeup, never a wait for the hang deadline.
+//! With one intent per tick (horizon 0) the coordinator takes no early answer.
+//!
 //! Grants count only from the node whose `Ack` accepted this robot (its coordinator); others
 //! are dropped and counted (`grants_foreign`).
 //!
@@ -42,7 +54,7 @@
 //! it explored still knows its way back. On its goal a robot prefers to wait. Walls and the
 //! border are never named.
 
-use bus::bus_schema::HORIZON_CELLS;
+use bus::bus_schema::{HORIZON_CELLS, HORIZON_RADIUS_CAP};
 use mapf::horizon::{Coverage, aligned_radius, diamond_len, diamond_offset, offset_cell, pack};
 use mapf::{Intent, Move};
 use planner::task::Task;
@@ -186,15 +198,27 @@ impl Answering {
     }
 
     /// The radius to answer the grant of `tick` with, the robot standing on `cell`; `None`
-    /// while the last answer still answers it (nothing to send).
+    /// while the last answer still answers it (nothing to send). The first tick's grant is
+    /// always answered when it is read: an early answer (see [`answered_early`]) may not have
+    /// been taken, and a coordinator that took every robot's wakes nobody for that tick.
+    ///
+    /// [`answered_early`]: Self::answered_early
     pub fn due(&self, tick: u32, cell: Cell) -> Option<u8> {
-        if self
-            .last
-            .is_some_and(|c| c.answers(self.horizon, tick, cell).is_some())
+        if tick > 0
+            && self
+                .last
+                .is_some_and(|c| c.answers(self.horizon, tick, cell).is_some())
         {
             return None;
         }
         Some(aligned_radius(self.horizon, tick))
+    }
+
+    /// The answer to the first tick went out before `Execute`: the horizon of radius
+    /// [`HORIZON_RADIUS_CAP`] at `start` (it answers tick 0 on any fleet horizon, and a robot
+    /// that stays within it is not asked again, as after any answer).
+    pub fn answered_early(&mut self, start: Cell) {
+        self.answered(0, start, HORIZON_RADIUS_CAP);
     }
 
     /// An answer for `tick` from `cell` with `radius` went out.
@@ -229,6 +253,37 @@ impl RankCache {
     /// Forgets every ranking (the values they came from changed).
     pub fn clear(&mut self) {
         self.packed.fill(UNRANKED);
+    }
+}
+
+/// What a robot ranks with on a shared grid, made before `Execute` (while the robot waits for
+/// it, after the values settled): the ranker (a map search) and the rankings of every cell of
+/// the widest horizon around its start. 64 robots making them when `Execute` came held the
+/// first tick to ~10 ms on two cores.
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    /// The ranker of the robot's values.
+    pub ranker: Ranker,
+    /// Rankings made so far (every cell within [`HORIZON_RADIUS_CAP`] of the start).
+    pub cache: RankCache,
+}
+
+impl Prepared {
+    /// Ranks every cell within [`HORIZON_RADIUS_CAP`] moves of `task`'s start by `q` (see
+    /// [`Ranker::new`] for the rest).
+    pub fn new(task: &Task, q: &QTable, tried_pairs: &[u32], gamma: f32) -> Self {
+        let ranker = Ranker::new(task, tried_pairs, gamma);
+        let mut cache = RankCache::new(task);
+        let mut scratch = [0u16; HORIZON_CELLS];
+        ranker.rank_horizon(
+            task,
+            q,
+            &mut cache,
+            task.start,
+            HORIZON_RADIUS_CAP,
+            &mut scratch,
+        );
+        Prepared { ranker, cache }
     }
 }
 
@@ -370,6 +425,26 @@ mod tests {
     }
 
     #[test]
+    fn what_is_prepared_before_execute_ranks_as_what_is_made_at_execute() {
+        let t = corridor();
+        let mut q = QTable::new(&t.grid);
+        q.row_mut(t.grid.index(Cell::new(1, 0)))[Action::Left as usize] = 0.7;
+        let ready = Prepared::new(&t, &q, &[], 0.9);
+        let fresh = Ranker::new(&t, &[], 0.9);
+        for radius in [0, 2, HORIZON_RADIUS_CAP] {
+            let (mut a, mut b) = ([0u16; HORIZON_CELLS], [0u16; HORIZON_CELLS]);
+            let mut cache = ready.cache.clone();
+            ready
+                .ranker
+                .rank_horizon(&t, &q, &mut cache, t.start, radius, &mut a);
+            fresh.rank_horizon(&t, &q, &mut RankCache::new(&t), t.start, radius, &mut b);
+            assert_eq!(a, b, "radius {radius}");
+        }
+        // every cell of the widest horizon around the start is ranked already
+        assert!(ready.cache.packed.iter().all(|&c| c != UNRANKED));
+    }
+
+    #[test]
     fn a_robot_answers_when_its_horizon_is_used_up_or_left() {
         let mut a = Answering::new(3);
         let at = Cell::new(5, 5);
@@ -395,6 +470,22 @@ mod tests {
         b.answered(4, at, 0);
         assert_eq!(b.due(4, at), None);
         assert_eq!(b.due(5, at), Some(0));
+        // an early answer: the first tick is still answered when its grant is read; later
+        // ticks as after any answer of radius HORIZON_RADIUS_CAP
+        let mut e = Answering::new(3);
+        e.answered_early(at);
+        assert_eq!(
+            e.due(0, at),
+            Some(3),
+            "tick 0 read: the early answer may be lost"
+        );
+        assert_eq!(e.due(2, Cell::new(6, 5)), None, "covered");
+        assert_eq!(
+            e.due(4, Cell::new(6, 6)),
+            None,
+            "2 + 3 ≤ 8: the next period too"
+        );
+        assert_eq!(e.due(4, Cell::new(9, 9)), Some(3), "moved too far");
     }
 
     #[test]

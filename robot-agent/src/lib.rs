@@ -2,7 +2,7 @@
 //!
 //! A thin process: the learning is the `planner` crate's, the transport the `bus` crate's, the
 //! result files the `report` crate's. This crate decides what a robot shares and when
-//! ([`share`]), keeps its discoveries until acknowledged ([`discovery`]), reads the
+//! (`share`), keeps its discoveries until acknowledged ([`discovery`]), reads the
 //! coordinator's plan ([`experiment`]: the one control protocol of runs and experiments),
 //! obeys only its coordinator ([`gate`]), moves on a shared grid as the coordinator grants
 //! ([`execute`]), survives a coordinator restart ([`reconnect`]), slows

@@ -223,6 +223,10 @@ struct Phase {
     /// Moves of other robots named in merged hints join this learner's sweep model (planning
     /// learner, `min` rules).
     shared_model: bool,
+    /// What moving on a shared grid ranks with, made while the robot waits for `Execute`
+    /// (see [`crate::execute::Prepared`]); `None` until then, or since the values changed.
+    /// With the count of merged-hint entries applied when it was made (more since: stale).
+    prepared: Option<(crate::execute::Prepared, u64)>,
 }
 
 impl Robot<'_> {
@@ -284,17 +288,20 @@ impl Robot<'_> {
         let mut deadline = Instant::now() + self.timeout;
         let mut rejoins = self.link.counters.rejoins;
         let mut beat = Instant::now();
-        let mut settled = Instant::now();
+        // the first look at once: the early answer to a shared grid's first tick goes out as
+        // soon as the robot waits
+        let mut settled: Option<Instant> = None;
         loop {
             self.poll(last.as_deref_mut())?;
             // merged hints applied while waiting are propagated now, a few times a second, not
             // when `Execute` comes: the shared grid's first tick waits for the slowest robot's
             // first answer, and 64 robots settling at once on two cores took it to tens of ms
             if let Some(p) = last.as_deref_mut()
-                && settled.elapsed() >= SETTLE_WHILE_WAITING
+                && settled.is_none_or(|t| t.elapsed() >= SETTLE_WHILE_WAITING)
             {
-                settled = Instant::now();
-                p.learner.settle();
+                settled = Some(Instant::now());
+                // and what `Execute` would rank with, made now for the same reason
+                self.prepare_execution(p);
             }
             if let Some(horizon) = self.plan.take_execute()
                 && let Some(p) = last.as_deref_mut()
@@ -394,6 +401,7 @@ impl Robot<'_> {
             relays_at_start: relays,
             reported: false,
             shared_model: min_sharing && cfg.extras.needs_model(),
+            prepared: None,
         })
     }
 

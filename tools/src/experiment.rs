@@ -309,6 +309,7 @@ pub fn run_once(
         a.timeout = m.timeout_s;
         a.pace = sup.pace;
         a.stop_at_optimum = m.stop_at_optimum;
+        a.shared_grid = m.world == qfleet_args::World::Shared;
         a.out = Some(out.to_path_buf());
         let mut cmd = Command::new(&robot_bin);
         cmd.args(a.to_args());

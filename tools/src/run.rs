@@ -390,6 +390,7 @@ impl RunCmd {
             if self.world.shared() {
                 // robot i learns line i of the scenario: its own start and goal
                 a.map.scen_index = Some(id as usize);
+                a.shared_grid = true;
             }
             a.learner.seed = launcher::seed::run_robot(self.learner.seed, id);
             a.pace = self.watch.pace;

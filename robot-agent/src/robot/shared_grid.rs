@@ -4,28 +4,90 @@
 
 use std::time::{Duration, Instant};
 
-use bus::bus_schema::{GRANT_CAP, GridState, HORIZON_CELLS, RobotStatus};
+use bus::bus_schema::{GRANT_CAP, GridState, HORIZON_CELLS, HORIZON_RADIUS_CAP, RobotStatus};
 use bus::iceoryx2::prelude::PayloadHeader;
 use bus::{BusError, monotonic_ns};
 use planner::Cell;
 
 use crate::error::AgentError;
-use crate::execute::{Answering, RankCache, Ranker};
+use crate::execute::{Answering, Prepared};
 
 use super::{Phase, Robot};
 
 impl Robot<'_> {
+    /// Settles the values merged hints changed and, on a shared grid (`--shared-grid`), makes
+    /// what `Execute` will rank with ([`Prepared`]) and sends the answer to the execution's
+    /// first tick: the horizon of radius [`HORIZON_RADIUS_CAP`] at its start (it answers tick
+    /// 0 on any fleet horizon, see `mapf::Coverage::answers`). Again only when the values
+    /// changed since. The coordinator takes it if it is this phase's and centered where the
+    /// robot starts; the robot still answers the first grant it reads, so one the coordinator
+    /// did not take costs only the wakeup it saved.
+    pub(super) fn prepare_execution(&mut self, p: &mut Phase) {
+        let changed = p.learner.settle();
+        let applied = self.applier.counters().entries_applied;
+        if !self.args.shared_grid || !changed && p.prepared.as_ref().is_some_and(|r| r.1 == applied)
+        {
+            return;
+        }
+        let mut ready = Prepared::new(
+            &p.task,
+            p.learner.q(),
+            p.learner.tried_pairs(),
+            p.learner.config().gamma,
+        );
+        let start = p.task.start;
+        let mut ranks = [0u16; HORIZON_CELLS];
+        ready.ranker.rank_horizon(
+            &p.task,
+            p.learner.q(),
+            &mut ready.cache,
+            start,
+            HORIZON_RADIUS_CAP,
+            &mut ranks,
+        );
+        p.prepared = Some((ready, applied));
+        let robot_id = self.args.robot_id;
+        let sent = self.bus.horizon.send_with(|m| {
+            m.robot_id = robot_id;
+            m.tick = 0;
+            m.cell_x = start.x;
+            m.cell_y = start.y;
+            m.radius = HORIZON_RADIUS_CAP;
+            m.ranked = ranks;
+            m.send_time_ns = monotonic_ns();
+        });
+        if sent.is_err() {
+            self.c.send_errors += 1;
+        }
+    }
+
     /// Moves on the shared grid as the coordinator grants, tick by tick, until the execution
     /// ends (a grant that is not `Moving`, this robot no longer on the grid, `Stop`, a signal);
     /// see [`crate::execute`] for the protocol and the ranking.
     pub(super) fn execute(&mut self, p: &mut Phase, horizon: u8) -> Result<(), AgentError> {
-        // the values it ranks by, consistent with every merged hint applied so far
-        p.learner.settle();
-        let ranker = Ranker::new(&p.task, p.learner.tried_pairs(), p.learner.config().gamma);
-        let me = self.args.robot_id as usize;
+        // the values it ranks by, consistent with every merged hint applied so far, and what
+        // it ranks with: made while it waited unless the values changed since
+        let changed = p.learner.settle();
+        let applied = self.applier.counters().entries_applied;
         let mut answering = Answering::new(horizon);
+        let Prepared { ranker, mut cache } = match p.prepared.take() {
+            Some((ready, at)) if !changed && at == applied => {
+                // what it sent early still holds: the coordinator asks no more of it (one
+                // intent per tick, horizon 0, takes no early answer)
+                if horizon > 0 {
+                    answering.answered_early(p.task.start);
+                }
+                ready
+            }
+            _ => Prepared::new(
+                &p.task,
+                p.learner.q(),
+                p.learner.tried_pairs(),
+                p.learner.config().gamma,
+            ),
+        };
+        let me = self.args.robot_id as usize;
         let mut ranks = [0u16; HORIZON_CELLS];
-        let mut cache = RankCache::new(&p.task);
         let mut answered: Option<u32> = None;
         // whose grants those ticks were: a coordinator that took over counts ticks afresh
         let mut granter = self.gate.coordinator().map(|o| o.node);
