@@ -168,7 +168,7 @@ impl Default for WorldConfig {
             plan_orders: 4,
             plan_jitter: 16,
             plan_refine: 50_000,
-            refine_tick: 2_000,
+            refine_tick: 1_000,
             refine_nodes: 4_000,
             prepare_refine: 1_000_000,
             prepare_refine_max: 16_000_000,
