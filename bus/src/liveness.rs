@@ -213,6 +213,16 @@ pub fn stale_empty_node_dirs() -> Vec<PathBuf> {
 /// still leaves a small per-prefix management file). For `qfleet clean`.
 pub fn clean_stale(prefix: &str) -> Result<CleanReport, BusError> {
     let config = iceoryx_config_for_prefix(prefix)?;
+    // a segment whose creator was killed before it finished has no read permission yet, and
+    // iceoryx2's dead-node cleanup waits for it to get one without end (a `qfleet clean`
+    // hung in CI on a zero-length `.connection` of mode 0200): with nobody of the run alive,
+    // nobody will finish it, so it goes first
+    if !list_and_clean(&config, prefix, false)?
+        .alive()
+        .any(|_| true)
+    {
+        remove_unfinished_segments(Path::new(SHM_DIR), prefix);
+    }
     let nodes = list_and_clean(&config, prefix, true)?;
     let alive: Vec<NodeInfo> = nodes.alive().cloned().collect();
     let mut report = CleanReport {
@@ -246,6 +256,23 @@ pub fn clean_stale(prefix: &str) -> Result<CleanReport, BusError> {
         }
     }
     Ok(report)
+}
+
+/// Removes the files of `prefix` in `dir` that their owner cannot read: shared memory that
+/// iceoryx2 creates write-only and opens to reading once initialized, left half made by a
+/// killed process. Returns how many. Only for a run with no live process.
+pub fn remove_unfinished_segments(dir: &Path, prefix: &str) -> usize {
+    use std::os::unix::fs::PermissionsExt;
+    let mut found = Vec::new();
+    collect(dir, prefix, false, &mut found);
+    found
+        .into_iter()
+        .filter(|p| {
+            std::fs::symlink_metadata(p)
+                .is_ok_and(|m| m.is_file() && m.permissions().mode() & 0o400 == 0)
+        })
+        .filter(|p| std::fs::remove_file(p).is_ok())
+        .count()
 }
 
 /// Removes the per-node directory (`<root>/nodes/<node-id>/`) that held `removed_file`, if it
@@ -319,6 +346,25 @@ pub fn find_run_prefixes() -> Vec<String> {
 mod tests {
     use super::*;
     use std::time::Duration;
+
+    #[test]
+    fn only_unreadable_files_of_the_prefix_count_as_unfinished() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = std::env::temp_dir().join(format!("qfleet-unfinished-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = |name: &str, mode: u32| {
+            let p = dir.join(name);
+            std::fs::write(&p, b"").unwrap();
+            std::fs::set_permissions(&p, std::fs::Permissions::from_mode(mode)).unwrap();
+            p
+        };
+        let half = file("qfleet.r.a.connection", 0o200);
+        let done = file("qfleet.r.b.connection", 0o600);
+        let other = file("qfleet.s.c.connection", 0o200);
+        assert_eq!(remove_unfinished_segments(&dir, "qfleet.r."), 1);
+        assert!(!half.exists() && done.exists() && other.exists());
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn only_empty_node_directories_old_enough_are_removed() {
