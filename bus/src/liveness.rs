@@ -217,9 +217,10 @@ pub fn clean_stale(prefix: &str) -> Result<CleanReport, BusError> {
     // iceoryx2's dead-node cleanup waits for it to get one without end (a `qfleet clean`
     // hung in CI on a zero-length `.connection` of mode 0200): with nobody of the run alive,
     // nobody will finish it, so it goes first
-    if !list_and_clean(&config, prefix, false)?
+    if list_and_clean(&config, prefix, false)?
         .alive()
-        .any(|_| true)
+        .next()
+        .is_none()
     {
         remove_unfinished_segments(Path::new(SHM_DIR), prefix);
     }
@@ -261,7 +262,7 @@ pub fn clean_stale(prefix: &str) -> Result<CleanReport, BusError> {
 /// Removes the files of `prefix` in `dir` that their owner cannot read: shared memory that
 /// iceoryx2 creates write-only and opens to reading once initialized, left half made by a
 /// killed process. Returns how many. Only for a run with no live process.
-pub fn remove_unfinished_segments(dir: &Path, prefix: &str) -> usize {
+fn remove_unfinished_segments(dir: &Path, prefix: &str) -> usize {
     use std::os::unix::fs::PermissionsExt;
     let mut found = Vec::new();
     collect(dir, prefix, false, &mut found);

@@ -118,8 +118,9 @@ pub(crate) struct Engine {
     pub(crate) started_ns: Option<u64>,
     /// A shared grid: where each robot must start (a robot registering elsewhere is refused).
     pub(crate) starts: Option<Vec<Cell>>,
-    /// CLOCK_MONOTONIC ns when this coordinator began the current phase (0: it took the phase
-    /// over): a robot's early answer to the execution's first tick counts from then on.
+    /// CLOCK_MONOTONIC ns when this coordinator began the current phase (sent its assignments;
+    /// a restarted coordinator sends them again): a robot's early answer to the execution's
+    /// first tick counts from then on.
     pub(crate) phase_ns: u64,
     /// Fleet-table changes counted by the coordinators before this one.
     changes_before: u64,

@@ -414,16 +414,23 @@ pub(crate) fn execute(
     // `Execute`, see `robot_agent::execute`) is kept for that tick
     while bus.intent.receive_sample()?.is_some() {}
     let h = plan.horizon.min(HORIZON_RADIUS_CAP);
-    let mut early: Vec<(Sender, IntentHorizon)> = Vec::new();
-    let mut answered_early = vec![false; n];
-    let mut early_answers = 0usize;
+    let mut horizons = Horizons::new(n, h);
+    let first = world.tick();
     while let Some(s) = bus.horizon.receive_sample()? {
         let m = s.payload();
-        // (not with one intent per tick, `h = 0`: that asks every robot every tick)
-        if h > 0 && m.tick == 0 && m.send_time_ns >= engine.phase_ns {
-            early.push((s.header().node_id().value(), *m));
+        // (not with one intent per tick, `h = 0`: that asks every robot every tick); one
+        // centered elsewhere (an experiment's phase that starts where the one before ended) is
+        // not an answer
+        if h > 0 && m.tick == first && m.send_time_ns >= engine.phase_ns {
+            let from = s.header().node_id().value();
+            let _ = take_horizon(engine, &world, &mut horizons, first, from, m);
         }
     }
+    let early_answers = (0..n)
+        .filter(|&i| {
+            world.positions()[i].is_some_and(|at| horizons.intent_at(i, first, at).is_some())
+        })
+        .count();
     report::log_line!(
         "qfleet-coordinator: shared grid: {} robots move from their starts (at most {} ticks)",
         n,
@@ -434,7 +441,6 @@ pub(crate) fn execute(
     go.episodes = u32::from(h);
     tolerate(bus.send_control(go))?;
     let mut round = Round::new(n);
-    let mut horizons = Horizons::new(n, h);
     let mut wakes = 0u64;
     let mut tick_hist = new_hist();
     let mut intent_hist = new_hist();
@@ -460,16 +466,6 @@ pub(crate) fn execute(
             leave_lost(engine, &mut world, &mut horizons, tick, |_| {});
         }
         round.begin(|i| world.positions()[i].is_some());
-        // the answers to the first tick that came before it: one centered elsewhere (an
-        // experiment's phase that starts where the one before ended) is not an answer
-        for (from, m) in early.drain(..) {
-            if let Ok(id) = take_horizon(engine, &world, &mut horizons, tick, from, &m)
-                && !answered_early[id]
-            {
-                answered_early[id] = true;
-                early_answers += 1;
-            }
-        }
         // what the robots' horizons already answer is not asked again
         for (i, p) in world.positions().iter().enumerate() {
             if let Some(at) = *p

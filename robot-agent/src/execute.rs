@@ -266,6 +266,9 @@ pub struct Prepared {
     pub ranker: Ranker,
     /// Rankings made so far (every cell within [`HORIZON_RADIUS_CAP`] of the start).
     pub cache: RankCache,
+    /// The horizon of radius [`HORIZON_RADIUS_CAP`] at the start, as the wire packs it: the
+    /// early answer to the first tick.
+    pub first: [u16; HORIZON_CELLS],
 }
 
 impl Prepared {
@@ -274,16 +277,20 @@ impl Prepared {
     pub fn new(task: &Task, q: &QTable, tried_pairs: &[u32], gamma: f32) -> Self {
         let ranker = Ranker::new(task, tried_pairs, gamma);
         let mut cache = RankCache::new(task);
-        let mut scratch = [0u16; HORIZON_CELLS];
+        let mut first = [0u16; HORIZON_CELLS];
         ranker.rank_horizon(
             task,
             q,
             &mut cache,
             task.start,
             HORIZON_RADIUS_CAP,
-            &mut scratch,
+            &mut first,
         );
-        Prepared { ranker, cache }
+        Prepared {
+            ranker,
+            cache,
+            first,
+        }
     }
 }
 
@@ -440,8 +447,19 @@ mod tests {
             fresh.rank_horizon(&t, &q, &mut RankCache::new(&t), t.start, radius, &mut b);
             assert_eq!(a, b, "radius {radius}");
         }
-        // every cell of the widest horizon around the start is ranked already
+        // every cell of the widest horizon around the start is ranked already, and that
+        // horizon is the one sent early
         assert!(ready.cache.packed.iter().all(|&c| c != UNRANKED));
+        let mut widest = [0u16; HORIZON_CELLS];
+        fresh.rank_horizon(
+            &t,
+            &q,
+            &mut RankCache::new(&t),
+            t.start,
+            HORIZON_RADIUS_CAP,
+            &mut widest,
+        );
+        assert_eq!(ready.first, widest);
     }
 
     #[test]

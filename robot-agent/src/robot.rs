@@ -229,6 +229,18 @@ struct Phase {
     prepared: Option<(crate::execute::Prepared, u64)>,
 }
 
+impl Phase {
+    /// What moving on a shared grid ranks with, from the learner's values now.
+    fn prepare(&self) -> crate::execute::Prepared {
+        crate::execute::Prepared::new(
+            &self.task,
+            self.learner.q(),
+            self.learner.tried_pairs(),
+            self.learner.config().gamma,
+        )
+    }
+}
+
 impl Robot<'_> {
     fn run_plan(&mut self) -> Result<RobotResult, AgentError> {
         let mut last: Option<Phase> = None;

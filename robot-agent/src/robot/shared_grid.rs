@@ -29,22 +29,8 @@ impl Robot<'_> {
         {
             return;
         }
-        let mut ready = Prepared::new(
-            &p.task,
-            p.learner.q(),
-            p.learner.tried_pairs(),
-            p.learner.config().gamma,
-        );
-        let start = p.task.start;
-        let mut ranks = [0u16; HORIZON_CELLS];
-        ready.ranker.rank_horizon(
-            &p.task,
-            p.learner.q(),
-            &mut ready.cache,
-            start,
-            HORIZON_RADIUS_CAP,
-            &mut ranks,
-        );
+        let ready = p.prepare();
+        let (start, ranks) = (p.task.start, ready.first);
         p.prepared = Some((ready, applied));
         let robot_id = self.args.robot_id;
         let sent = self.bus.horizon.send_with(|m| {
@@ -70,7 +56,9 @@ impl Robot<'_> {
         let changed = p.learner.settle();
         let applied = self.applier.counters().entries_applied;
         let mut answering = Answering::new(horizon);
-        let Prepared { ranker, mut cache } = match p.prepared.take() {
+        let Prepared {
+            ranker, mut cache, ..
+        } = match p.prepared.take() {
             Some((ready, at)) if !changed && at == applied => {
                 // what it sent early still holds: the coordinator asks no more of it (one
                 // intent per tick, horizon 0, takes no early answer)
@@ -79,12 +67,7 @@ impl Robot<'_> {
                 }
                 ready
             }
-            _ => Prepared::new(
-                &p.task,
-                p.learner.q(),
-                p.learner.tried_pairs(),
-                p.learner.config().gamma,
-            ),
+            _ => p.prepare(),
         };
         let me = self.args.robot_id as usize;
         let mut ranks = [0u16; HORIZON_CELLS];
