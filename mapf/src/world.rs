@@ -124,8 +124,14 @@ pub struct WorldConfig {
     pub plan_refine: u64,
     /// A* expansions each tick spends improving the plan being followed (0 = none).
     pub refine_tick: u64,
-    /// A* expansions one agent's search may spend while improving a plan.
+    /// A* expansions one agent's search may spend while improving a plan on a replan or a
+    /// tick (a search that cannot succeed spends all of it, so it bounds a tick's work).
     pub refine_nodes: u32,
+    /// A* expansions one agent's search may spend while [`World::prepare`] improves the first
+    /// plan: its budget is large, and `refine_nodes` left agents of maze-like maps unrouted (a
+    /// way round the others is long in space-time); on the tuning mazes 20 000 to 400 000
+    /// measured alike.
+    pub prepare_nodes: u32,
     /// A* expansions [`World::prepare`] spends at least improving the first plan on top of
     /// `plan_refine` (it runs before the execution, while the robots learn, so it may spend
     /// far more than a tick).
@@ -170,6 +176,7 @@ impl Default for WorldConfig {
             plan_refine: 50_000,
             refine_tick: 1_000,
             refine_nodes: 4_000,
+            prepare_nodes: 20_000,
             prepare_refine: 1_000_000,
             prepare_refine_max: 16_000_000,
             refine_adaptive: true,
@@ -490,6 +497,7 @@ impl World {
             self.refine(
                 (self.tick - self.plan_tick) as usize,
                 self.config.refine_tick,
+                self.config.refine_nodes,
                 adaptive,
             );
         }
@@ -788,7 +796,12 @@ impl World {
         let mut spent = 0u64;
         let mut cost = self.plan_cost();
         loop {
-            spent += self.refine(0, round, self.config.refine_adaptive);
+            spent += self.refine(
+                0,
+                round,
+                self.config.prepare_nodes,
+                self.config.refine_adaptive,
+            );
             let now = self.plan_cost();
             let gained = now < cost;
             cost = now;
@@ -830,7 +843,13 @@ impl World {
             self.planner.restore();
         }
         if self.config.plan_refine > 0 {
-            self.refine(0, self.config.plan_refine, self.config.refine_adaptive);
+            let nodes = self.config.refine_nodes;
+            self.refine(
+                0,
+                self.config.plan_refine,
+                nodes,
+                self.config.refine_adaptive,
+            );
         }
         self.plan_tick = self.tick;
         self.plan_valid = true;
@@ -855,10 +874,10 @@ impl World {
         (&mut self.planner, &self.order, fleet)
     }
 
-    /// Improves the plan from its time index `t0` on, spending about `budget` A* expansions,
-    /// choosing neighbourhoods adaptively if `adaptive`; returns the expansions spent.
-    fn refine(&mut self, t0: usize, budget: u64, adaptive: bool) -> u64 {
-        let nodes = self.config.refine_nodes;
+    /// Improves the plan from its time index `t0` on, spending about `budget` A* expansions
+    /// and at most `nodes` on one agent's search, choosing neighbourhoods adaptively if
+    /// `adaptive`; returns the expansions spent.
+    fn refine(&mut self, t0: usize, budget: u64, nodes: u32, adaptive: bool) -> u64 {
         self.planner.adaptive = adaptive;
         let (planner, _, fleet) = self.planning();
         planner.refine(t0, &fleet, nodes, budget)

@@ -395,7 +395,7 @@ fn a_plan_made_ahead_refines_in_rounds_while_it_gains_and_within_its_cap() {
     let (one, one_cost) = capped(round);
     let (many, many_cost) = capped(100 * round);
     // a round may overshoot its budget by the one search it ends in
-    let slack = u64::from(WorldConfig::default().refine_nodes) + 64;
+    let slack = u64::from(WorldConfig::default().prepare_nodes) + 64;
     assert!(one <= round + slack, "a cap of one round spent {one}");
     assert!(many <= 100 * round + slack, "spent {many} over its cap");
     assert!(many_cost.0 <= one_cost.0, "{many_cost:?} > {one_cost:?}");
