@@ -7,7 +7,7 @@
 //! steps without this crate knowing anything of the bus.
 
 use crate::env::{CellKind, Env, Rewards, Transition};
-use crate::grid::Cell;
+use crate::grid::{Action, Cell};
 use crate::metrics::{EpisodeRecord, Outcome, Summary};
 use crate::policy::{EpsilonReading, Policy, PolicyConfig};
 use crate::pseudo::PseudoConfig;
@@ -346,6 +346,8 @@ pub struct Learner {
     swept_within: bool,
     // Updates never raise a value (see `keep_values_falling`).
     monotone: bool,
+    // Moves of other robots joined the model since the last `settle_grid_moves`.
+    grid_moves_pending: bool,
 }
 
 impl Learner {
@@ -389,6 +391,7 @@ impl Learner {
             planned: false,
             swept_within: false,
             monotone: false,
+            grid_moves_pending: false,
             optimal_len: task.optimal_len,
             max_steps,
             episode: 0,
@@ -462,6 +465,62 @@ impl Learner {
         self.seen.push(s * 4 + a as u32);
         self.model_dirty = true;
         true
+    }
+
+    /// Adds what another robot's move `a` from cell `s` tells of the grid this learner shares
+    /// with it (a robot of another goal on the same map): the grid is deterministic and
+    /// 4-connected and each of its cells free or blocked, so the move reveals two cells — `s`,
+    /// free since the robot stood there, and the cell `a` leads to, free or (the move collided)
+    /// blocked — and with them the outcome of every move *into* either cell from a free
+    /// neighbour, the move itself, its way back and the other moves into a wall it found
+    /// included. Each joins the model as [`add_known_move`](Self::add_known_move) would add it;
+    /// a move off the grid reveals no second cell. The values are brought up to date by
+    /// [`settle_grid_moves`](Self::settle_grid_moves). Returns how many moves were new (0 for a
+    /// learner without a model, or `s`/`a` out of range or on a blocked cell).
+    pub fn add_grid_move(&mut self, s: u32, a: usize) -> u32 {
+        let grid = self.env.grid();
+        let i = s as usize;
+        if self.tried.is_empty() || a >= 4 || i >= grid.len() || !grid.free_flags()[i] {
+            return 0;
+        }
+        let to = adjacent(grid, i, Action::from_index(a));
+        let mut new = u32::from(self.add_known_move(s, a));
+        new += self.add_moves_into(s);
+        if let Some(t) = to {
+            new += self.add_moves_into(t);
+        }
+        if new > 0 {
+            self.grid_moves_pending = true;
+        }
+        new
+    }
+
+    /// Adds every move into cell `c` from a free 4-neighbour (see
+    /// [`add_grid_move`](Self::add_grid_move)); returns how many were new.
+    fn add_moves_into(&mut self, c: u32) -> u32 {
+        let mut new = 0;
+        for act in Action::ALL {
+            // the neighbour on side `act` moves into `c` by the opposite action, (act + 2) mod 4
+            if let Some(n) = adjacent(self.env.grid(), c as usize, act) {
+                new += u32::from(self.add_known_move(n, (act as usize + 2) & 3));
+            }
+        }
+        new
+    }
+
+    /// After moves of other robots joined the model ([`add_grid_move`](Self::add_grid_move)):
+    /// sweeps until the values agree with the whole model again ([`settle`](Self::settle));
+    /// nothing when none joined since the last call. The per-episode sweeps are budgeted for
+    /// a model that grows by this learner's own trajectory, whose backward replay has already
+    /// carried the values along it; moves from outside come in bulk, in no useful order and
+    /// with no trajectory to replay, and within that budget a learner that was handed the
+    /// whole grid kept a looping greedy path for thousands of steps, exploring on optimistic
+    /// values the new moves had already refuted. Returns whether a value changed.
+    pub fn settle_grid_moves(&mut self) -> bool {
+        if !std::mem::take(&mut self.grid_moves_pending) {
+            return false;
+        }
+        self.settle()
     }
 
     /// Values were set from outside ([`q_mut`](Self::q_mut)): the next episode's sweeps run
@@ -805,6 +864,18 @@ impl Learner {
     pub fn greedy_path(&self) -> Option<Vec<Cell>> {
         greedy_path(&self.env, &self.q)
     }
+}
+
+/// The cell next to cell index `i` on side `a`, free or blocked; `None` off the grid.
+fn adjacent(grid: &crate::grid::Grid, i: usize, a: Action) -> Option<u32> {
+    let c = grid.cell(i);
+    let (dx, dy) = a.delta();
+    let (x, y) = (
+        i64::from(c.x) + i64::from(dx),
+        i64::from(c.y) + i64::from(dy),
+    );
+    grid.contains(x, y)
+        .then(|| grid.index(Cell::new(x as u16, y as u16)) as u32)
 }
 
 /// The greedy path of a Q-table in an environment, or `None` if it loops or collides.

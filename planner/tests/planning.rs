@@ -225,3 +225,98 @@ fn values_set_from_outside_after_the_last_episode_are_settled_before_a_path_is_r
     // settled: a second call changes nothing
     assert!(!own.settle());
 }
+
+#[test]
+fn a_move_of_another_robot_reveals_both_cells_it_touched() {
+    // 3x3, (1,0) a wall; cell index = y·3 + x; actions 0 up, 1 right, 2 down, 3 left
+    //   0 # 2
+    //   3 4 5
+    //   6 7 8
+    let free = vec![true, false, true, true, true, true, true, true, true];
+    let task = Task {
+        map_name: "wall".into(),
+        grid: Grid::new(3, 3, free).expect("grid"),
+        start: Cell::new(0, 2),
+        goal: Cell::new(2, 2),
+        optimal_len: 2,
+    };
+    let sorted = |l: &Learner| {
+        let mut v = l.tried_pairs().to_vec();
+        v.sort_unstable();
+        v
+    };
+    let pair = |cell: u32, a: u32| cell * 4 + a;
+    let mut l = Learner::new(&task, LearnerConfig::planning(2, 1)).expect("config");
+    assert!(!l.settle_grid_moves(), "nothing joined yet");
+    // 4 -> 3 (left): cell 4 is free (the robot stood there), so is cell 3; every move into
+    // either is known, the move itself and its way back (3 -> 4, right) among them
+    assert_eq!(l.add_grid_move(4, 3), 6);
+    let mut want = vec![
+        pair(4, 3), // the move
+        pair(5, 3), // into 4 from the right
+        pair(7, 0), // into 4 from below
+        pair(3, 1), // into 4 from the left: the way back
+        pair(0, 2), // into 3 from above
+        pair(6, 0), // into 3 from below
+    ];
+    want.sort_unstable();
+    assert_eq!(sorted(&l), want);
+    assert_eq!(l.add_grid_move(4, 3), 0, "nothing new the second time");
+    // 4 -> up collides: cell 1 is a wall, and every move into it a collision
+    assert_eq!(l.add_grid_move(4, 0), 3);
+    for sa in [pair(4, 0), pair(0, 1), pair(2, 3)] {
+        assert!(l.tried_pairs().contains(&sa), "{sa}");
+    }
+    // off the grid: the move and the cell it left, no second cell
+    assert_eq!(l.add_grid_move(0, 0), 2, "0 -> up, and 3 -> up into 0");
+    assert!(l.tried_pairs().contains(&pair(3, 0)));
+    // bad input adds nothing and never panics
+    assert_eq!(l.add_grid_move(99, 0), 0, "outside the grid");
+    assert_eq!(l.add_grid_move(u32::MAX, 0), 0, "far outside the grid");
+    assert_eq!(l.add_grid_move(2, 4), 0, "no such action");
+    assert_eq!(l.add_grid_move(1, 2), 0, "nobody stands on a wall");
+    let mut t = Learner::new(&task, LearnerConfig::traditional(2, 1)).expect("config");
+    assert_eq!(t.add_grid_move(4, 3), 0, "the paper's learner has no model");
+    assert!(!t.settle_grid_moves());
+    // what joined is planned with once: the collision's value is backed up, then nothing is due
+    assert!(l.settle_grid_moves());
+    assert!((l.q().row(4)[0] - (-1.0 + 0.99 * l.q().max(4))).abs() < 1e-6);
+    assert!(!l.settle_grid_moves());
+}
+
+#[test]
+fn a_learner_handed_the_grid_by_another_goals_robot_plans_its_optimal_path_before_moving() {
+    // another robot learns the way back (its start is our goal and the other way round), then
+    // its moves reach us as a fleet's merged hints would; we have not taken a step
+    for (family, i) in [(Family::Rooms, 0), (Family::Maze, 1)] {
+        let ours = generate(family, 20, i, 3).expect("map").task;
+        let theirs = Task {
+            start: ours.goal,
+            goal: ours.start,
+            ..ours.clone()
+        };
+        let mut other = Learner::new(&theirs, LearnerConfig::planning(100, 5)).expect("config");
+        other.run(|_| {});
+        let mut l = Learner::new(&ours, LearnerConfig::planning(100, 1)).expect("config");
+        l.keep_values_falling();
+        let mut joined = 0;
+        for &sa in other.tried_pairs() {
+            joined += l.add_grid_move(sa >> 2, (sa & 3) as usize);
+        }
+        assert_eq!(joined as usize, l.tried_pairs().len());
+        assert!(l.tried_pairs().len() >= other.tried_pairs().len());
+        assert!(l.settle_grid_moves(), "{family:?}");
+        assert_eq!(
+            l.greedy_path_len(),
+            Some(ours.optimal_len),
+            "{family:?}: optimal with no step of its own"
+        );
+        // and its first episode walks it (ε = 0.05 may add a detour, never a search)
+        let r = l.run_episode();
+        assert!(
+            r.steps < 4 * ours.optimal_len + 20,
+            "{family:?}: {} steps",
+            r.steps
+        );
+    }
+}

@@ -103,8 +103,9 @@ pub struct Counters {
     pub warm_start_entries: u64,
     /// Losing and re-joining the coordinator.
     pub link: LinkCounters,
-    /// Moves other robots tried on the way to other goals, added to this robot's model (a
-    /// shared grid: the grid's moves are shared, values only between robots of one goal).
+    /// Moves other robots tried on the way to other goals, and the moves they reveal (every
+    /// move into a cell such a move left or entered), added to this robot's model (a shared
+    /// grid: the grid's moves are shared, values only between robots of one goal).
     #[serde(default)]
     pub moves_learned_from_others: u64,
     /// Shared grid: grants dropped because another node than the coordinator this robot

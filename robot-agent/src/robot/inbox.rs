@@ -57,15 +57,16 @@ impl Robot<'_> {
                 && m.goal_id != p.a.goal_id
             {
                 // another goal's values say nothing of ours, but the moves behind them are the
-                // grid's: they join this learner's model, so it never explores a wall another
-                // robot found (robots with different goals on one grid)
+                // grid's: they join this learner's model with what they reveal of the grid (the
+                // cells they left and entered, free or walls, and so every move into those), so
+                // it never explores a wall another robot found nor a cell another robot stood
+                // on (robots with different goals on one grid); the learning loop then plans
+                // with them (`Learner::settle_grid_moves`)
                 let n = (m.count as usize).min(m.entries.len());
                 let mut known = 0;
                 for (h, &origin) in m.entries[..n].iter().zip(&m.origin_robot[..n]) {
-                    if origin != self.args.robot_id
-                        && p.learner.add_known_move(h.cell, usize::from(h.action))
-                    {
-                        known += 1;
+                    if origin != self.args.robot_id {
+                        known += u64::from(p.learner.add_grid_move(h.cell, usize::from(h.action)));
                     }
                 }
                 self.c.moves_learned_from_others += known;

@@ -18,7 +18,7 @@ impl Robot<'_> {
         let flush_steps = u64::from(self.args.share.hint_flush_steps);
         // warm start: a robot (re)admitted during a run finds the coordinator's fleet table
         // waiting in its merged-hint buffer (sent before its Start)
-        self.poll(Some(p))?;
+        self.poll_and_plan(p)?;
         if first {
             self.c.warm_start_entries = self.applier.counters().entries_applied;
         }
@@ -43,7 +43,7 @@ impl Robot<'_> {
                     if share && p.batcher.due(p.steps, flush_steps) {
                         self.send_hints(p);
                     }
-                    self.poll(Some(p))?;
+                    self.poll_and_plan(p)?;
                     // sweeps inside the episode (`--sweep-every`) changed values no step noted
                     if share && p.learner.take_swept_within() {
                         self.offer_planned(p);
@@ -67,7 +67,7 @@ impl Robot<'_> {
                         self.offer_planned(p);
                         // the merged batches that piled up during replay and sweeps: drained
                         // now, before the latest-wins buffer overwrites them
-                        self.poll(Some(p))?;
+                        self.poll_and_plan(p)?;
                     }
                     break;
                 }
@@ -89,6 +89,17 @@ impl Robot<'_> {
         p.completed = !self.plan.stopped();
         p.learn_s = p.t0.elapsed().as_secs_f64();
         p.own_final = p.learner.greedy_path_len();
+        Ok(())
+    }
+
+    /// Takes in everything waiting ([`poll`](Self::poll)), then, when moves of other robots
+    /// joined the model, plans with them before the next step (`Learner::settle_grid_moves`)
+    /// and offers the values that changed, as after an episode's sweeps.
+    fn poll_and_plan(&mut self, p: &mut Phase) -> Result<(), AgentError> {
+        self.poll(Some(p))?;
+        if p.learner.settle_grid_moves() && self.args.share.share.hints() {
+            self.offer_planned(p);
+        }
         Ok(())
     }
 

@@ -78,6 +78,13 @@ impl Robot<'_> {
                 self.c.hint_entries_sent += n as u64;
                 // waking the coordinator costs a syscall; once per batch is cheap enough
                 let _ = self.bus.hints.notify();
+                // and lets it (and the fleet) run: on a host with fewer cores than processes a
+                // robot that kept its core would learn its whole task within its time slices,
+                // before the coordinator had relayed anything of the others to it or of it to
+                // them; which robots learned alone then depended on the scheduler
+                // (docs/bench/history.md, "Shared grid: planning with the others' moves").
+                // Nothing else runnable: returns at once
+                std::thread::yield_now();
             }
             Err(_) => self.c.send_errors += 1,
         }
