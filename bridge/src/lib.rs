@@ -37,6 +37,7 @@ pub mod link;
 pub mod relay;
 pub mod reliable;
 pub mod remote;
+pub mod roster;
 pub mod seal;
 pub mod stats;
 pub mod topics;
@@ -51,6 +52,7 @@ pub use hub::{Hub, HubOptions, HubReport};
 pub use join::{JoinPlan, JoinReply, JoinRequest, PlanError, RemotePlan};
 pub use link::{RUNTIME_THREADS, SPIN_AFTER, Tuning, prefer_runtime_threads};
 pub use remote::{Ending, Joined, Joiner, request};
+pub use roster::{Listed, Roster};
 pub use seal::Secret;
 pub use stats::{HostEntry, HostLink, HostReport, HostState, Percentiles};
 

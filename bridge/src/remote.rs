@@ -5,11 +5,11 @@
 //! then creates this host's services with a coordinator stand-in — an iceoryx2 node named
 //! `qfleet-coordinator`, whose process is `qfleet join` itself — so local robots register,
 //! watch their coordinator's pid and reconnect exactly as they do on one host; the caller starts
-//! the robots and calls [`Joiner::serve`]. A robot whose process is gone is reported to the hub
-//! in the next heartbeat. While the link is down the robots keep learning; their lossless
-//! messages wait here and are resent when it is back.
+//! the robots and calls [`Joiner::serve`]. A robot whose process is gone — it ended, or a node
+//! listing says so ([`crate::roster`]) — is reported to the hub in the next heartbeat. While
+//! the link is down the robots keep learning; their lossless messages wait here and are resent
+//! when it is back.
 
-use std::collections::BTreeSet;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::Receiver;
 use std::time::{Duration, Instant};
@@ -20,8 +20,8 @@ use bus::bus_schema::{
 };
 use bus::iceoryx2::prelude::{CallbackProgression, SignalHandlingMode, WaitSetBuilder, ipc};
 use bus::{
-    BusConfig, BusError, CoordinatorBus, Lister, Listing, SendError, WakeListener, monotonic_ns,
-    wake_pair,
+    BusConfig, BusError, CoordinatorBus, Lister, Listing, Liveness, SendError, WakeListener,
+    monotonic_ns, wake_pair,
 };
 use zenoh::Wait;
 use zenoh::pubsub::Subscriber;
@@ -31,6 +31,7 @@ use crate::end::{Got, LinkEnd, Meta, Put};
 use crate::health::{ClockSync, LinkEvent};
 use crate::join::{JOIN_KEY, JoinAsk, JoinPlan, JoinReply, JoinRequest, Knocker};
 use crate::link::{self, Tuning};
+use crate::roster::{Listed, Roster};
 use crate::seal::{HostKeys, Secret};
 use crate::stats::HostReport;
 use crate::topics::{FromRobot, ToRobot};
@@ -156,8 +157,10 @@ pub struct Joiner {
     frames: Subscriber<Receiver<Sample>>,
     /// Rung by the subscriber's callback after each frame (taken by [`Joiner::serve`]).
     wakes: Option<WakeListener>,
-    seen: BTreeSet<u32>,
-    gone: BTreeSet<u32>,
+    /// This host's robots: which are gone (reported in every heartbeat).
+    roster: Roster,
+    /// How many of the roster's gone robots were logged.
+    logged_gone: usize,
     report: HostReport,
     /// How long the loop keeps looking after a message moved ([`Tuning::spin`]).
     spin: Duration,
@@ -223,6 +226,7 @@ impl Joiner {
             ..HostReport::default()
         };
         Ok(Joiner {
+            roster: Roster::new(&plan.robot_ids),
             session,
             local: Local {
                 bus,
@@ -234,8 +238,7 @@ impl Joiner {
             end,
             frames,
             wakes: Some(wakes),
-            seen: BTreeSet::new(),
-            gone: BTreeSet::new(),
+            logged_gone: 0,
             report,
             spin: tuning.spin,
         })
@@ -246,12 +249,18 @@ impl Joiner {
         &self.plan
     }
 
-    /// Carries messages until the robots are done (`robots_done()` and nothing unacknowledged),
-    /// the coordinator's host says goodbye or is lost, or `stop` is set.
+    /// Carries messages until the robots are done and nothing is unacknowledged, the
+    /// coordinator's host says goodbye or is lost, or `stop` is set.
+    ///
+    /// `robots(exited)` is asked before every heartbeat: it calls `exited(id)` for each robot
+    /// whose process has ended (again and again is fine) and returns whether all are done. An
+    /// ended robot is reported gone in that heartbeat and every one after — the surest sign,
+    /// which does not depend on a node listing ever having shown the robot (see
+    /// [`crate::roster`]). A caller without processes calls nothing and says when it is done.
     pub fn serve(
         &mut self,
         stop: &AtomicBool,
-        mut robots_done: impl FnMut() -> bool,
+        mut robots: impl FnMut(&mut dyn FnMut(u32)) -> bool,
     ) -> Result<Ending, BridgeError> {
         let waitset_error = |e: &dyn std::fmt::Debug| {
             BridgeError::Bus(BusError::Event {
@@ -281,11 +290,30 @@ impl Joiner {
         let mut last_list = Instant::now();
         let mut pacing = link::Pacing::new(Instant::now(), self.spin);
         let mut done_at: Option<Instant> = None;
+        let mut robots_done = false;
         link::tighten_timer_slack();
         let ending = loop {
             let now = Instant::now();
             let mut busy = false;
             let mut over = false;
+            // who went, before this pass drains what the robots sent: whatever a robot wrote
+            // before it ended goes up ahead of the heartbeat that says it is gone (the hub
+            // drops its proxy only after delivering what came before)
+            let beat = now >= self.end.next_beat();
+            if beat {
+                let roster = &mut self.roster;
+                let mut went = false;
+                robots_done = robots(&mut |id| went |= roster.exited(id));
+                if went {
+                    self.log_gone("its process ended");
+                }
+            }
+            if now.duration_since(last_list) >= LIST_EVERY {
+                last_list = now;
+                if let Some(listing) = lister.poll() {
+                    self.robots_listed(listing)?;
+                }
+            }
             for _ in 0..4096 {
                 let Ok(sample) = self.frames.try_recv() else {
                     break;
@@ -303,20 +331,10 @@ impl Joiner {
                 // the robots answer a woken grant with intents they do not notify
                 pacing.expect_reply(now);
             }
-            if now.duration_since(last_list) >= LIST_EVERY {
-                last_list = now;
-                if let Some(listing) = lister.poll() {
-                    self.robots_listed(listing)?;
-                }
-            }
-            let gone: Vec<u32> = if now >= self.end.next_beat() {
-                self.gone.iter().copied().collect()
-            } else {
-                Vec::new()
-            };
+            let gone: &[u32] = if beat { self.roster.gone() } else { &[] };
             match self
                 .end
-                .tick(now, monotonic_ns(), &gone, &mut self.publisher)
+                .tick(now, monotonic_ns(), gone, &mut self.publisher)
             {
                 Some(LinkEvent::WentDown) => report::log_line!(
                     "qfleet join: the coordinator's host is silent; robots keep learning, their \
@@ -331,7 +349,7 @@ impl Joiner {
             if stop.load(Ordering::SeqCst) {
                 break Ending::Stopped;
             }
-            if robots_done() {
+            if robots_done {
                 // the last reports must be acknowledged; a robot's "gone" must reach the hub
                 let t = *done_at.get_or_insert(now);
                 if self.end.unacked() == 0 && now.duration_since(t) >= HEARTBEAT_EVERY * 3 {
@@ -451,22 +469,43 @@ impl Joiner {
     }
 
     /// Takes a listing of this host's robot nodes (the lister cleans up after dead ones): a
-    /// robot seen before and not alive now is gone.
+    /// robot listed dead, or seen alive before and not alive now, is gone ([`Roster::listed`]).
     fn robots_listed(&mut self, listing: Listing) -> Result<(), BridgeError> {
         let nodes = listing.report?;
-        let alive: BTreeSet<u32> = nodes
-            .alive()
-            .filter_map(|n| n.name.strip_prefix("qfleet-robot-")?.parse().ok())
-            .collect();
-        for id in &self.seen {
-            if !alive.contains(id) {
-                self.gone.insert(*id);
+        let state = |id: u32| {
+            let mut listed = Listed::Absent;
+            for n in &nodes.nodes {
+                if robot_of_node(&n.name) == Some(id) {
+                    match n.liveness {
+                        Liveness::Alive => return Listed::Alive,
+                        Liveness::Dead => listed = Listed::Dead,
+                        _ => {}
+                    }
+                }
             }
+            listed
+        };
+        if self.roster.listed(state) > 0 {
+            self.log_gone("its node is dead or gone");
         }
-        self.seen
-            .extend(alive.iter().filter(|id| !self.gone.contains(id)));
         Ok(())
     }
+
+    /// Logs the robots that went since the last call (`why`).
+    fn log_gone(&mut self, why: &str) {
+        let gone = self.roster.gone();
+        for id in &gone[self.logged_gone.min(gone.len())..] {
+            report::log_line!(
+                "qfleet join: robot {id} is gone ({why}); the coordinator's host is told"
+            );
+        }
+        self.logged_gone = gone.len();
+    }
+}
+
+/// The robot id of node `name` (`qfleet-robot-<id>`, the name `bus::RobotBus::open` gives).
+fn robot_of_node(name: &str) -> Option<u32> {
+    name.strip_prefix("qfleet-robot-")?.parse().ok()
 }
 
 impl Local {

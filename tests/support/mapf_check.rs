@@ -201,10 +201,19 @@ pub fn check(map: &Map, pairs: &[(Xy, Xy)], paths: &[Vec<Xy>]) -> Checked {
 /// Checks a finished shared-grid run's `paths.txt` (in `out`) independently and against its
 /// result's `grid` section (used by `tests/grid.rs` and `tests/multihost.rs`).
 pub fn validate(out: &Path, map: &Path, scen: &Path, agents: usize, grid: &Value) {
-    let m = Map::parse(&std::fs::read_to_string(map).unwrap());
     let pairs = scen_pairs(&std::fs::read_to_string(scen).unwrap(), agents);
-    let paths = parse_paths(&std::fs::read_to_string(out.join("paths.txt")).unwrap());
-    let c = check(&m, &pairs, &paths);
+    validate_pairs(&out.join("paths.txt"), map, &pairs, grid);
+}
+
+/// Checks the paths file `paths` of a shared-grid execution whose robots went between `pairs`
+/// (an experiment's phase: `paths-phase-<p>.txt`, its own starts and goals) independently and
+/// against its result's `grid` section.
+pub fn validate_pairs(paths: &Path, map: &Path, pairs: &[(Xy, Xy)], grid: &Value) {
+    let m = Map::parse(&std::fs::read_to_string(map).unwrap());
+    let text = std::fs::read_to_string(paths)
+        .unwrap_or_else(|e| panic!("no paths file {} ({e})", paths.display()));
+    let paths = parse_paths(&text);
+    let c = check(&m, pairs, &paths);
     assert_eq!(
         (c.vertex, c.swap, c.illegal, c.bad_start),
         (0, 0, 0, 0),

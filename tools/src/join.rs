@@ -517,10 +517,17 @@ impl JoinCmd {
             Ok(())
         })();
         let ending = match spawned {
-            Ok(()) => joiner.serve(&stop, || {
-                children
-                    .iter_mut()
-                    .all(|(_, c)| matches!(c.try_wait(), Ok(Some(_))))
+            // an ended robot is gone, whatever a node listing shows (see `bridge::roster`)
+            Ok(()) => joiner.serve(&stop, |exited| {
+                let mut all = true;
+                for (id, c) in children.iter_mut() {
+                    if matches!(c.try_wait(), Ok(Some(_))) {
+                        exited(*id);
+                    } else {
+                        all = false;
+                    }
+                }
+                all
             }),
             Err(e) => {
                 stop_children(&mut children, Duration::ZERO);

@@ -307,7 +307,7 @@ pub fn bridged_robots(
             let _ = ready_tx.send(j.as_ref().map(|_| ()).map_err(Clone::clone));
             let mut j = j?;
             // iceoryx2 ports belong to the thread that made them: serve here
-            let r = j.serve(&stop, || done.load(Ordering::SeqCst));
+            let r = j.serve(&stop, |_| done.load(Ordering::SeqCst));
             j.finish();
             r.map(drop).map_err(|e| e.to_string())
         })
