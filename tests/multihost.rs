@@ -261,6 +261,53 @@ fn start_b(hosts: &TwoHosts, robots: u32, out: &Path, secret: &str, extra: &[&st
         .expect("spawn qfleet join")
 }
 
+/// Runs `qfleet experiment manifest` on host A with `remote` of its robots joined from host B
+/// (`qfleet join` writing into `db`), both waited for; asserts both succeeded and returns host
+/// A's output.
+fn experiment_across(
+    hosts: &TwoHosts,
+    id: &str,
+    manifest: &Path,
+    out: &Path,
+    remote: u32,
+    db: &Path,
+    secret: &str,
+) -> Output {
+    let (m, o, r) = (
+        manifest.display().to_string(),
+        out.display().to_string(),
+        remote.to_string(),
+    );
+    let a = hosts
+        .command(
+            Host::A,
+            &bin("qfleet"),
+            &[
+                "experiment",
+                &m,
+                "--run-id",
+                id,
+                "--remote-robots",
+                &r,
+                "--listen",
+                ENDPOINT,
+                "--secret-file",
+                secret,
+                "--out",
+                &o,
+                "--json",
+            ],
+        )
+        .spawn()
+        .expect("spawn qfleet experiment");
+    let b = start_b(hosts, remote, db, secret, &[]);
+    let out_b = wait_bounded(b, LIMIT);
+    let out_a = wait_bounded(a, LIMIT);
+    assert!(out_a.status.success(), "host A: {}", describe(&out_a));
+    assert!(out_b.status.success(), "host B: {}", describe(&out_b));
+    out_a
+}
+
 fn result(dir: &Path, out: &Output) -> Value {
     let text = std::fs::read_to_string(dir.join("result.json"))
         .unwrap_or_else(|e| panic!("no result.json ({e}): {}", describe(out)));
@@ -716,34 +763,7 @@ rotate = 1
     )
     .expect("write the manifest");
     let out = da.join("out");
-    let (m, o) = (manifest.display().to_string(), out.display().to_string());
-    let a = hosts
-        .command(
-            Host::A,
-            &bin("qfleet"),
-            &[
-                "experiment",
-                &m,
-                "--run-id",
-                &id,
-                "--remote-robots",
-                "3",
-                "--listen",
-                ENDPOINT,
-                "--secret-file",
-                &secret,
-                "--out",
-                &o,
-                "--json",
-            ],
-        )
-        .spawn()
-        .expect("spawn qfleet experiment");
-    let b = start_b(&hosts, 3, &db, &secret, &[]);
-    let out_b = wait_bounded(b, LIMIT);
-    let out_a = wait_bounded(a, LIMIT);
-    assert!(out_a.status.success(), "host A: {}", describe(&out_a));
-    assert!(out_b.status.success(), "host B: {}", describe(&out_b));
+    let out_a = experiment_across(&hosts, &id, &manifest, &out, 3, &db, &secret);
     let seed = out.join("seed-1");
     let r = result(&seed, &out_a);
     let phases = r["phases"].as_array().expect("phases");
@@ -877,34 +897,7 @@ episodes = 200
     )
     .expect("write the manifest");
     let out = da.join("out");
-    let (m, o) = (manifest.display().to_string(), out.display().to_string());
-    let a = hosts
-        .command(
-            Host::A,
-            &bin("qfleet"),
-            &[
-                "experiment",
-                &m,
-                "--run-id",
-                &id,
-                "--remote-robots",
-                "2",
-                "--listen",
-                ENDPOINT,
-                "--secret-file",
-                &secret,
-                "--out",
-                &o,
-                "--json",
-            ],
-        )
-        .spawn()
-        .expect("spawn qfleet experiment");
-    let b = start_b(&hosts, 2, &db, &secret, &[]);
-    let out_b = wait_bounded(b, LIMIT);
-    let out_a = wait_bounded(a, LIMIT);
-    assert!(out_a.status.success(), "host A: {}", describe(&out_a));
-    assert!(out_b.status.success(), "host B: {}", describe(&out_b));
+    let out_a = experiment_across(&hosts, &id, &manifest, &out, 2, &db, &secret);
     let seed = out.join("seed-5");
     let r = result(&seed, &out_a);
     let phases = r["phases"].as_array().expect("phases");
