@@ -736,32 +736,7 @@ fn a_shared_grid_experiment_across_two_hosts_arrives_in_both_phases_without_a_co
     let (map, scen) = warehouse();
     // the repository's two-phase example on the warehouse, its robots 3-5 on host B: each
     // phase's Execute, grants and intents cross the link, and phase 1's goals too
-    let manifest = da.join("m.toml");
-    std::fs::write(
-        &manifest,
-        format!(
-            r#"
-name = "a shared grid across hosts"
-world = "shared"
-sharing = "hints"
-episodes = 200
-seeds = [1]
-[map]
-source = "{}"
-scen = "{}"
-[robots]
-count = 6
-[[phases]]
-name = "out"
-[[phases]]
-name = "next-goal"
-rotate = 1
-"#,
-            map.display(),
-            scen.display()
-        ),
-    )
-    .expect("write the manifest");
+    let manifest = map.with_file_name("warehouse-two-phases.toml");
     let out = da.join("out");
     let out_a = experiment_across(&hosts, &id, &manifest, &out, 3, &db, &secret);
     let seed = out.join("seed-1");

@@ -91,11 +91,6 @@ impl Roster {
     pub fn gone(&self) -> &[u32] {
         &self.gone
     }
-
-    /// Whether robot `id` is gone.
-    pub fn is_gone(&self, id: u32) -> bool {
-        self.gone.contains(&id)
-    }
 }
 
 #[cfg(test)]
@@ -166,7 +161,6 @@ mod tests {
         assert_eq!(r2.listed(alive(&[0])), 1);
         assert!(!r2.exited(1));
         assert_eq!((r.gone(), r2.gone()), (&[1][..], &[1][..]));
-        assert!(r.is_gone(1) && !r.is_gone(0));
     }
 
     #[test]
@@ -179,7 +173,6 @@ mod tests {
         // a node of the same id listed again does not bring a gone robot back
         r.listed(alive(&[2, 3]));
         assert_eq!(r.gone(), [3]);
-        assert!(r.is_gone(3));
     }
 
     #[test]

@@ -187,15 +187,17 @@ impl Grid {
         &self.free
     }
 
-    /// The passable cell reached from `c` by `a`, or `None` at a border or obstacle.
-    pub fn neighbor(&self, c: Cell, a: Action) -> Option<Cell> {
+    /// The cell next to `c` in direction `a`, passable or not, or `None` off the grid.
+    pub fn adjacent(&self, c: Cell, a: Action) -> Option<Cell> {
         let (dx, dy) = a.delta();
         let (nx, ny) = (c.x as i64 + dx as i64, c.y as i64 + dy as i64);
-        if !self.contains(nx, ny) {
-            return None;
-        }
-        let n = Cell::new(nx as u16, ny as u16);
-        self.free[self.index(n)].then_some(n)
+        self.contains(nx, ny)
+            .then(|| Cell::new(nx as u16, ny as u16))
+    }
+
+    /// The passable cell reached from `c` by `a`, or `None` at a border or obstacle.
+    pub fn neighbor(&self, c: Cell, a: Action) -> Option<Cell> {
+        self.adjacent(c, a).filter(|&n| self.free[self.index(n)])
     }
 
     /// Passable 4-neighbours of `c`, in action order.

@@ -483,7 +483,9 @@ impl Learner {
         if self.tried.is_empty() || a >= 4 || i >= grid.len() || !grid.free_flags()[i] {
             return 0;
         }
-        let to = adjacent(grid, i, Action::from_index(a));
+        let to = grid
+            .adjacent(grid.cell(i), Action::from_index(a))
+            .map(|c| grid.index(c) as u32);
         let mut new = u32::from(self.add_known_move(s, a));
         new += self.add_moves_into(s);
         if let Some(t) = to {
@@ -498,11 +500,14 @@ impl Learner {
     /// Adds every move into cell `c` from a free 4-neighbour (see
     /// [`add_grid_move`](Self::add_grid_move)); returns how many were new.
     fn add_moves_into(&mut self, c: u32) -> u32 {
+        let grid = self.env.grid();
+        let cell = grid.cell(c as usize);
+        // the free neighbour on side `act` moves into `c` by the opposite action, (act + 2) mod 4
+        let from = Action::ALL.map(|act| grid.neighbor(cell, act).map(|n| grid.index(n) as u32));
         let mut new = 0;
-        for act in Action::ALL {
-            // the neighbour on side `act` moves into `c` by the opposite action, (act + 2) mod 4
-            if let Some(n) = adjacent(self.env.grid(), c as usize, act) {
-                new += u32::from(self.add_known_move(n, (act as usize + 2) & 3));
+        for (act, n) in from.into_iter().enumerate() {
+            if let Some(n) = n {
+                new += u32::from(self.add_known_move(n, (act + 2) & 3));
             }
         }
         new
@@ -864,18 +869,6 @@ impl Learner {
     pub fn greedy_path(&self) -> Option<Vec<Cell>> {
         greedy_path(&self.env, &self.q)
     }
-}
-
-/// The cell next to cell index `i` on side `a`, free or blocked; `None` off the grid.
-fn adjacent(grid: &crate::grid::Grid, i: usize, a: Action) -> Option<u32> {
-    let c = grid.cell(i);
-    let (dx, dy) = a.delta();
-    let (x, y) = (
-        i64::from(c.x) + i64::from(dx),
-        i64::from(c.y) + i64::from(dy),
-    );
-    grid.contains(x, y)
-        .then(|| grid.index(Cell::new(x as u16, y as u16)) as u32)
 }
 
 /// The greedy path of a Q-table in an environment, or `None` if it loops or collides.
