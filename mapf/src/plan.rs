@@ -32,8 +32,19 @@ pub(crate) struct Planner {
     stamp: Vec<u32>,
     /// The move index (0 wait, 1..=4 the neighbour slot + 1) that reached (t, v).
     parent: Vec<u8>,
+    /// The fewest ticks spent on other agents' goal cells by a path found to (t, v), at
+    /// `t * cells + v` (valid where `stamp` is current).
+    detained: Vec<u16>,
     generation: u32,
-    heap: BinaryHeap<(Reverse<u32>, u32, u32)>,
+    /// A* open list: (f, ticks on others' goals, t, v); least f, then least ticks on others'
+    /// goals, then deepest first.
+    heap: BinaryHeap<(Reverse<u32>, Reverse<u16>, u32, u32)>,
+    /// The agent whose goal each cell is (NIL = nobody's; [`Planner::set_goals`]).
+    goal_owner: Vec<u32>,
+    /// Whether a search, among its shortest paths, takes one that spends the fewest ticks on
+    /// other agents' goal cells (measured on the tuning set: counting only the ticks from
+    /// which the owner could rest there did worse).
+    pub avoid_goals: bool,
     /// Per agent: the planned cells, `(horizon + 1)` slots each.
     pub cells_of: Vec<u32>,
     /// Per agent: the time index it arrives for good, NIL = no plan.
@@ -130,6 +141,9 @@ impl Planner {
             last: vec![NIL; cells],
             stamp: vec![0; slots],
             parent: vec![0; slots],
+            detained: vec![0; slots],
+            goal_owner: vec![NIL; if agents == 0 { 0 } else { cells }],
+            avoid_goals: false,
             generation: 0,
             // each expansion pushes at most 5 nodes
             heap: BinaryHeap::with_capacity(if agents == 0 {
@@ -165,6 +179,17 @@ impl Planner {
         self.junctions = (0..nbr.len() as u32)
             .filter(|&v| nbr[v as usize].iter().filter(|&&u| u != NIL).count() >= 3)
             .collect();
+    }
+
+    /// Notes every agent's goal cell (once, before any search; goals are distinct).
+    pub fn set_goals(&mut self, goal: &[u32]) {
+        if self.arrive.is_empty() {
+            return;
+        }
+        self.goal_owner.fill(NIL);
+        for (a, &g) in goal.iter().enumerate() {
+            self.goal_owner[g as usize] = a as u32;
+        }
     }
 
     /// Keeps a copy of the current plan.
@@ -264,6 +289,12 @@ impl Planner {
         })
     }
 
+    /// Whether `v` is the goal of an agent other than `a` (one that will rest there).
+    fn rests_on(&self, a: usize, v: u32) -> bool {
+        let o = self.goal_owner[v as usize];
+        o != NIL && o as usize != a
+    }
+
     /// Marks (t, v) as used by `agent`.
     fn reserve(&mut self, agent: usize, t: usize, v: u32) {
         let i = t * self.cells + v as usize;
@@ -334,6 +365,43 @@ impl Planner {
             }
         }
         spent
+    }
+
+    /// Makes the plan the configurations `configs` (each `agents` cells, the first one the
+    /// agents' cells in `fleet`, the last one every movable agent on its goal): what a
+    /// complete search found. Each agent arrives for good where it last reaches its goal.
+    /// Returns false, leaving no plan, when they take more ticks than the horizon.
+    pub fn load(&mut self, configs: &[u32], fleet: &Fleet<'_>) -> bool {
+        let n = self.arrive.len();
+        self.clear();
+        if n == 0 || configs.len() % n != 0 || configs.len() / n > self.horizon + 1 {
+            return false;
+        }
+        let (h, steps) = (self.horizon + 1, configs.len() / n);
+        for a in 0..n {
+            let p = fleet.pos[a];
+            if p == NIL {
+                continue;
+            }
+            if fleet.fixed[a] {
+                self.hold[p as usize] = 0;
+                self.holder[p as usize] = a as u32;
+                self.arrive[a] = 0;
+                self.cells_of[a * h] = p;
+                continue;
+            }
+            let at = |t: usize| configs[t * n + a];
+            let mut end = steps - 1;
+            while end > 0 && at(end - 1) == fleet.goal[a] {
+                end -= 1;
+            }
+            for t in 0..=end {
+                self.cells_of[a * h + t] = at(t);
+            }
+            self.arrive[a] = end as u32;
+            self.reserve_path(a, 0);
+        }
+        true
     }
 
     /// The cost refinement counts for agent `a`: its arrival, or [`UNPLANNED`] without a plan.
@@ -634,14 +702,22 @@ impl Planner {
         let gen_ = next_generation(&mut self.generation, &mut self.stamp);
         self.heap.clear();
         self.stamp[t0 * self.cells + start as usize] = gen_;
-        self.heap
-            .push((Reverse(t0 as u32 + dist[start as usize]), t0 as u32, start));
+        self.detained[t0 * self.cells + start as usize] = 0;
+        self.heap.push((
+            Reverse(t0 as u32 + dist[start as usize]),
+            Reverse(0),
+            t0 as u32,
+            start,
+        ));
         let mut expanded = 0u32;
-        while let Some((Reverse(f), t, v)) = self.heap.pop() {
+        while let Some((Reverse(f), Reverse(d), t, v)) = self.heap.pop() {
             if f > max_arrive {
                 return (false, expanded);
             }
             let t = t as usize;
+            if d > self.detained[t * self.cells + v as usize] {
+                continue; // reached again with fewer ticks on others' goals
+            }
             if v == goal && !self.passes_after(v, t, a as u32) {
                 // walk back from (t, goal), writing the path
                 let h = self.horizon + 1;
@@ -689,13 +765,21 @@ impl Planner {
                     continue;
                 }
                 let i = nt * self.cells + u as usize;
-                if self.stamp[i] == gen_ {
+                // a tick on another agent's goal counts against a path
+                let nd = if self.avoid_goals && self.rests_on(a, u) {
+                    d.saturating_add(1)
+                } else {
+                    d
+                };
+                if self.stamp[i] == gen_ && self.detained[i] <= nd {
                     continue;
                 }
                 self.stamp[i] = gen_;
                 self.parent[i] = m;
-                // min f first, deeper (later) first among equal f
-                self.heap.push((Reverse(nt as u32 + du), nt as u32, u));
+                self.detained[i] = nd;
+                // least f first, then fewest ticks on others' goals, then deeper (later)
+                self.heap
+                    .push((Reverse(nt as u32 + du), Reverse(nd), nt as u32, u));
             }
         }
         (false, expanded)
@@ -855,5 +939,121 @@ mod tests {
             improved += p.improved;
         }
         assert!(improved > 0, "the refinement lowered some plan's cost");
+    }
+
+    /// The planner's fleet view of an instance: (pos, goal, dist, fixed).
+    fn fleet_of(inst: &Instance) -> (Vec<u32>, Vec<u32>, Vec<bool>) {
+        let idx = |c: Cell| inst.grid().index(c) as u32;
+        let pos = inst.starts().iter().map(|&c| idx(c)).collect();
+        let goal = inst.goals().iter().map(|&c| idx(c)).collect();
+        (pos, goal, vec![false; inst.agents()])
+    }
+
+    #[test]
+    fn a_complete_search_plan_loads_with_every_agent_routed_and_refines_validly() {
+        use crate::pibt::Pibt;
+        use crate::search::{Outcome, Problem, lacam};
+        for seed in 1..=4u64 {
+            let (inst, nbr) = setup(seed);
+            let n = inst.agents();
+            let (pos, goal, fixed) = fleet_of(&inst);
+            let dist = inst.dist_tables();
+            let problem = Problem {
+                goal: &goal,
+                fixed: &fixed,
+                nbr: &nbr,
+                dist,
+            };
+            let mut pibt = Pibt::new(n, inst.grid().len());
+            let Outcome::Solved(configs) = lacam(&mut pibt, &problem, &pos, 100_000, seed) else {
+                panic!("seed {seed}: the instance is solvable");
+            };
+            let f = Fleet {
+                pos: &pos,
+                goal: &goal,
+                fixed: &fixed,
+                nbr: &nbr,
+                dist,
+            };
+            // too short a horizon for the search's plan: refused, nothing planned
+            let steps = configs.len() / n;
+            let mut short = Planner::new(n, inst.grid().len(), steps - 2, 5000);
+            assert!(!short.load(&configs, &f));
+            assert!(short.arrive.iter().all(|&a| a == NIL));
+            let mut p = Planner::new(n, inst.grid().len(), steps + 20, 5000);
+            p.voluntary_detours = true;
+            p.seed(seed);
+            p.adaptive = true;
+            p.set_junctions(&nbr);
+            p.set_goals(&goal);
+            assert!(p.load(&configs, &f));
+            assert!(
+                p.arrive.iter().all(|&a| a != NIL),
+                "seed {seed}: every agent routed"
+            );
+            assert_valid(&p, &pos, &goal, &nbr);
+            // each agent arrives where its last step onto its goal is in the search's plan
+            for a in 0..n {
+                let t = p.arrive[a] as usize;
+                assert!((t..steps).all(|u| configs[u * n + a] == goal[a]));
+                assert!(t == 0 || configs[(t - 1) * n + a] != goal[a]);
+            }
+            let cost = |p: &Planner| (0..n).map(|a| p.cost(a)).sum::<u64>();
+            let before = cost(&p);
+            p.refine(0, &f, 2000, 200_000);
+            assert_valid(&p, &pos, &goal, &nbr);
+            assert!(cost(&p) <= before);
+        }
+    }
+
+    #[test]
+    fn among_equally_short_ways_a_search_avoids_other_agents_goal_cells() {
+        // two lanes; agent 0 goes from the top left to the bottom right (every way takes 6
+        // ticks), agent 1 rests on the bottom lane at x = 2: agent 0 keeps to the top lane past it
+        let grid = planner::map::parse_ascii("lanes", b"......\n......\n")
+            .unwrap()
+            .grid;
+        let (s0, g0) = (Cell::new(0, 0), Cell::new(5, 1));
+        let (s1, g1) = (Cell::new(2, 0), Cell::new(2, 1));
+        let inst = Instance::new(grid, vec![s0, s1], vec![g0, g1]).unwrap();
+        let nbr: Vec<[u32; 4]> = (0..inst.grid().len())
+            .map(|i| {
+                let mut out = [NIL; 4];
+                for (k, m) in Move::STEPS.into_iter().enumerate() {
+                    if let Some(c) = m.apply(inst.grid(), inst.grid().cell(i)) {
+                        out[k] = inst.grid().index(c) as u32;
+                    }
+                }
+                out
+            })
+            .collect();
+        let (pos, goal, fixed) = fleet_of(&inst);
+        let f = Fleet {
+            pos: &pos,
+            goal: &goal,
+            fixed: &fixed,
+            nbr: &nbr,
+            dist: inst.dist_tables(),
+        };
+        let on_goal_of_1 = |p: &Planner| (0..=p.arrive[0] as usize).any(|t| p.at(0, t) == goal[1]);
+        for avoid in [false, true] {
+            let mut p = Planner::new(2, inst.grid().len(), 12, 5000);
+            p.set_goals(&goal);
+            p.avoid_goals = avoid;
+            // agent 0 alone first: agent 1 is planned after it
+            p.plan(&[0], &f, 5000, 1 << 20);
+            assert_eq!(p.arrive[0], 6, "a shortest way either way");
+            assert_valid(&p, &pos, &goal, &nbr);
+            if avoid {
+                assert!(
+                    !on_goal_of_1(&p),
+                    "{:?}",
+                    (0..=6).map(|t| p.at(0, t)).collect::<Vec<_>>()
+                );
+            } else {
+                // the tie-break on depth alone takes the bottom lane (what makes the test bite)
+                assert!(on_goal_of_1(&p));
+            }
+        }
     }
 }

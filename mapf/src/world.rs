@@ -26,14 +26,17 @@
 //! ones, nearest to the goal (by BFS) first, wire order breaking ties. With
 //! [`WorldConfig::plan_ahead`] the coordinator, which knows every goal, also keeps a look-ahead
 //! plan: prioritized planning (space-time A* for each agent in turn from the current
-//! configuration, agents the previous plan could not route first, then nearest to goal first),
+//! configuration, agents the previous plan could not route first, then nearest to goal first;
+//! among equally short ways, the one spending the fewest ticks on other agents' goal cells,
+//! [`WorldConfig::plan_avoid_goals`]),
 //! tried in up to [`WorldConfig::plan_orders`] priority orders (the agents a try could not route
 //! move to the front, distances get a small pseudo-random jitter) keeping the cheapest plan,
 //! then improved by large neighbourhood search (a few agents at a time forget their paths and
 //! are replanned; kept only if cheaper): [`WorldConfig::plan_refine`] A* expansions when the
 //! plan is made and [`WorldConfig::refine_tick`] on every tick it is followed; the first plan,
-//! made ahead by [`World::prepare`] before the first tick, gets [`WorldConfig::prepare_refine`]
-//! more (the neighbourhoods are chosen adaptively, [`WorldConfig::refine_adaptive`], except on
+//! made ahead by [`World::prepare`] before the first tick, starts from the complete search's
+//! plan when prioritized planning leaves agents unrouted ([`WorldConfig::prepare_complete`])
+//! and gets [`WorldConfig::prepare_refine`] more (the neighbourhoods are chosen adaptively, [`WorldConfig::refine_adaptive`], except on
 //! ticks: [`WorldConfig::refine_tick_adaptive`]). The plan
 //! may step an agent away from its goal (a detour, [`WorldConfig::plan_detours`]) when waiting
 //! for its way to clear would cost more. The plan changes the candidate order in these ways only:
@@ -113,6 +116,10 @@ pub struct WorldConfig {
     /// Whether the look-ahead plan may step an agent away from its goal when it could wait
     /// (a detour round agents that would hold it up longer).
     pub plan_detours: bool,
+    /// Whether a look-ahead search, among an agent's shortest ways (given the agents planned
+    /// before it), takes the one spending the fewest ticks on other agents' goal cells: a
+    /// robot passing a cell where another will rest makes that one arrive after it passed.
+    pub plan_avoid_goals: bool,
     /// Whether the plan's move goes first for a robot whose first choice is its shortest way
     /// (the one place the coordinator overrides a ranking; see the module docs).
     pub plan_first: bool,
@@ -141,6 +148,11 @@ pub struct WorldConfig {
     /// plan is above the lower bound (so an easy instance stops at the minimum, a hard one
     /// keeps improving while it gains).
     pub prepare_refine_max: u64,
+    /// Whether [`World::prepare`] replaces a first plan that leaves agents unrouted by the
+    /// complete search's (every agent routed, within the horizon) before refining it: from
+    /// unrouted agents the refinement routes them one neighbourhood at a time and was left
+    /// with agents unrouted and a replan on most ticks on tuning mazes at 48 agents.
+    pub prepare_complete: bool,
     /// Whether the refinement chooses its neighbourhoods adaptively among the delayed agent's
     /// way, a junction's agents and random agents (MAPF-LNS's adaptive LNS), else always the
     /// delayed agent's way.
@@ -170,6 +182,7 @@ impl Default for WorldConfig {
             plan_total: 500_000,
             plan_slack: 64,
             plan_detours: true,
+            plan_avoid_goals: true,
             plan_first: true,
             plan_orders: 4,
             plan_jitter: 16,
@@ -179,6 +192,7 @@ impl Default for WorldConfig {
             prepare_nodes: 20_000,
             prepare_refine: 1_000_000,
             prepare_refine_max: 16_000_000,
+            prepare_complete: true,
             refine_adaptive: true,
             refine_tick_adaptive: false,
             free_first: false,
@@ -302,7 +316,7 @@ impl World {
         let goal: Vec<u32> = instance.goals().iter().map(|&c| idx(c)).collect();
         let dist = instance.dist_tables().to_vec();
         let longest = (0..n).map(|i| dist[i][pos[i] as usize]).max().unwrap_or(0);
-        // the look-ahead's space-time tables: at most 2^22 slots (9 bytes each)
+        // the look-ahead's space-time tables: at most 2^22 slots (11 bytes each)
         let horizon = if config.plan_ahead {
             (longest as usize + config.plan_slack as usize).min((1 << 22) / cells.max(1))
         } else {
@@ -317,6 +331,8 @@ impl World {
         planner.seed(config.seed);
         planner.adaptive = config.refine_adaptive;
         planner.set_junctions(&nbr);
+        planner.set_goals(&goal);
+        planner.avoid_goals = config.plan_avoid_goals;
         let mut w = World {
             out: instance.starts().iter().map(|&c| Some(c)).collect(),
             grid,
@@ -772,7 +788,9 @@ impl World {
     }
 
     /// Makes the look-ahead plan for the current configuration now, if one is kept and none
-    /// is valid (what the next [`World::step`] would do first), and improves it by large
+    /// is valid (what the next [`World::step`] would do first), replaces it by the complete
+    /// search's when it leaves agents unrouted ([`WorldConfig::prepare_complete`]), and
+    /// improves it by large
     /// neighbourhood search: [`WorldConfig::prepare_refine`] A* expansions, then more rounds
     /// of as many while the last one lowered the plan's cost and the plan is above the lower
     /// bound, up to [`WorldConfig::prepare_refine_max`]. A coordinator calls it while the
@@ -785,6 +803,9 @@ impl World {
             return 0;
         }
         self.replan();
+        if self.config.prepare_complete && self.plan_cost().0 > 0 {
+            self.plan_complete();
+        }
         let round = self.config.prepare_refine;
         if round == 0 {
             return 0;
@@ -811,6 +832,34 @@ impl World {
             {
                 return spent;
             }
+        }
+    }
+
+    /// Replaces a look-ahead plan that leaves agents unrouted by the complete search's, when
+    /// it finds one within the horizon: every agent routed, the refinement then only lowers
+    /// its cost (from a plan with unrouted agents it first has to route them, one
+    /// neighbourhood at a time).
+    fn plan_complete(&mut self) {
+        let problem = Problem {
+            goal: &self.goal,
+            fixed: &self.hung,
+            nbr: &self.nbr,
+            dist: &self.dist,
+        };
+        let seed = self.config.seed ^ 0x5eed;
+        let Outcome::Solved(configs) = lacam(
+            &mut self.pibt,
+            &problem,
+            &self.pos,
+            self.config.fallback_nodes,
+            seed,
+        ) else {
+            return;
+        };
+        self.planner.save();
+        let (planner, _, fleet) = self.planning();
+        if !planner.load(&configs, &fleet) {
+            self.planner.restore();
         }
     }
 
