@@ -813,6 +813,23 @@ mod tests {
     use crate::moves::Move;
     use planner::{Cell, Grid};
 
+    /// Each cell's passable neighbours (NIL where none), as the world builds them.
+    fn neighbours(grid: &Grid) -> Vec<[u32; 4]> {
+        (0..grid.len())
+            .map(|i| {
+                let mut out = [NIL; 4];
+                for (k, m) in Move::STEPS.into_iter().enumerate() {
+                    if grid.is_free(grid.cell(i))
+                        && let Some(n) = m.apply(grid, grid.cell(i))
+                    {
+                        out[k] = grid.index(n) as u32;
+                    }
+                }
+                out
+            })
+            .collect()
+    }
+
     /// A 14×14 grid with scattered walls and 24 agents, and its neighbour table.
     fn setup(seed: u64) -> (Instance, Vec<[u32; 4]>) {
         let (w, h) = (14usize, 14usize);
@@ -839,19 +856,7 @@ mod tests {
                 }
             }
             if let Ok(inst) = Instance::new(grid.clone(), s, g) {
-                let nbr = (0..grid.len())
-                    .map(|i| {
-                        let mut out = [NIL; 4];
-                        for (k, m) in Move::STEPS.into_iter().enumerate() {
-                            if grid.is_free(grid.cell(i))
-                                && let Some(n) = m.apply(&grid, grid.cell(i))
-                            {
-                                out[k] = grid.index(n) as u32;
-                            }
-                        }
-                        out
-                    })
-                    .collect();
+                let nbr = neighbours(&grid);
                 return (inst, nbr);
             }
         }
@@ -1016,17 +1021,7 @@ mod tests {
         let (s0, g0) = (Cell::new(0, 0), Cell::new(5, 1));
         let (s1, g1) = (Cell::new(2, 0), Cell::new(2, 1));
         let inst = Instance::new(grid, vec![s0, s1], vec![g0, g1]).unwrap();
-        let nbr: Vec<[u32; 4]> = (0..inst.grid().len())
-            .map(|i| {
-                let mut out = [NIL; 4];
-                for (k, m) in Move::STEPS.into_iter().enumerate() {
-                    if let Some(c) = m.apply(inst.grid(), inst.grid().cell(i)) {
-                        out[k] = inst.grid().index(c) as u32;
-                    }
-                }
-                out
-            })
-            .collect();
+        let nbr = neighbours(inst.grid());
         let (pos, goal, fixed) = fleet_of(&inst);
         let f = Fleet {
             pos: &pos,
