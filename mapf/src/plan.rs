@@ -374,7 +374,7 @@ impl Planner {
     pub fn load(&mut self, configs: &[u32], fleet: &Fleet<'_>) -> bool {
         let n = self.arrive.len();
         self.clear();
-        if n == 0 || configs.len() % n != 0 || configs.len() / n > self.horizon + 1 {
+        if n == 0 || !configs.len().is_multiple_of(n) || configs.len() / n > self.horizon + 1 {
             return false;
         }
         let (h, steps) = (self.horizon + 1, configs.len() / n);
