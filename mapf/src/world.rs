@@ -36,10 +36,10 @@
 //! plan is made and [`WorldConfig::refine_tick`] on every tick it is followed; the first plan,
 //! made ahead by [`World::prepare`] before the first tick, starts from the complete search's
 //! plan when prioritized planning leaves agents unrouted ([`WorldConfig::prepare_complete`])
-//! and gets [`WorldConfig::prepare_refine`] more (the neighbourhoods are chosen adaptively, [`WorldConfig::refine_adaptive`], except on
-//! ticks: [`WorldConfig::refine_tick_adaptive`]). The plan
-//! may step an agent away from its goal (a detour, [`WorldConfig::plan_detours`]) when waiting
-//! for its way to clear would cost more. The plan changes the candidate order in these ways only:
+//! and gets [`WorldConfig::prepare_refine`] more (the neighbourhoods are chosen adaptively,
+//! [`WorldConfig::refine_adaptive`], except on ticks: [`WorldConfig::refine_tick_adaptive`]).
+//! The plan may step an agent away from its goal (a detour, [`WorldConfig::plan_detours`])
+//! when waiting for its way to clear would cost more. The plan changes the candidate order in these ways only:
 //!
 //! 1. **The plan leads a robot heading its shortest way** ([`WorldConfig::plan_first`]). When
 //!    the robot's first choice is as near its goal as any move it has (what a robot with
@@ -151,7 +151,8 @@ pub struct WorldConfig {
     /// Whether [`World::prepare`] replaces a first plan that leaves agents unrouted by the
     /// complete search's (every agent routed, within the horizon) before refining it: from
     /// unrouted agents the refinement routes them one neighbourhood at a time and was left
-    /// with agents unrouted and a replan on most ticks on tuning mazes at 48 agents.
+    /// with agents unrouted and a replan on most ticks on tuning mazes at 48 agents. The
+    /// search is the stall fallback's, with its budget and memory (`fallback_nodes`).
     pub prepare_complete: bool,
     /// Whether the refinement chooses its neighbourhoods adaptively among the delayed agent's
     /// way, a junction's agents and random agents (MAPF-LNS's adaptive LNS), else always the
@@ -790,8 +791,8 @@ impl World {
     /// Makes the look-ahead plan for the current configuration now, if one is kept and none
     /// is valid (what the next [`World::step`] would do first), replaces it by the complete
     /// search's when it leaves agents unrouted ([`WorldConfig::prepare_complete`]), and
-    /// improves it by large
-    /// neighbourhood search: [`WorldConfig::prepare_refine`] A* expansions, then more rounds
+    /// improves it by large neighbourhood search: [`WorldConfig::prepare_refine`] A*
+    /// expansions, then more rounds
     /// of as many while the last one lowered the plan's cost and the plan is above the lower
     /// bound, up to [`WorldConfig::prepare_refine_max`]. A coordinator calls it while the
     /// robots are still learning, so the first tick does not wait for it and the plan the
