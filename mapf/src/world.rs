@@ -792,13 +792,12 @@ impl World {
     /// is valid (what the next [`World::step`] would do first), replaces it by the complete
     /// search's when it leaves agents unrouted ([`WorldConfig::prepare_complete`]), and
     /// improves it by large neighbourhood search: [`WorldConfig::prepare_refine`] A*
-    /// expansions, then more rounds
-    /// of as many while the last one lowered the plan's cost and the plan is above the lower
-    /// bound, up to [`WorldConfig::prepare_refine_max`]. A coordinator calls it while the
-    /// robots are still learning, so the first tick does not wait for it and the plan the
-    /// fleet starts on is better than a tick could afford. Its work is bounded by A*
-    /// expansion budgets, never by a clock: the plan it makes is deterministic. Returns the
-    /// expansions the refinement spent.
+    /// expansions, then more rounds of as many while the last one lowered the plan's cost and
+    /// the plan is above the lower bound, up to [`WorldConfig::prepare_refine_max`]. A
+    /// coordinator calls it while the robots are still learning, so the first tick does not
+    /// wait for it and the plan the fleet starts on is better than a tick could afford. Its
+    /// work is bounded by A* expansion and generator-call budgets, never by a clock: the plan
+    /// it makes is deterministic. Returns the expansions the refinement spent.
     pub fn prepare(&mut self) -> u64 {
         if !(self.config.plan_ahead && !self.plan_valid && self.following.is_empty()) {
             return 0;
