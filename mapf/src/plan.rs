@@ -830,8 +830,8 @@ mod tests {
             .collect()
     }
 
-    /// A 14×14 grid with scattered walls and 24 agents, and its neighbour table.
-    fn setup(seed: u64) -> (Instance, Vec<[u32; 4]>) {
+    /// A 14×14 grid with scattered walls and 24 agents.
+    fn setup(seed: u64) -> Instance {
         let (w, h) = (14usize, 14usize);
         let mut x = seed | 1;
         let mut next = move |n: usize| {
@@ -856,8 +856,7 @@ mod tests {
                 }
             }
             if let Ok(inst) = Instance::new(grid.clone(), s, g) {
-                let nbr = neighbours(&grid);
-                return (inst, nbr);
+                return inst;
             }
         }
     }
@@ -900,13 +899,10 @@ mod tests {
     fn refining_keeps_every_plan_valid_and_never_raises_its_cost() {
         let mut improved = 0;
         for seed in 1..=6u64 {
-            let (inst, nbr) = setup(seed);
+            let inst = setup(seed);
             let n = inst.agents();
-            let idx = |c: Cell| inst.grid().index(c) as u32;
-            let pos: Vec<u32> = inst.starts().iter().map(|&c| idx(c)).collect();
-            let goal: Vec<u32> = inst.goals().iter().map(|&c| idx(c)).collect();
-            let dist = inst.dist_tables();
-            let fixed = vec![false; n];
+            let view = View::of(&inst);
+            let (pos, goal, nbr, dist) = (&view.pos, &view.goal, &view.nbr, view.dist);
             let mut order: Vec<u32> = (0..n as u32).collect();
             order.sort_by_key(|&i| dist[i as usize][pos[i as usize] as usize]);
             let mut p = Planner::new(n, inst.grid().len(), 80, 5000);
@@ -914,31 +910,25 @@ mod tests {
             p.seed(seed);
             // every neighbourhood on the odd seeds, the delayed agent's alone on the even ones
             p.adaptive = seed % 2 == 1;
-            p.set_junctions(&nbr);
-            let f = Fleet {
-                pos: &pos,
-                goal: &goal,
-                fixed: &fixed,
-                nbr: &nbr,
-                dist,
-            };
+            p.set_junctions(nbr);
+            let f = view.fleet();
             p.plan(&order, &f, 5000, 1 << 20);
-            assert_valid(&p, &pos, &goal, &nbr);
+            assert_valid(&p, pos, goal, nbr);
             let cost = |p: &Planner| (0..n).map(|a| p.cost(a)).sum::<u64>();
             let before = cost(&p);
             p.save();
             p.refine(0, &f, 2000, 200_000);
-            assert_valid(&p, &pos, &goal, &nbr);
+            assert_valid(&p, pos, goal, nbr);
             assert!(cost(&p) <= before, "seed {seed}: {} > {before}", cost(&p));
             // refining from a later time keeps the prefix and stays valid
             let prefix: Vec<u32> = (0..n).map(|a| p.at(a, 3)).collect();
             p.refine(3, &f, 2000, 100_000);
-            assert_valid(&p, &pos, &goal, &nbr);
+            assert_valid(&p, pos, goal, nbr);
             assert_eq!((0..n).map(|a| p.at(a, 3)).collect::<Vec<_>>(), prefix);
             // and a kept plan comes back exactly
             let after = cost(&p);
             p.restore();
-            assert_valid(&p, &pos, &goal, &nbr);
+            assert_valid(&p, pos, goal, nbr);
             assert_eq!(cost(&p), before);
             assert!(after <= before);
             improved += p.improved;
@@ -946,12 +936,36 @@ mod tests {
         assert!(improved > 0, "the refinement lowered some plan's cost");
     }
 
-    /// The planner's fleet view of an instance: (pos, goal, dist, fixed).
-    fn fleet_of(inst: &Instance) -> (Vec<u32>, Vec<u32>, Vec<bool>) {
-        let idx = |c: Cell| inst.grid().index(c) as u32;
-        let pos = inst.starts().iter().map(|&c| idx(c)).collect();
-        let goal = inst.goals().iter().map(|&c| idx(c)).collect();
-        (pos, goal, vec![false; inst.agents()])
+    /// What the planner reads of an instance, owned: every agent on its start.
+    struct View<'a> {
+        pos: Vec<u32>,
+        goal: Vec<u32>,
+        fixed: Vec<bool>,
+        nbr: Vec<[u32; 4]>,
+        dist: &'a [Vec<u32>],
+    }
+
+    impl<'a> View<'a> {
+        fn of(inst: &'a Instance) -> View<'a> {
+            let idx = |c: Cell| inst.grid().index(c) as u32;
+            View {
+                pos: inst.starts().iter().map(|&c| idx(c)).collect(),
+                goal: inst.goals().iter().map(|&c| idx(c)).collect(),
+                fixed: vec![false; inst.agents()],
+                nbr: neighbours(inst.grid()),
+                dist: inst.dist_tables(),
+            }
+        }
+
+        fn fleet(&self) -> Fleet<'_> {
+            Fleet {
+                pos: &self.pos,
+                goal: &self.goal,
+                fixed: &self.fixed,
+                nbr: &self.nbr,
+                dist: self.dist,
+            }
+        }
     }
 
     #[test]
@@ -959,27 +973,21 @@ mod tests {
         use crate::pibt::Pibt;
         use crate::search::{Outcome, Problem, lacam};
         for seed in 1..=4u64 {
-            let (inst, nbr) = setup(seed);
+            let inst = setup(seed);
             let n = inst.agents();
-            let (pos, goal, fixed) = fleet_of(&inst);
-            let dist = inst.dist_tables();
+            let view = View::of(&inst);
+            let (pos, goal, nbr) = (&view.pos, &view.goal, &view.nbr);
             let problem = Problem {
-                goal: &goal,
-                fixed: &fixed,
-                nbr: &nbr,
-                dist,
+                goal,
+                fixed: &view.fixed,
+                nbr,
+                dist: view.dist,
             };
             let mut pibt = Pibt::new(n, inst.grid().len());
-            let Outcome::Solved(configs) = lacam(&mut pibt, &problem, &pos, 100_000, seed) else {
+            let Outcome::Solved(configs) = lacam(&mut pibt, &problem, pos, 100_000, seed) else {
                 panic!("seed {seed}: the instance is solvable");
             };
-            let f = Fleet {
-                pos: &pos,
-                goal: &goal,
-                fixed: &fixed,
-                nbr: &nbr,
-                dist,
-            };
+            let f = view.fleet();
             // too short a horizon for the search's plan: refused, nothing planned
             let steps = configs.len() / n;
             let mut short = Planner::new(n, inst.grid().len(), steps - 2, 5000);
@@ -989,14 +997,14 @@ mod tests {
             p.voluntary_detours = true;
             p.seed(seed);
             p.adaptive = true;
-            p.set_junctions(&nbr);
-            p.set_goals(&goal);
+            p.set_junctions(nbr);
+            p.set_goals(goal);
             assert!(p.load(&configs, &f));
             assert!(
                 p.arrive.iter().all(|&a| a != NIL),
                 "seed {seed}: every agent routed"
             );
-            assert_valid(&p, &pos, &goal, &nbr);
+            assert_valid(&p, pos, goal, nbr);
             // each agent arrives where its last step onto its goal is in the search's plan
             for a in 0..n {
                 let t = p.arrive[a] as usize;
@@ -1006,7 +1014,7 @@ mod tests {
             let cost = |p: &Planner| (0..n).map(|a| p.cost(a)).sum::<u64>();
             let before = cost(&p);
             p.refine(0, &f, 2000, 200_000);
-            assert_valid(&p, &pos, &goal, &nbr);
+            assert_valid(&p, pos, goal, nbr);
             assert!(cost(&p) <= before);
         }
     }
@@ -1021,24 +1029,18 @@ mod tests {
         let (s0, g0) = (Cell::new(0, 0), Cell::new(5, 1));
         let (s1, g1) = (Cell::new(2, 0), Cell::new(2, 1));
         let inst = Instance::new(grid, vec![s0, s1], vec![g0, g1]).unwrap();
-        let nbr = neighbours(inst.grid());
-        let (pos, goal, fixed) = fleet_of(&inst);
-        let f = Fleet {
-            pos: &pos,
-            goal: &goal,
-            fixed: &fixed,
-            nbr: &nbr,
-            dist: inst.dist_tables(),
-        };
+        let view = View::of(&inst);
+        let (pos, goal, nbr) = (&view.pos, &view.goal, &view.nbr);
+        let f = view.fleet();
         let on_goal_of_1 = |p: &Planner| (0..=p.arrive[0] as usize).any(|t| p.at(0, t) == goal[1]);
         for avoid in [false, true] {
             let mut p = Planner::new(2, inst.grid().len(), 12, 5000);
-            p.set_goals(&goal);
+            p.set_goals(goal);
             p.avoid_goals = avoid;
             // agent 0 alone first: agent 1 is planned after it
             p.plan(&[0], &f, 5000, 1 << 20);
             assert_eq!(p.arrive[0], 6, "a shortest way either way");
-            assert_valid(&p, &pos, &goal, &nbr);
+            assert_valid(&p, pos, goal, nbr);
             if avoid {
                 assert!(
                     !on_goal_of_1(&p),
