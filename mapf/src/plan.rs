@@ -342,14 +342,10 @@ impl Planner {
             dist,
         } = *fleet;
         self.clear();
-        let h = self.horizon + 1;
         // robots that will not move hold their cells from now on
         for (i, &p) in pos.iter().enumerate() {
             if p != NIL && fixed[i] {
-                self.hold[p as usize] = 0;
-                self.holder[p as usize] = i as u32;
-                self.arrive[i] = 0;
-                self.cells_of[i * h] = p;
+                self.hold_forever(i, p);
             }
         }
         let mut spent = 0u64;
@@ -370,13 +366,14 @@ impl Planner {
     /// Makes the plan the configurations `configs` (each `agents` cells, the first one the
     /// agents' cells in `fleet`, the last one every movable agent on its goal): what a
     /// complete search found. Each agent arrives for good where it last reaches its goal.
-    /// Returns false, leaving no plan, when they take more ticks than the horizon.
+    /// Returns false, leaving the current plan as it was, when they take more ticks than the
+    /// horizon.
     pub fn load(&mut self, configs: &[u32], fleet: &Fleet<'_>) -> bool {
         let n = self.arrive.len();
-        self.clear();
         if n == 0 || !configs.len().is_multiple_of(n) || configs.len() / n > self.horizon + 1 {
             return false;
         }
+        self.clear();
         let (h, steps) = (self.horizon + 1, configs.len() / n);
         for a in 0..n {
             let p = fleet.pos[a];
@@ -384,10 +381,7 @@ impl Planner {
                 continue;
             }
             if fleet.fixed[a] {
-                self.hold[p as usize] = 0;
-                self.holder[p as usize] = a as u32;
-                self.arrive[a] = 0;
-                self.cells_of[a * h] = p;
+                self.hold_forever(a, p);
                 continue;
             }
             let at = |t: usize| configs[t * n + a];
@@ -402,6 +396,14 @@ impl Planner {
             self.reserve_path(a, 0);
         }
         true
+    }
+
+    /// Makes agent `a`, which never moves, hold cell `p` from time index 0 on.
+    fn hold_forever(&mut self, a: usize, p: u32) {
+        self.hold[p as usize] = 0;
+        self.holder[p as usize] = a as u32;
+        self.arrive[a] = 0;
+        self.cells_of[a * (self.horizon + 1)] = p;
     }
 
     /// The cost refinement counts for agent `a`: its arrival, or [`UNPLANNED`] without a plan.
@@ -810,25 +812,7 @@ fn back(nbr: &[[u32; 4]], v: u32, m: u8) -> u32 {
 mod tests {
     use super::*;
     use crate::instance::Instance;
-    use crate::moves::Move;
     use planner::{Cell, Grid};
-
-    /// Each cell's passable neighbours (NIL where none), as the world builds them.
-    fn neighbours(grid: &Grid) -> Vec<[u32; 4]> {
-        (0..grid.len())
-            .map(|i| {
-                let mut out = [NIL; 4];
-                for (k, m) in Move::STEPS.into_iter().enumerate() {
-                    if grid.is_free(grid.cell(i))
-                        && let Some(n) = m.apply(grid, grid.cell(i))
-                    {
-                        out[k] = grid.index(n) as u32;
-                    }
-                }
-                out
-            })
-            .collect()
-    }
 
     /// A 14×14 grid with scattered walls and 24 agents.
     fn setup(seed: u64) -> Instance {
@@ -952,7 +936,7 @@ mod tests {
                 pos: inst.starts().iter().map(|&c| idx(c)).collect(),
                 goal: inst.goals().iter().map(|&c| idx(c)).collect(),
                 fixed: vec![false; inst.agents()],
-                nbr: neighbours(inst.grid()),
+                nbr: crate::world::neighbour_table(inst.grid()),
                 dist: inst.dist_tables(),
             }
         }
@@ -988,11 +972,18 @@ mod tests {
                 panic!("seed {seed}: the instance is solvable");
             };
             let f = view.fleet();
-            // too short a horizon for the search's plan: refused, nothing planned
+            // too short a horizon for the search's plan: refused, the plan left as it was
             let steps = configs.len() / n;
             let mut short = Planner::new(n, inst.grid().len(), steps - 2, 5000);
+            short.plan(&(0..n as u32).collect::<Vec<_>>(), &f, 5000, 1 << 20);
+            let kept = (short.arrive.clone(), short.cells_of.clone());
+            assert!(
+                short.arrive.iter().any(|&a| a != NIL),
+                "seed {seed}: a plan to keep"
+            );
             assert!(!short.load(&configs, &f));
-            assert!(short.arrive.iter().all(|&a| a == NIL));
+            assert_eq!((short.arrive.clone(), short.cells_of.clone()), kept);
+            assert_valid(&short, pos, goal, nbr);
             let mut p = Planner::new(n, inst.grid().len(), steps + 20, 5000);
             p.voluntary_detours = true;
             p.seed(seed);

@@ -39,7 +39,8 @@
 //! and gets [`WorldConfig::prepare_refine`] more (the neighbourhoods are chosen adaptively,
 //! [`WorldConfig::refine_adaptive`], except on ticks: [`WorldConfig::refine_tick_adaptive`]).
 //! The plan may step an agent away from its goal (a detour, [`WorldConfig::plan_detours`])
-//! when waiting for its way to clear would cost more. The plan changes the candidate order in these ways only:
+//! when waiting for its way to clear would cost more. The plan changes the candidate order in
+//! these ways only:
 //!
 //! 1. **The plan leads a robot heading its shortest way** ([`WorldConfig::plan_first`]). When
 //!    the robot's first choice is as near its goal as any move it has (what a robot with
@@ -298,20 +299,7 @@ impl World {
         let grid = instance.grid().clone();
         let cells = grid.len();
         let idx = |c: Cell| grid.index(c) as u32;
-        let nbr: Vec<[u32; 4]> = (0..cells)
-            .map(|i| {
-                let c = grid.cell(i);
-                let mut out = [NIL; 4];
-                if grid.is_free(c) {
-                    for (k, m) in Move::STEPS.into_iter().enumerate() {
-                        if let Some(n) = m.apply(&grid, c) {
-                            out[k] = grid.index(n) as u32;
-                        }
-                    }
-                }
-                out
-            })
-            .collect();
+        let nbr = neighbour_table(&grid);
         let n = instance.agents();
         let pos: Vec<u32> = instance.starts().iter().map(|&c| idx(c)).collect();
         let goal: Vec<u32> = instance.goals().iter().map(|&c| idx(c)).collect();
@@ -840,27 +828,28 @@ impl World {
     /// its cost (from a plan with unrouted agents it first has to route them, one
     /// neighbourhood at a time).
     fn plan_complete(&mut self) {
+        if let Outcome::Solved(configs) = self.complete_search(self.config.seed ^ 0x5eed) {
+            let (planner, _, fleet) = self.planning();
+            planner.load(&configs, &fleet);
+        }
+    }
+
+    /// The complete search (LaCAM) from the current configuration, within
+    /// [`WorldConfig::fallback_nodes`] generator calls, ties broken by `seed`.
+    fn complete_search(&mut self, seed: u64) -> Outcome {
         let problem = Problem {
             goal: &self.goal,
             fixed: &self.hung,
             nbr: &self.nbr,
             dist: &self.dist,
         };
-        let seed = self.config.seed ^ 0x5eed;
-        let Outcome::Solved(configs) = lacam(
+        lacam(
             &mut self.pibt,
             &problem,
             &self.pos,
             self.config.fallback_nodes,
             seed,
-        ) else {
-            return;
-        };
-        self.planner.save();
-        let (planner, _, fleet) = self.planning();
-        if !planner.load(&configs, &fleet) {
-            self.planner.restore();
-        }
+        )
     }
 
     /// Recomputes the look-ahead plan from the current configuration.
@@ -1028,20 +1017,8 @@ impl World {
             return;
         }
         self.searches += 1;
-        let problem = Problem {
-            goal: &self.goal,
-            fixed: &self.hung,
-            nbr: &self.nbr,
-            dist: &self.dist,
-        };
         let seed = self.config.seed ^ u64::from(self.searches);
-        match lacam(
-            &mut self.pibt,
-            &problem,
-            &self.pos,
-            self.config.fallback_nodes,
-            seed,
-        ) {
+        match self.complete_search(seed) {
             Outcome::Solved(configs) => {
                 self.stalled = false;
                 self.following = configs;
@@ -1058,6 +1035,25 @@ impl World {
             }
         }
     }
+}
+
+/// Each cell's passable neighbours in [`Move::STEPS`] order (NIL where none, and for every
+/// slot of a blocked cell): the table the resolver and the planner walk.
+pub(crate) fn neighbour_table(grid: &Grid) -> Vec<[u32; 4]> {
+    (0..grid.len())
+        .map(|i| {
+            let c = grid.cell(i);
+            let mut out = [NIL; 4];
+            if grid.is_free(c) {
+                for (k, m) in Move::STEPS.into_iter().enumerate() {
+                    if let Some(n) = m.apply(grid, c) {
+                        out[k] = grid.index(n) as u32;
+                    }
+                }
+            }
+            out
+        })
+        .collect()
 }
 
 /// SplitMix64's finaliser: a well-mixed hash of `x`.
