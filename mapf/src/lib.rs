@@ -7,6 +7,8 @@
 //! - [`world`]: the per-tick resolver that grants every robot one collision-free move.
 //! - [`check`](mod@check): an independent checker of finished paths and their costs.
 //! - [`paths`]: the mapf-visualizer path format, written and parsed.
+//! - [`lifelong`]: lifelong runs (a new goal on arrival): League of Robot Runners problems and
+//!   the resolver that deals goals as robots reach them.
 //!
 //! The coordinator's loop, with robots that rank moves by distance to their goals:
 //!
@@ -37,6 +39,7 @@
 pub mod check;
 pub mod horizon;
 pub mod instance;
+pub mod lifelong;
 pub mod moves;
 pub mod paths;
 

@@ -2,8 +2,9 @@
 //! 2012): `.map` occupancy grids and `.scen` start/goal lists.
 //!
 //! A `.map` file is a header `type octile`, `height H`, `width W`, `map` (height and width are
-//! accepted in either order), then H rows of W characters: `.`, `G` and `S` are passable, `@`,
-//! `O`, `T` and `W` are not. (0,0) is the top-left cell and x is the column. MovingAI maps have
+//! accepted in either order), then H rows of W characters: `.`, `G`, `S` and `E` are passable
+//! (`E` and `S` are the League of Robot Runners' emitter and service cells), `@`, `O`, `T` and
+//! `W` are not. (0,0) is the top-left cell and x is the column. MovingAI maps have
 //! no start or goal; those come from a `.scen` file or the command line.
 //!
 //! A `.scen` file is `version 1` (or `version 1.0`), then one line per scenario of nine
@@ -17,7 +18,7 @@ use super::{GridMap, Location, MapError, name_from_source};
 use crate::grid::{Cell, Grid, GridError, MAX_CELLS, MAX_SIDE};
 
 /// The characters a MovingAI map may hold, for error messages.
-const EXPECTED: &str = "'.', 'G' or 'S' (passable) or '@', 'O', 'T' or 'W' (blocked)";
+const EXPECTED: &str = "'.', 'G', 'S' or 'E' (passable) or '@', 'O', 'T' or 'W' (blocked)";
 
 /// One start/goal pair of a `.scen` file.
 #[derive(Debug, Clone, PartialEq)]
@@ -186,7 +187,7 @@ pub fn parse_movingai_map(source: &str, bytes: &[u8]) -> Result<GridMap, MapErro
         let mut row_width = 0;
         for (x, ch) in line.text.chars().enumerate() {
             match ch {
-                '.' | 'G' | 'S' => free.push(true),
+                '.' | 'G' | 'S' | 'E' => free.push(true),
                 '@' | 'O' | 'T' | 'W' => free.push(false),
                 found => {
                     return Err(MapError::UnknownChar {
