@@ -14,7 +14,7 @@ pub mod world;
 pub use manifest::{Manifest, ManifestError, Plan, load_manifest, parse_manifest};
 pub use pace::{pace_cli, parse_pace};
 pub use share_mode::{ShareMode, ValueBound};
-pub use world::{World, WorldArgs};
+pub use world::{Lifelong, LifelongFileError, World, WorldArgs, load_lorr};
 
 use clap::Args;
 use planner::map::{self, MapError};
@@ -44,6 +44,26 @@ pub enum ArgsError {
     /// a goal walled in, too few scenario lines, …).
     #[error("the shared grid's instance: {0}")]
     Instance(#[from] mapf::InstanceError),
+    /// A lifelong problem file (`--lorr`) cannot be read or is not valid.
+    #[error("{file}: {source}")]
+    Lifelong {
+        /// The file at fault.
+        file: String,
+        /// What is wrong with it.
+        #[source]
+        source: LifelongFileError,
+    },
+    /// `--robots`/`--agents` that disagree with a lifelong problem's team.
+    #[error(
+        "--robots/--agents {asked} disagree with the problem's teamSize {team}: a lifelong run \
+         has one robot per start of the problem (give neither)"
+    )]
+    LifelongFleet {
+        /// What the options asked for.
+        asked: u32,
+        /// The problem's team size.
+        team: u32,
+    },
     /// A shared grid's agent starts on its goal: its robot would have no path to learn.
     #[error(
         "the shared grid's instance: agent {agent} starts on its goal {cell}; a robot learns a \

@@ -1,8 +1,12 @@
 //! Which world a run's robots live in ([`World`]) and the options of a shared grid
 //! ([`WorldArgs`]): `qfleet run`, the coordinator and manifests read them the same way.
 
+use std::path::{Path, PathBuf};
+
 use clap::{Args, ValueEnum};
 use mapf::Instance;
+use mapf::lifelong::{Part, Problem, ProblemError, Spec, parse_cells};
+use planner::map::{GridMap, MapError};
 use serde::{Deserialize, Serialize};
 
 use crate::{ArgsError, MapArgs};
@@ -53,6 +57,155 @@ pub struct WorldArgs {
     /// intent per robot per tick; at most 8, the wire's capacity).
     #[arg(long, value_name = "N", default_value_t = DEFAULT_HORIZON, value_parser = clap::value_parser!(u8).range(0..=8))]
     pub intent_horizon: u8,
+    /// Shared grid, lifelong: a League of Robot Runners 2023 problem (JSON naming the map,
+    /// starts and tasks; tasks dealt round robin). Every robot gets its next goal the tick it
+    /// reaches one and the run ends after `--ticks`; the map, starts and goals come from the
+    /// problem (no `--map`, `--scen`, `--agents`).
+    #[arg(long, value_name = "PROBLEM.json")]
+    pub lorr: Option<PathBuf>,
+    /// Lifelong: ticks to run (the run always lasts exactly this long).
+    #[arg(long, value_name = "T", default_value_t = DEFAULT_TICKS, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+    pub ticks: u32,
+}
+
+/// Ticks of a lifelong run unless `--ticks` says otherwise (the competition's and the anchors').
+pub const DEFAULT_TICKS: u32 = 1000;
+
+/// The most bytes of one lifelong problem file read (a task list of 1M lines fits).
+pub const MAX_LORR_FILE: u64 = 64 << 20;
+
+/// Why a lifelong problem's file cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum LifelongFileError {
+    /// It cannot be read.
+    #[error("cannot read it: {0}")]
+    Io(#[from] std::io::Error),
+    /// Its map is bad.
+    #[error(transparent)]
+    Map(#[from] MapError),
+    /// Its content breaks the format or the problem's rules.
+    #[error(transparent)]
+    Problem(#[from] ProblemError),
+}
+
+/// A lifelong problem read from its files: the validated problem and the map file it names.
+#[derive(Debug, Clone)]
+pub struct Lifelong {
+    /// The problem.
+    pub problem: Problem,
+    /// The map file (the problem's `mapFile`, resolved against the problem's folder).
+    pub map: PathBuf,
+    /// The problem file itself.
+    pub file: PathBuf,
+}
+
+impl Lifelong {
+    /// Robot `robot`'s map options: the problem's map, its start, and the first goal it is
+    /// dealt that is not its start (the one it learns first).
+    pub fn map_args(&self, robot: usize) -> MapArgs {
+        let p = &self.problem;
+        let start = p.starts()[robot];
+        let goal = (0..p.tasks().len() as u64 + 1)
+            .map(|c| p.goal(robot, c))
+            .find(|&g| g != start)
+            .unwrap_or(start);
+        MapArgs {
+            map: self.map.display().to_string(),
+            start: Some(start),
+            goal: Some(goal),
+            scen: None,
+            scen_index: None,
+        }
+    }
+
+    /// The fleet of a lifelong run: the problem's team, one robot each. `--robots`/`--agents`
+    /// may only repeat it; map, scenario and robots on other hosts come from elsewhere.
+    pub fn fleet(
+        &self,
+        robots: Option<u32>,
+        agents: Option<u32>,
+        map: &MapArgs,
+        remote: u32,
+    ) -> Result<u32, ArgsError> {
+        let team = self.problem.team() as u32;
+        if let Some(asked) = robots.or(agents).filter(|&n| n != team) {
+            return Err(ArgsError::LifelongFleet { asked, team });
+        }
+        if map.scen.is_some() || map.start.is_some() || map.goal.is_some() {
+            return Err(ArgsError::Conflict(
+                "--lorr names the map, the starts and the tasks: do not also give --scen, \
+                 --start or --goal",
+            ));
+        }
+        if remote > 0 {
+            return Err(ArgsError::Conflict(
+                "a lifelong run (--lorr) runs every robot on this host: --remote-robots is not \
+                 supported with it",
+            ));
+        }
+        Ok(team)
+    }
+}
+
+impl WorldArgs {
+    /// The lifelong problem of `--lorr`, read and validated; `None` without `--lorr`.
+    pub fn lifelong(&self) -> Result<Option<Lifelong>, ArgsError> {
+        let Some(path) = &self.lorr else {
+            return Ok(None);
+        };
+        if !self.shared() {
+            return Err(ArgsError::Conflict(
+                "--lorr runs a lifelong problem on one shared grid: give --world shared too",
+            ));
+        }
+        load_lorr(path).map(Some)
+    }
+}
+
+/// Reads a League of Robot Runners 2023 problem and the files it names (relative to it),
+/// bounded in size, and validates it; every error names the file at fault.
+pub fn load_lorr(path: &Path) -> Result<Lifelong, ArgsError> {
+    let at = |f: &Path, e: LifelongFileError| ArgsError::Lifelong {
+        file: f.display().to_string(),
+        source: e,
+    };
+    let text = |f: &Path| -> Result<String, ArgsError> {
+        let bytes = planner::map::read_bounded(f, MAX_LORR_FILE)
+            .map_err(|e| at(f, LifelongFileError::Io(e)))?;
+        String::from_utf8(bytes).map_err(|_| {
+            at(
+                f,
+                LifelongFileError::Io(std::io::Error::new(
+                    std::io::ErrorKind::InvalidData,
+                    "not UTF-8 text",
+                )),
+            )
+        })
+    };
+    let spec = Spec::parse(&text(path)?).map_err(|e| at(path, e.into()))?;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let map_path = dir.join(&spec.map_file);
+    let map: GridMap = planner::map::load_map(&map_path.display().to_string())
+        .map_err(|e| at(&map_path, e.into()))?;
+    let agents = dir.join(&spec.agent_file);
+    let starts =
+        parse_cells(&text(&agents)?, Part::Agents, &map.grid).map_err(|e| at(&agents, e.into()))?;
+    let tasks_file = dir.join(&spec.task_file);
+    let tasks = parse_cells(&text(&tasks_file)?, Part::Tasks, &map.grid)
+        .map_err(|e| at(&tasks_file, e.into()))?;
+    let problem = Problem::new(
+        map.grid,
+        &starts,
+        spec.team_size as usize,
+        tasks,
+        spec.num_tasks_reveal,
+    )
+    .map_err(|e| at(path, e.into()))?;
+    Ok(Lifelong {
+        problem,
+        map: map_path,
+        file: path.to_path_buf(),
+    })
 }
 
 /// The intent horizon of a shared grid unless `--intent-horizon` says otherwise.
@@ -66,6 +219,8 @@ impl Default for WorldArgs {
             max_ticks: None,
             tick_ms: 0,
             intent_horizon: DEFAULT_HORIZON,
+            lorr: None,
+            ticks: DEFAULT_TICKS,
         }
     }
 }
@@ -82,6 +237,12 @@ impl WorldArgs {
         }
         if self.intent_horizon != DEFAULT_HORIZON {
             v.extend(["--intent-horizon".into(), self.intent_horizon.to_string()]);
+        }
+        if let Some(p) = &self.lorr {
+            v.extend(["--lorr".into(), crate::value_word(&p.display().to_string())]);
+        }
+        if self.ticks != DEFAULT_TICKS {
+            v.extend(["--ticks".into(), self.ticks.to_string()]);
         }
         v
     }
@@ -164,20 +325,14 @@ mod tests {
                 max_ticks: Some(77),
                 tick_ms: 5,
                 intent_horizon: 0,
+                lorr: Some("p/problem.json".into()),
+                ticks: 500,
             },
         ] {
             let mut argv = vec!["x".to_string()];
             argv.extend(w.to_cli());
             let back = Cli::try_parse_from(argv).unwrap().w;
-            assert_eq!(
-                (
-                    back.world,
-                    back.max_ticks,
-                    back.tick_ms,
-                    back.intent_horizon
-                ),
-                (w.world, w.max_ticks, w.tick_ms, w.intent_horizon)
-            );
+            assert_eq!(back, w);
         }
     }
 }

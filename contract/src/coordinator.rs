@@ -252,12 +252,18 @@ mod tests {
             proptest::option::of(1u32..100_000),
             0u64..=10_000,
             0u8..=8,
+            proptest::option::of("[a-z][a-z0-9/._-]{0,20}\\.json"),
+            1u32..=1_000_000,
         )
-            .prop_map(|(world, max_ticks, tick_ms, intent_horizon)| WorldArgs {
-                world,
-                max_ticks,
-                tick_ms,
-                intent_horizon,
+            .prop_map(|(world, max_ticks, tick_ms, intent_horizon, lorr, ticks)| {
+                WorldArgs {
+                    world,
+                    max_ticks,
+                    tick_ms,
+                    intent_horizon,
+                    lorr: lorr.map(Into::into),
+                    ticks,
+                }
             })
     }
 

@@ -146,6 +146,8 @@ pub(crate) struct RunEnd {
     pub(crate) elapsed_s: f64,
     /// The shared grid's execution, in a `--world shared` run.
     pub(crate) grid: Option<report::GridResult>,
+    /// The lifelong grid, in a `--lorr` run.
+    pub(crate) lifelong: Option<report::LifelongResult>,
 }
 
 /// The result of a plain run.
@@ -162,6 +164,7 @@ pub(crate) fn run_result(
         interrupted,
         elapsed_s,
         grid,
+        lifelong,
     } = end;
     let robots: Vec<RobotEntry> = e
         .robots
@@ -221,6 +224,7 @@ pub(crate) fn run_result(
         // robots on other hosts are `qfleet run`'s to add
         hosts: Vec::new(),
         grid,
+        lifelong,
     }
 }
 

@@ -19,6 +19,7 @@ pub mod discovery;
 mod engine;
 pub mod experiment;
 pub mod grid;
+pub mod lifelong;
 pub mod liveness;
 pub mod options;
 pub mod output;

@@ -27,8 +27,8 @@ use crate::options::{CoordArgs, CoordError, bus_config, secs};
 use crate::wait::{Serving, Waiting, serve};
 use crate::{assemble, output};
 use report::{
-    CoordinatorCheckpoint, Durability, GridResult, OutDir, OutFile, ReadError, RunResult,
-    write_json_atomic_with,
+    CoordinatorCheckpoint, Durability, GridResult, LifelongResult, OutDir, OutFile, ReadError,
+    RunResult, write_json_atomic_with,
 };
 
 /// How often the checkpoint is written while the run is served.
@@ -39,6 +39,15 @@ const CHECKPOINT_EVERY: Duration = Duration::from_secs(1);
 pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordError> {
     let timeout = secs(args.timeout, "--timeout")?;
     let task = args.map.task()?;
+    // a lifelong problem (`--lorr`): read and checked before anything is created
+    let lifelong = args
+        .world
+        .lifelong()?
+        .map(|l| crate::lifelong::LifelongPlan {
+            lifelong: l,
+            ticks: args.world.ticks,
+            tick_min: Duration::from_millis(args.world.tick_ms),
+        });
     let (Ok(width), Ok(height)) = (
         u16::try_from(task.grid.width()),
         u16::try_from(task.grid.height()),
@@ -49,7 +58,7 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         });
     };
     // a shared grid: every robot's start and goal, checked before anything is created
-    let grid = match args.world.shared() {
+    let grid = match args.world.shared() && lifelong.is_none() {
         true => {
             let instance = args.map.instance(args.robots)?;
             Some(GridPlan {
@@ -86,9 +95,18 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         args.restarts,
         timeout,
     );
-    // one goal for the whole fleet, or one per robot on a shared grid (its own fleet table)
-    let plan: Vec<Assignment> = match &grid {
-        None => vec![
+    // one goal for the whole fleet, or one per robot on a shared grid (its own fleet table); a
+    // lifelong robot's first goal is the first it is dealt that is not its start
+    let plan: Vec<Assignment> = match (&grid, &lifelong) {
+        (None, Some(l)) => (0..args.robots)
+            .map(|i| Assignment {
+                goal: i,
+                cell: lifelong_task(l, i).1,
+                phase: 0,
+                episodes: 0,
+            })
+            .collect(),
+        (None, None) => vec![
             Assignment {
                 goal: 0,
                 cell: task.goal,
@@ -97,7 +115,7 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
             };
             args.robots as usize
         ],
-        Some(g) => (0..args.robots)
+        (Some(g), _) => (0..args.robots)
             .map(|i| Assignment {
                 goal: i,
                 cell: g.instance.goals()[i as usize],
@@ -108,18 +126,35 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
     };
     let mut engine = Engine::new(
         expected,
-        if grid.is_some() { args.robots } else { 1 },
+        if grid.is_some() || lifelong.is_some() {
+            args.robots
+        } else {
+            1
+        },
         args.merge,
         life,
         cfg.merged_buffer,
         args.out.clone(),
     );
-    engine.starts = grid.as_ref().map(|g| g.instance.starts().to_vec());
+    engine.starts = match (&grid, &lifelong) {
+        (Some(g), _) => Some(g.instance.starts().to_vec()),
+        (None, Some(l)) => Some(l.lifelong.problem.starts().to_vec()),
+        (None, None) => None,
+    };
     // every robot learns its task on this map: its reports must agree with it (one task for
     // the fleet, or on a shared grid robot i's own, as its goal i)
-    engine.optimum = match &grid {
-        None => vec![vec![task.optimal_len]; args.robots as usize],
-        Some(g) => (0..g.instance.agents())
+    engine.optimum = match (&grid, &lifelong) {
+        (None, Some(l)) => (0..args.robots)
+            .map(|i| {
+                let mut per_goal = vec![0; args.robots as usize];
+                let (start, goal) = lifelong_task(l, i);
+                let d = planner::path::bfs_distances(&task.grid, goal);
+                per_goal[i as usize] = d[task.grid.index(start)];
+                per_goal
+            })
+            .collect(),
+        (None, None) => vec![vec![task.optimal_len]; args.robots as usize],
+        (Some(g), _) => (0..g.instance.agents())
             .map(|i| {
                 let mut per_goal = vec![0; g.instance.agents()];
                 per_goal[i] = g.instance.dist_from(i, g.instance.starts()[i]);
@@ -135,17 +170,19 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         &args,
         plan,
         grid.as_ref(),
+        lifelong.as_ref(),
         &stop,
         timeout,
         &mut cp,
     );
-    let result = outcome.and_then(|(active, interrupted, grid)| {
+    let result = outcome.and_then(|(active, interrupted, grid, lifelong)| {
         let hists = FleetHists::read(&dir, args.robots);
         let end = RunEnd {
             active_s: active,
             interrupted,
             elapsed_s: secs_since(engine.began_ns),
             grid,
+            lifelong,
         };
         let r = assemble::run_result(&engine, &args, &task, &dir, &hists, end);
         output::write_run(&dir, &r, &engine, &hists)?;
@@ -159,6 +196,14 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         report::log_line!("qfleet-coordinator: warning: cleanup: {e}");
     }
     result
+}
+
+/// Robot `i`'s first task of a lifelong run: its start and the goal it learns first.
+fn lifelong_task(l: &crate::lifelong::LifelongPlan, i: u32) -> (planner::Cell, planner::Cell) {
+    let p = &l.lifelong.problem;
+    let m = l.lifelong.map_args(i as usize);
+    let start = p.starts()[i as usize];
+    (start, m.goal.unwrap_or(start))
 }
 
 /// Seconds from CLOCK_MONOTONIC time `t_ns` (another process's, too) until now.
@@ -279,7 +324,7 @@ impl Checkpoints {
 }
 
 /// Handshake, start, serve, table handout, the shared grid's execution, stop, reports;
-/// returns (active seconds, interrupted, the grid's result).
+/// returns (active seconds, interrupted, the grid's result, the lifelong grid's result).
 #[allow(clippy::too_many_arguments)]
 fn drive(
     engine: &mut Engine,
@@ -287,16 +332,25 @@ fn drive(
     args: &CoordArgs,
     plan: Vec<Assignment>,
     grid: Option<&GridPlan>,
+    lifelong: Option<&crate::lifelong::LifelongPlan>,
     stop: &AtomicBool,
     timeout: Duration,
     cp: &mut Checkpoints,
-) -> Result<(f64, bool, Option<GridResult>), CoordError> {
+) -> Result<(f64, bool, Option<GridResult>, Option<LifelongResult>), CoordError> {
     engine.admit_fleet(bus, stop, timeout)?;
     let lister = start_lister(bus)?;
     engine.start_phase(bus, plan, Command::Start)?;
     // a coordinator that took over keeps the run's first Start as the throughput's time base
     let started_ns = *engine.started_ns.get_or_insert_with(monotonic_ns);
     cp.write(engine, false);
+    // a lifelong grid moves at once, while the robots learn: no tick waits for a robot
+    if let Some(l) = lifelong {
+        let r = crate::lifelong::execute(engine, bus, &lister, l, stop, &OutDir::new(&args.out))?;
+        let interrupted = r.ended == "stopped" || engine.halted();
+        tolerate(bus.stop(ROBOT_ID_ALL))?;
+        collect_reports(engine, bus, &lister, timeout)?;
+        return Ok((secs_since(started_ns), interrupted, None, Some(r)));
+    }
     let how = Waiting {
         strategy: args.wait,
         spin: Duration::from_micros(args.spin_us),
@@ -353,7 +407,7 @@ fn drive(
     // a hung robot that does not drain its control buffer must not fail the run
     tolerate(bus.stop(ROBOT_ID_ALL))?;
     collect_reports(engine, bus, &lister, timeout)?;
-    Ok((active, interrupted, executed))
+    Ok((active, interrupted, executed, None))
 }
 
 /// `progress <episodes done> <total> <p50 ns> <p99 ns>` on stdout.

@@ -144,6 +144,9 @@ pub enum OutFile {
     Paths,
     /// `paths-phase-<p>.txt`: the paths of phase `p` of an experiment on a shared grid.
     PhasePaths(u32),
+    /// `lorr-output.json`: a lifelong run in the League of Robot Runners' output format (its
+    /// visualiser, PlanViz, opens it).
+    LorrOutput,
 }
 
 impl OutFile {
@@ -165,6 +168,7 @@ impl OutFile {
             OutFile::StepsPlot => "steps.svg".into(),
             OutFile::Paths => "paths.txt".into(),
             OutFile::PhasePaths(p) => format!("paths-phase-{p}.txt"),
+            OutFile::LorrOutput => "lorr-output.json".into(),
         }
     }
 
@@ -173,6 +177,7 @@ impl OutFile {
         match name {
             "result.json" => return Some(OutFile::Result),
             "plan.json" => return Some(OutFile::Plan),
+            "lorr-output.json" => return Some(OutFile::LorrOutput),
             "experiment-checkpoint.json" => return Some(OutFile::ExperimentCheckpoint),
             "coordinator.log" => return Some(OutFile::CoordinatorLog),
             "coordinator-checkpoint.json" => return Some(OutFile::CoordinatorCheckpoint),
@@ -365,6 +370,7 @@ mod tests {
             OutFile::LatencyPlot,
             OutFile::StepsPlot,
             OutFile::Paths,
+            OutFile::LorrOutput,
             OutFile::PhasePaths(0),
             OutFile::PhasePaths(12),
         ];

@@ -336,6 +336,9 @@ pub struct RunResult {
     /// The shared grid, in a run with `--world shared` (absent otherwise).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub grid: Option<crate::grid::GridResult>,
+    /// A lifelong shared grid (`--lorr`): goals reached and throughput (absent otherwise).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lifelong: Option<crate::lifelong::LifelongResult>,
 }
 
 /// One robot's result in one phase.

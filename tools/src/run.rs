@@ -42,6 +42,9 @@ pub struct RunCmd {
     /// The fleet size `--robots` and `--agents` resolve to (set by [`RunCmd::run`]).
     #[arg(skip)]
     robots: u32,
+    /// The lifelong problem of `--lorr`, read by [`RunCmd::run`] before anything starts.
+    #[arg(skip)]
+    lifelong: Option<qfleet_args::Lifelong>,
     #[command(flatten)]
     map: MapArgs,
     #[command(flatten)]
@@ -104,6 +107,20 @@ pub struct RunCmd {
 impl RunCmd {
     /// Runs the command.
     pub fn run(mut self) -> Result<()> {
+        // a lifelong problem names the map, the starts and the fleet: the coordinator's map
+        // options become the problem's (robot 0's task), each robot gets its own
+        self.lifelong = self.world.lifelong().context(Exit::BadInput)?;
+        if let Some(l) = &self.lifelong {
+            let team = l
+                .fleet(
+                    self.robots_asked,
+                    self.agents,
+                    &self.map,
+                    self.remote.remote_robots,
+                )
+                .context(Exit::BadInput)?;
+            (self.robots_asked, self.agents, self.map) = (Some(team), None, l.map_args(0));
+        }
         self.robots = self.fleet_size().context(Exit::BadInput)?;
         // check everything before starting any process: bad input is exit code 2
         let (task, cfg, grace, time_limit, run_id) = self.check().context(Exit::BadInput)?;
@@ -322,7 +339,7 @@ impl RunCmd {
         String,
     )> {
         let task = self.map.task()?;
-        if self.world.shared() {
+        if self.world.shared() && self.lifelong.is_none() {
             // two robots on one start, a goal walled in, too few scenario lines: said now, for
             // the whole fleet (robots of other hosts take the scenario lines after this host's)
             self.map.instance(self.remote.total(self.robots)?)?;
@@ -387,7 +404,10 @@ impl RunCmd {
                 self.learner.clone(),
                 self.share.clone(),
             );
-            if self.world.shared() {
+            if let Some(l) = &self.lifelong {
+                // a lifelong robot starts on its start and learns the goals it is dealt
+                a.map = l.map_args(id as usize);
+            } else if self.world.shared() {
                 // robot i learns line i of the scenario: its own start and goal
                 a.map.scen_index = Some(id as usize);
                 a.shared_grid = true;
