@@ -195,31 +195,159 @@ fn throughput_on_the_shared_lifelong_instances() {
         .filter(|p| p.extension().is_some_and(|e| e == "json"))
         .collect();
     files.sort();
+    println!("instance                          PIBT+swap  default   ms/tick (PIBT+swap, default)");
     for f in files {
         let p = load(&f);
-        for swap in [false, true] {
-            let mut w = Lifelong::new(
-                &p,
-                LifelongConfig {
-                    swap,
-                    ..Default::default()
-                },
-            );
-            let none = vec![None; p.team()];
+        let none = vec![None; p.team()];
+        let mut row = vec![];
+        for cfg in [LifelongConfig::pibt_swap(), LifelongConfig::default()] {
+            let mut w = Lifelong::new(&p, cfg);
             let t0 = std::time::Instant::now();
             for _ in 0..1000 {
                 w.step(&none);
             }
-            println!(
-                "{} swap={swap}: {} goals, throughput {:.3}, {:.3} s",
-                f.file_name().unwrap().to_string_lossy(),
-                w.reached(),
-                w.reached() as f64 / 1000.0,
-                t0.elapsed().as_secs_f64()
-            );
-            if swap {
-                assert_valid(p.grid(), &w.paths());
+            let ms = t0.elapsed().as_secs_f64();
+            assert_valid(p.grid(), &w.paths());
+            row.push((w.reached() as f64 / 1000.0, ms));
+        }
+        println!(
+            "{:34} {:8.3} {:8.3}   {:.3} {:.3}",
+            f.file_name().unwrap().to_string_lossy(),
+            row[0].0,
+            row[1].0,
+            row[0].1,
+            row[1].1
+        );
+    }
+}
+
+/// A seeded random problem on `map` (MovingAI, from `shared/data/movingai`): `team` starts and
+/// `team * 60` uniform random tasks, all in the largest connected part of the map.
+fn tuning_problem(map: &str, team: usize, seed: u64) -> Problem {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/movingai");
+    let g = load_map(dir.join(map).to_str().unwrap()).unwrap().grid;
+    let mut rng = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ 0x1234_5678;
+    let mut next = move |m: usize| {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        (rng % m as u64) as usize
+    };
+    // the largest component
+    let mut comp = vec![usize::MAX; g.len()];
+    let mut best: Vec<usize> = vec![];
+    for s in 0..g.len() {
+        if !g.is_free(g.cell(s)) || comp[s] != usize::MAX {
+            continue;
+        }
+        comp[s] = s;
+        let mut part = vec![s];
+        let mut h = 0;
+        while h < part.len() {
+            let u = part[h];
+            h += 1;
+            for v in g.neighbors(g.cell(u)) {
+                let v = g.index(v);
+                if comp[v] == usize::MAX {
+                    comp[v] = s;
+                    part.push(v);
+                }
             }
         }
+        if part.len() > best.len() {
+            best = part;
+        }
+    }
+    // starts: a random permutation's first `team`
+    let mut cells = best.clone();
+    for k in 0..team {
+        let j = k + next(cells.len() - k);
+        cells.swap(k, j);
+    }
+    let starts: Vec<Cell> = cells[..team].iter().map(|&c| g.cell(c)).collect();
+    let tasks: Vec<Cell> = (0..team * 60)
+        .map(|_| g.cell(best[next(best.len())]))
+        .collect();
+    Problem::new(g, &starts, team, tasks, 1).unwrap()
+}
+
+/// `LIFE_TUNE="name:key=v,key=v;name2:..."`: the configurations compared (the first is the
+/// baseline of the ratios).
+fn tuning_configs() -> Vec<(String, LifelongConfig)> {
+    let spec = std::env::var("LIFE_TUNE").unwrap_or_else(|_| "base:;new:".into());
+    spec.split(';')
+        .filter(|s| !s.is_empty())
+        .map(|c| {
+            let (name, kv) = c.split_once(':').unwrap_or((c, ""));
+            let mut cfg = LifelongConfig::default();
+            for e in kv.split(',').filter(|e| !e.is_empty()) {
+                let (k, v) = e.split_once('=').unwrap();
+                let b = v != "0";
+                let n: u64 = v.parse().unwrap_or(0);
+                match k {
+                    "swap" => cfg.swap = b,
+                    "seed" => cfg.seed = n,
+                    "free" => cfg.prefer_free = b,
+                    "goals" => cfg.avoid_goals = b,
+                    "pibt" => cfg = LifelongConfig::pibt_swap(),
+                    "r" => cfg.rollouts = n as u8,
+                    "h" => cfg.horizon = n as u8,
+                    _ => panic!("unknown key {k}"),
+                }
+            }
+            (name.to_string(), cfg)
+        })
+        .collect()
+}
+
+#[test]
+#[ignore = "tuning: LIFE_TUNE=... cargo test -p mapf --release --test lifelong tuning -- --ignored --nocapture"]
+fn tuning() {
+    let set: &[(&str, &[usize], &[u64])] = &[
+        ("random-32-32-10.map", &[64, 128, 256], &[101, 102]),
+        ("room-32-32-4.map", &[64, 128], &[1]),
+        ("maze-32-32-2.map", &[32, 64], &[1]),
+        ("den312d.map", &[128, 256], &[1]),
+        ("random-64-64-10.map", &[256], &[1]),
+        ("warehouse-10-20-10-2-1.map", &[128, 256], &[1]),
+    ];
+    let ticks: usize = std::env::var("LIFE_TICKS")
+        .ok()
+        .and_then(|t| t.parse().ok())
+        .unwrap_or(1000);
+    let configs = tuning_configs();
+    let mut log_ratio = vec![0.0f64; configs.len()];
+    let mut time = vec![0.0f64; configs.len()];
+    let mut count = 0;
+    for &(map, teams, seeds) in set {
+        for &team in teams {
+            for &seed in seeds {
+                let p = tuning_problem(map, team, seed);
+                let none = vec![None; team];
+                let mut row = vec![];
+                for (c, (_, cfg)) in configs.iter().enumerate() {
+                    let mut w = Lifelong::new(&p, *cfg);
+                    let t0 = std::time::Instant::now();
+                    for _ in 0..ticks {
+                        w.step(&none);
+                    }
+                    time[c] += t0.elapsed().as_secs_f64();
+                    row.push(w.reached() as f64 / ticks as f64);
+                }
+                for c in 0..configs.len() {
+                    log_ratio[c] += (row[c] / row[0]).ln();
+                }
+                count += 1;
+                let cells: Vec<String> = row.iter().map(|r| format!("{r:7.3}")).collect();
+                println!("{map:28} {team:4} s{seed:<4} {}", cells.join(" "));
+            }
+        }
+    }
+    for (c, (name, _)) in configs.iter().enumerate() {
+        println!(
+            "{name:12} geomean ratio {:.4}  time {:.2} s",
+            (log_ratio[c] / count as f64).exp(),
+            time[c]
+        );
     }
 }
