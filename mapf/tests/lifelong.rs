@@ -53,7 +53,7 @@ fn a_robot_whose_goal_is_a_dead_end_held_by_another_gets_in() {
             LifelongConfig {
                 swap: false,
                 seed,
-                ..Default::default()
+                ..LifelongConfig::pibt_swap()
             },
         );
         let mut swap = Lifelong::new(
@@ -288,7 +288,6 @@ fn tuning_configs() -> Vec<(String, LifelongConfig)> {
                     "swap" => cfg.swap = b,
                     "seed" => cfg.seed = n,
                     "free" => cfg.prefer_free = b,
-                    "goals" => cfg.avoid_goals = b,
                     "pibt" => cfg = LifelongConfig::pibt_swap(),
                     "r" => cfg.rollouts = n as u8,
                     "h" => cfg.horizon = n as u8,

@@ -42,8 +42,6 @@ pub struct LifelongConfig {
     pub table_budget: usize,
     /// Among equally near candidates, prefer a cell nobody stands on now (LaCAM*'s tie-break).
     pub prefer_free: bool,
-    /// Among equally near candidates, prefer a cell that is not another robot's goal.
-    pub avoid_goals: bool,
     /// First moves tried per tick by the look-ahead (0 or 1: one PIBT pass, no look-ahead).
     pub rollouts: u8,
     /// Ticks each look-ahead rollout is played for.
@@ -57,7 +55,6 @@ impl Default for LifelongConfig {
             seed: 0,
             table_budget: 64 << 20,
             prefer_free: true,
-            avoid_goals: false,
             rollouts: 4,
             horizon: 5,
         }
@@ -72,12 +69,14 @@ impl LifelongConfig {
             seed: 0,
             table_budget: 64 << 20,
             prefer_free: false,
-            avoid_goals: false,
             rollouts: 0,
             horizon: 0,
         }
     }
 }
+
+/// Distances above this sort as equal in a robot's candidates (maps have fewer cells).
+const DIST_CAP: u32 = (1 << 20) - 1;
 
 /// Distance tables per goal cell, pooled (see the module docs).
 #[derive(Debug, Clone)]
@@ -191,6 +190,8 @@ struct LookAhead {
     done: Vec<u32>,
     first: Vec<u32>,
     best: Vec<u32>,
+    order: Vec<u32>,
+    fallen: Vec<u32>,
 }
 
 /// What one tick did.
@@ -214,8 +215,6 @@ pub struct Lifelong {
     occ_now: Vec<u32>,
     occ_next: Vec<u32>,
     goal: Vec<u32>,
-    /// How many robots have each cell as their goal.
-    goal_here: Vec<u16>,
     slot: Vec<u32>,
     count: Vec<u64>,
     eps: Vec<f64>,
@@ -268,10 +267,8 @@ impl Lifelong {
             .map(|k| grid.index(problem.goal(k, 0)) as u32)
             .collect();
         let slot = goal.iter().map(|&g| tables.acquire(g, &nbr)).collect();
-        let mut goal_here = vec![0u16; cells];
-        for &g in &goal {
-            goal_here[g as usize] += 1;
-        }
+        let mut order: Vec<u32> = (0..n as u32).collect();
+        order.sort_unstable_by(|&a, &b| eps[b as usize].total_cmp(&eps[a as usize]));
         let mut trace = Vec::with_capacity(n * 1024);
         trace.extend_from_slice(&pos);
         Lifelong {
@@ -283,12 +280,11 @@ impl Lifelong {
             occ_now,
             occ_next: vec![NIL; cells],
             goal,
-            goal_here,
             slot,
             count: vec![0; n],
             prio: eps.clone(),
             eps,
-            order: (0..n as u32).collect(),
+            order,
             present: vec![true; n],
             tables,
             rng,
@@ -358,7 +354,6 @@ impl Lifelong {
             return false;
         }
         self.present[robot] = false;
-        self.goal_here[self.goal[robot] as usize] -= 1;
         let p = self.pos[robot] as usize;
         if self.occ_now[p] == robot as u32 {
             self.occ_now[p] = NIL;
@@ -402,14 +397,13 @@ impl Lifelong {
                 let g = self.problem.goal(i, self.count[i]);
                 let g = self.problem.grid().index(g) as u32;
                 self.tables.release(self.slot[i]);
-                self.goal_here[self.goal[i] as usize] -= 1;
-                self.goal_here[g as usize] += 1;
                 self.goal[i] = g;
                 self.slot[i] = self.tables.acquire(g, &self.nbr);
             } else {
                 self.prio[i] += 1.0;
             }
         }
+        self.reorder();
         self.reached += self.arrived.len() as u64;
         self.tick += 1;
         self.trace.extend_from_slice(&self.pos);
@@ -419,11 +413,29 @@ impl Lifelong {
         }
     }
 
+    /// Puts `order` back in falling priority after a tick: every robot gained 1 but those that
+    /// reached a goal, which fell to their fraction below 1, so the others keep their order and
+    /// the fallen go last, by fraction.
+    fn reorder(&mut self) {
+        let prio = &self.prio;
+        let tmp = &mut self.la.fallen;
+        tmp.clear();
+        let mut w = 0;
+        for k in 0..self.order.len() {
+            let i = self.order[k];
+            if prio[i as usize] < 1.0 {
+                tmp.push(i);
+            } else {
+                self.order[w] = i;
+                w += 1;
+            }
+        }
+        tmp.sort_unstable_by(|&a, &b| prio[b as usize].total_cmp(&prio[a as usize]));
+        self.order[w..].copy_from_slice(tmp);
+    }
+
     /// One PIBT pass: every present robot's `next`, highest priority first.
     fn plan(&mut self, rankings: &[Option<Intent>]) {
-        let prio = &self.prio;
-        self.order
-            .sort_unstable_by(|&a, &b| prio[b as usize].total_cmp(&prio[a as usize]));
         for k in 0..self.order.len() {
             let i = self.order[k] as usize;
             if self.present[i] && self.next[i] == NIL {
@@ -462,6 +474,8 @@ impl Lifelong {
         la.pos.extend_from_slice(&self.pos);
         la.prio.clear();
         la.prio.extend_from_slice(&self.prio);
+        la.order.clear();
+        la.order.extend_from_slice(&self.order);
         la.d0.clear();
         for i in 0..n {
             la.d0
@@ -500,6 +514,7 @@ impl Lifelong {
                         self.prio[i] += 1.0;
                     }
                 }
+                self.reorder();
             }
             // the score: distance gained, a reached goal worth its distance and the ticks left
             let h = i64::from(self.config.horizon);
@@ -527,6 +542,7 @@ impl Lifelong {
             }
             self.pos.copy_from_slice(&self.la.pos);
             self.prio.copy_from_slice(&self.la.prio);
+            self.order.copy_from_slice(&self.la.order);
             for i in 0..n {
                 if self.present[i] {
                     self.occ_now[self.pos[i] as usize] = i as u32;
@@ -562,25 +578,23 @@ impl Lifelong {
             }
         }
         let named = n;
-        let mut keyed = [(u32::MAX, 0u32, 0u64, NIL); 5];
+        // one key: distance (20 bits), occupied now (1 bit), a random tie-break (43 bits)
+        let mut keyed = [(u64::MAX, NIL); 5];
         let mut k = 0;
-        let (free, goals) = (self.config.prefer_free, self.config.avoid_goals);
+        let free = self.config.prefer_free;
         for v in self.nbr[cur as usize].into_iter().chain([cur]) {
             if v != NIL && !out[..named].contains(&v) {
-                let mut tie = 0;
-                if free && v != cur && self.occ_now[v as usize] != NIL {
-                    tie += 2;
-                }
-                if goals && v != self.goal[i] && self.goal_here[v as usize] > 0 {
-                    tie += 1;
-                }
-                keyed[k] = (d[v as usize], tie, splitmix(&mut self.rng), v);
+                let busy = free && v != cur && self.occ_now[v as usize] != NIL;
+                let key = u64::from(d[v as usize].min(DIST_CAP)) << 44
+                    | u64::from(busy) << 43
+                    | splitmix(&mut self.rng) >> 21;
+                keyed[k] = (key, v);
                 k += 1;
             }
         }
         keyed[..k].sort_unstable();
         for e in &keyed[..k] {
-            out[n] = e.3;
+            out[n] = e.1;
             n += 1;
         }
         n
