@@ -161,6 +161,41 @@ fn a_removed_robot_frees_its_cell_and_reaches_nothing_more() {
     assert!(w.goals_reached(0) >= 3);
 }
 
+#[test]
+fn the_look_ahead_keeps_a_dense_fleet_valid_and_moving() {
+    // 16x16 with pillars, 80 robots (a third of the cells), uniform random goals
+    let rows: String = (0..16)
+        .map(|y| {
+            (0..16)
+                .map(|x| if x % 4 == 1 && y % 4 == 1 { '#' } else { '.' })
+                .chain(['\n'])
+                .collect::<String>()
+        })
+        .collect();
+    let g = grid(&rows);
+    let free: Vec<Cell> = (0..g.len())
+        .map(|i| g.cell(i))
+        .filter(|&c| g.is_free(c))
+        .collect();
+    let mut r = 7u64;
+    let mut next = move || {
+        r = r.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+        (r >> 33) as usize
+    };
+    let starts: Vec<Cell> = free.iter().step_by(3).copied().take(80).collect();
+    let tasks: Vec<Cell> = (0..4000).map(|_| free[next() % free.len()]).collect();
+    let p = Problem::new(g.clone(), &starts, 80, tasks, 1).unwrap();
+    let mut look = Lifelong::new(&p, LifelongConfig::default());
+    let none = vec![None; 80];
+    for _ in 0..400 {
+        look.step(&none);
+    }
+    assert_valid(&g, &look.paths());
+    for i in 0..80 {
+        assert!(look.goals_reached(i) >= 2, "robot {i} stalled");
+    }
+}
+
 /// Reads a LoRR 2023 problem the way the CLI does (files relative to it).
 pub fn load(path: &std::path::Path) -> Problem {
     let dir = path.parent().unwrap();
@@ -310,6 +345,29 @@ fn tuning() {
         ("random-64-64-10.map", &[256], &[1]),
         ("warehouse-10-20-10-2-1.map", &[128, 256], &[1]),
     ];
+    // LIFE_SET="map:team,team:seed,seed;...": another set
+    let owned: Vec<(String, Vec<usize>, Vec<u64>)> = std::env::var("LIFE_SET")
+        .map(|v| {
+            v.split(';')
+                .map(|e| {
+                    let mut f = e.split(':');
+                    let map = f.next().unwrap().to_string();
+                    let teams = f.next().unwrap().split(',').map(|t| t.parse().unwrap());
+                    let seeds = f.next().unwrap().split(',').map(|t| t.parse().unwrap());
+                    (map, teams.collect(), seeds.collect())
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    let owned_set: Vec<(&str, &[usize], &[u64])> = owned
+        .iter()
+        .map(|(m, t, s)| (m.as_str(), t.as_slice(), s.as_slice()))
+        .collect();
+    let set = if owned_set.is_empty() {
+        set
+    } else {
+        &owned_set[..]
+    };
     let ticks: usize = std::env::var("LIFE_TICKS")
         .ok()
         .and_then(|t| t.parse().ok())
