@@ -49,9 +49,9 @@ pub enum ArgsError {
     Lifelong {
         /// The file at fault.
         file: String,
-        /// What is wrong with it.
+        /// What is wrong with it (boxed: the problem's errors are large and rare).
         #[source]
-        source: LifelongFileError,
+        source: Box<LifelongFileError>,
     },
     /// `--robots`/`--agents` that disagree with a lifelong problem's team.
     #[error(

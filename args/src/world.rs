@@ -167,7 +167,7 @@ impl WorldArgs {
 pub fn load_lorr(path: &Path) -> Result<Lifelong, ArgsError> {
     let at = |f: &Path, e: LifelongFileError| ArgsError::Lifelong {
         file: f.display().to_string(),
-        source: e,
+        source: Box::new(e),
     };
     let text = |f: &Path| -> Result<String, ArgsError> {
         let bytes = planner::map::read_bounded(f, MAX_LORR_FILE)
