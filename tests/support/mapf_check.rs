@@ -21,7 +21,8 @@ pub struct Map {
 }
 
 impl Map {
-    /// Parses a MovingAI `.map` (`type`, `height`, `width`, `map`, rows; `.`, `G`, `S` free).
+    /// Parses a MovingAI `.map` (`type`, `height`, `width`, `map`, rows; `.`, `G`, `S` and the
+    /// competition's `E` free).
     pub fn parse(text: &str) -> Map {
         let mut lines = text.lines();
         let (mut width, mut height) = (0, 0);
@@ -40,7 +41,7 @@ impl Map {
             .map(|row| {
                 row.chars()
                     .take(width)
-                    .map(|c| matches!(c, '.' | 'G' | 'S'))
+                    .map(|c| matches!(c, '.' | 'G' | 'S' | 'E'))
                     .collect()
             })
             .collect();
@@ -232,4 +233,125 @@ pub fn validate_pairs(paths: &Path, map: &Path, pairs: &[(Xy, Xy)], grid: &Value
         assert_eq!(paths[0].len() as u64, c.makespan + 1);
     }
     assert_eq!(grid["lower_bound"].as_u64(), Some(c.lower_bound), "{grid}");
+}
+
+/// A League of Robot Runners 2023 problem, read from its JSON and the files it names.
+pub struct Lorr {
+    /// The map.
+    pub map: Map,
+    /// Robot k's start.
+    pub starts: Vec<Xy>,
+    /// The task cells, in file order.
+    pub tasks: Vec<Xy>,
+}
+
+impl Lorr {
+    /// Reads `problem` (paths in it are relative to its folder); the team is `teamSize`.
+    pub fn read(problem: &Path) -> Lorr {
+        let dir = problem.parent().unwrap();
+        let spec: Value = serde_json::from_str(&std::fs::read_to_string(problem).unwrap()).unwrap();
+        let file = |k: &str| std::fs::read_to_string(dir.join(spec[k].as_str().unwrap())).unwrap();
+        let map = Map::parse(&file("mapFile"));
+        let cells = |text: String| -> Vec<Xy> {
+            let ids: Vec<i64> = text
+                .split_whitespace()
+                .map(|t| t.parse().expect("a cell id"))
+                .collect();
+            assert_eq!(ids[0] as usize, ids.len() - 1, "the count line");
+            ids[1..]
+                .iter()
+                .map(|&id| (id % map.width as i64, id / map.width as i64))
+                .collect()
+        };
+        let team = spec["teamSize"].as_u64().unwrap() as usize;
+        let mut starts = cells(file("agentFile"));
+        starts.truncate(team);
+        let tasks = cells(file("taskFile"));
+        Lorr { map, starts, tasks }
+    }
+
+    /// Robot k's c-th goal by the round-robin rule: `tasks[(c*team + k) % len]`.
+    pub fn goal(&self, k: usize, c: usize) -> Xy {
+        self.tasks[(c * self.starts.len() + k) % self.tasks.len()]
+    }
+
+    /// Goals each robot reached along `paths`: from tick 1 on, a robot standing on its current
+    /// goal after a move has reached it and is sent to its next one.
+    pub fn goals_reached(&self, paths: &[Vec<Xy>]) -> Vec<u64> {
+        paths
+            .iter()
+            .enumerate()
+            .map(|(k, path)| {
+                let mut c = 0;
+                for &p in &path[1..] {
+                    if p == self.goal(k, c) {
+                        c += 1;
+                    }
+                }
+                c as u64
+            })
+            .collect()
+    }
+}
+
+/// Checks a lifelong run's `paths.txt` and `lorr-output.json` (in `out`) independently and
+/// against its result's `lifelong` section: starts, legal moves, no vertex or swap conflict,
+/// `ticks + 1` positions a robot, and the goals the paths reach are the result's, robot by robot.
+pub fn validate_lifelong(out: &Path, problem: &Path, life: &Value) {
+    let l = Lorr::read(problem);
+    let paths = parse_paths(&std::fs::read_to_string(out.join("paths.txt")).unwrap());
+    assert_eq!(paths.len(), l.starts.len(), "one path per robot");
+    let ticks = life["ticks"].as_u64().unwrap() as usize;
+    assert!(
+        paths.iter().all(|p| p.len() == ticks + 1),
+        "ticks 0..={ticks}"
+    );
+    // every robot "goes" from its start to its start: only conflicts, moves and starts count
+    let pairs: Vec<(Xy, Xy)> = l.starts.iter().map(|&s| (s, s)).collect();
+    let c = check(&l.map, &pairs, &paths);
+    assert_eq!(
+        (c.vertex, c.swap, c.illegal, c.bad_start),
+        (0, 0, 0, 0),
+        "{c:?}"
+    );
+    assert_eq!(life["conflicts"], 0, "{life}");
+    let goals = l.goals_reached(&paths);
+    let total: u64 = goals.iter().sum();
+    assert_eq!(life["goals_reached"].as_u64(), Some(total), "{life}");
+    let theirs: Vec<u64> = life["robot_goals"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|g| g.as_u64().unwrap())
+        .collect();
+    assert_eq!(theirs, goals, "goals per robot");
+    let lorr: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("lorr-output.json")).unwrap())
+            .unwrap();
+    assert_eq!(
+        lorr["numTaskFinished"].as_u64(),
+        Some(total),
+        "lorr-output.json"
+    );
+    assert_eq!(lorr["teamSize"].as_u64(), Some(l.starts.len() as u64));
+    assert_eq!(lorr["makespan"].as_u64(), Some(ticks as u64));
+    // PlanViz's MAPF moves (R col + 1, L col - 1, U row + 1, D row - 1, W wait) from each
+    // `[row, col, "E"]` start replay the paths file
+    for (k, path) in paths.iter().enumerate() {
+        let start = &lorr["start"][k];
+        let mut at = (start[1].as_i64().unwrap(), start[0].as_i64().unwrap());
+        let mut replayed = vec![at];
+        for m in lorr["actualPaths"][k].as_str().unwrap().split(',') {
+            match m {
+                "R" => at.0 += 1,
+                "L" => at.0 -= 1,
+                "U" => at.1 += 1,
+                "D" => at.1 -= 1,
+                "W" => {}
+                _ => panic!("robot {k}: move {m:?}"),
+            }
+            replayed.push(at);
+        }
+        assert_eq!(&replayed, path, "robot {k}'s actualPaths");
+    }
 }

@@ -564,11 +564,18 @@ fn print_human(r: &RunResult, out: &Path, temp_out: bool) -> Result<()> {
     if let Some(g) = &r.grid {
         print_grid(g)?;
     }
+    if let Some(l) = &r.lifelong {
+        print_lifelong(l)?;
+    }
     if !temp_out {
+        let files = match (&r.grid, &r.lifelong) {
+            (Some(_), _) => ",paths.txt",
+            (None, Some(_)) => ",paths.txt,lorr-output.json",
+            _ => "",
+        };
         out!(
-            "  wrote              {}/{{result.json,robot-*.json,latency-*.hgrm,*.log{}}}",
+            "  wrote              {}/{{result.json,robot-*.json,latency-*.hgrm,*.log{files}}}",
             out.display(),
-            if r.grid.is_some() { ",paths.txt" } else { "" }
         )?;
     }
     Ok(())
@@ -611,6 +618,55 @@ fn print_grid(g: &report::GridResult) -> Result<()> {
     ] {
         latency_row(k, s)?;
     }
+    Ok(())
+}
+
+/// A lifelong grid's figures: throughput first (the League of Robot Runners' score), then how
+/// the goals spread over the fleet and what decided the moves.
+fn print_lifelong(l: &report::LifelongResult) -> Result<()> {
+    let ended = if l.ended == "ticks" {
+        "ran its ticks"
+    } else {
+        "stopped early"
+    };
+    out!(
+        "  lifelong grid      {} robots, {} ticks ({ended}): {} goals reached, throughput {:.3} \
+         goals/tick ({:.3} in the second half)",
+        l.agents,
+        l.ticks,
+        l.goals_reached,
+        l.throughput,
+        l.throughput_2nd_half
+    )?;
+    let mut goals = l.robot_goals.clone();
+    goals.sort_unstable();
+    let at = |q: usize| {
+        goals
+            .get(q * goals.len().saturating_sub(1) / 2)
+            .copied()
+            .unwrap_or(0)
+    };
+    out!(
+        "  goals per robot    min {}, median {}, max {}; robots lost {}; conflicts {}",
+        at(0),
+        at(1),
+        at(2),
+        l.robots_lost.len(),
+        l.conflicts
+    )?;
+    out!(
+        "  moves ranked by    learned values {} robot-ticks, map distance {} (a tick never \
+         waits for a learning robot)",
+        l.ticks_by_values,
+        l.ticks_by_distance
+    )?;
+    out!(
+        "  speed              {} ticks in {:.3} s ({:.0} ticks/s)",
+        l.ticks,
+        l.exec_s,
+        l.ticks_per_s
+    )?;
+    latency_row("tick", &l.tick_latency_ns)?;
     Ok(())
 }
 

@@ -1,0 +1,169 @@
+//! End-to-end: a lifelong shared grid (`qfleet run --world shared --lorr PROBLEM.json`). Real
+//! robot processes stand on one grid while the coordinator deals each robot its next goal the
+//! tick it reaches one, for exactly `--ticks` ticks. Every run is checked by
+//! `qfleet_suite::mapf_check`, which reads the League of Robot Runners files itself and shares
+//! no code with the project: starts, legal moves, no vertex or swap conflict, and the goals the
+//! paths reach by the round-robin rule equal the result's, robot by robot, and PlanViz's output.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use qfleet_suite::mapf_check::validate_lifelong;
+use qfleet_suite::{bin, describe, leftovers, pid_with_arg, run_bounded, run_id, scratch};
+use serde_json::Value;
+
+/// The tour's problem: 12 robots in the example warehouse, 60 tasks beside its shelves.
+fn example() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/lifelong/warehouse.json")
+}
+
+/// `qfleet run --json --world shared --lorr problem --ticks ticks --out out` as run `id`.
+fn lifelong_run(id: &str, problem: &Path, ticks: u32, out: &Path) -> std::process::Output {
+    run_bounded(
+        Command::new(bin("qfleet"))
+            .args([
+                "run", "--json", "--run-id", id, "--world", "shared", "--lorr",
+            ])
+            .arg(problem)
+            .args(["--ticks", &ticks.to_string(), "--out"])
+            .arg(out),
+    )
+}
+
+#[test]
+fn a_lifelong_run_keeps_dealing_goals_until_its_last_tick_and_its_paths_check_out() {
+    let dir = scratch("lifelong-run");
+    let out = dir.join("out");
+    let id = run_id("lifelong-run");
+    let problem = example();
+    let o = lifelong_run(&id, &problem, 300, &out);
+    assert!(o.status.success(), "{}", describe(&o));
+    let r: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let l = &r["lifelong"];
+    assert_eq!(l["ended"], "ticks", "{l}");
+    assert_eq!(l["ticks"], 300, "{l}");
+    assert_eq!(l["agents"], 12, "{l}");
+    assert_eq!(l["robots_lost"].as_array().map(Vec::len), Some(0), "{l}");
+    validate_lifelong(&out, &problem, l);
+    // the fleet never stops: every robot reaches goals, and goals keep being reached late on
+    // (a run that ended on arrival, or a deadlocked fleet, reaches none in its second half)
+    let goals: Vec<u64> = l["robot_goals"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|g| g.as_u64().unwrap())
+        .collect();
+    assert!(goals.iter().all(|&g| g >= 2), "goals per robot {goals:?}");
+    assert!(l["throughput_2nd_half"].as_f64().unwrap() > 0.1, "{l}");
+    let by = l["ticks_by_values"].as_u64().unwrap() + l["ticks_by_distance"].as_u64().unwrap();
+    assert_eq!(
+        by,
+        12 * 300,
+        "every robot-tick is ranked one way or the other: {l}"
+    );
+    assert_eq!(l["paths_file"], "paths.txt");
+    assert_eq!(l["lorr_file"], "lorr-output.json");
+    assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+}
+
+/// Writes a lifelong problem into `dir`: `map` (MovingAI rows), the start and task cell ids,
+/// `team` and the strategy; returns the problem file.
+fn problem_in(
+    dir: &Path,
+    rows: &[&str],
+    starts: &[u32],
+    tasks: &[u32],
+    team: usize,
+    strategy: &str,
+) -> PathBuf {
+    let cells = |ids: &[u32]| {
+        let mut s = format!("{}\n", ids.len());
+        for id in ids {
+            s.push_str(&format!("{id}\n"));
+        }
+        s
+    };
+    let map = format!(
+        "type octile\nheight {}\nwidth {}\nmap\n{}\n",
+        rows.len(),
+        rows[0].len(),
+        rows.join("\n")
+    );
+    std::fs::write(dir.join("m.map"), map).unwrap();
+    std::fs::write(dir.join("a.agents"), cells(starts)).unwrap();
+    std::fs::write(dir.join("t.tasks"), cells(tasks)).unwrap();
+    let p = dir.join("p.json");
+    let spec = serde_json::json!({
+        "mapFile": "m.map", "agentFile": "a.agents", "teamSize": team, "taskFile": "t.tasks",
+        "numTasksReveal": 1, "taskAssignmentStrategy": strategy,
+    });
+    std::fs::write(&p, spec.to_string()).unwrap();
+    p
+}
+
+#[test]
+fn a_bad_lifelong_problem_is_refused_with_exit_2_before_anything_starts() {
+    // 6 x 4; (3,1) = id 9 is a wall, (5,3) = id 23 is walled in by (4,3) and (5,2)
+    let rows = ["......", "...@..", ".....@", "....@."];
+    type Case<'a> = (&'a str, Vec<u32>, Vec<u32>, usize, &'a str, &'a str);
+    let cases: Vec<Case> = vec![
+        (
+            "id out of range",
+            vec![0, 1],
+            vec![2, 24],
+            2,
+            "roundrobin",
+            "24",
+        ),
+        (
+            "blocked start",
+            vec![9, 1],
+            vec![2, 3],
+            2,
+            "roundrobin",
+            "9",
+        ),
+        ("blocked task", vec![0, 1], vec![2, 9], 2, "roundrobin", "9"),
+        ("shared start", vec![0, 0], vec![2, 3], 2, "roundrobin", "0"),
+        ("few starts", vec![0], vec![2, 3], 2, "roundrobin", "team"),
+        ("no tasks", vec![0, 1], vec![], 2, "roundrobin", "task"),
+        (
+            "unknown strategy",
+            vec![0, 1],
+            vec![2, 3],
+            2,
+            "greedy",
+            "greedy",
+        ),
+        (
+            "unreachable goal",
+            vec![0, 1],
+            vec![2, 23],
+            2,
+            "roundrobin",
+            "never reach",
+        ),
+    ];
+    for (name, starts, tasks, team, strategy, needle) in cases {
+        let dir = scratch("lifelong-bad");
+        let p = problem_in(&dir, &rows, &starts, &tasks, team, strategy);
+        let id = run_id("lifelong-bad");
+        let o = lifelong_run(&id, &p, 10, &dir.join("out"));
+        assert_eq!(o.status.code(), Some(2), "{name}: {}", describe(&o));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(needle), "{name}: {err}");
+        assert!(pid_with_arg(&id, "--run-id", &id).is_none(), "{name}");
+        assert!(!dir.join("out/result.json").exists(), "{name}: nothing ran");
+    }
+    // a problem file that is not there, and one whose map is not there
+    let dir = scratch("lifelong-missing");
+    let id = run_id("lifelong-missing");
+    let o = lifelong_run(&id, &dir.join("nowhere.json"), 10, &dir.join("out"));
+    assert_eq!(o.status.code(), Some(2), "{}", describe(&o));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("nowhere.json"));
+    let p = problem_in(&dir, &rows, &[0, 1], &[2, 3], 2, "roundrobin");
+    std::fs::remove_file(dir.join("m.map")).unwrap();
+    let o = lifelong_run(&id, &p, 10, &dir.join("out"));
+    assert_eq!(o.status.code(), Some(2), "{}", describe(&o));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("m.map"));
+}
