@@ -34,7 +34,9 @@
 //! A robot started for a shared grid (`--shared-grid`) does not wait for `Execute` to answer
 //! the first tick: while it waits after learning, it makes what it ranks with ([`Prepared`])
 //! and sends the horizon of radius `HORIZON_RADIUS_CAP` at its start for tick 0 (again when
-//! merged hints change its values). That horizon answers tick 0 on any fleet horizon, so a
+//! merged hints change its values, but never once `Execute` came: tick 0 is then granted or
+//! past, and a horizon for it is stale; [`early_answer_due`]). That horizon answers tick 0 on
+//! any fleet horizon, so a
 //! coordinator that has every robot's wakes nobody for tick 0 (64 robot processes woken at
 //! once held the first tick to 4–11 ms on two cores). The coordinator takes only answers sent
 //! since the phase began and centered where the robot starts. The robot counts it as its last
@@ -229,6 +231,22 @@ impl Answering {
             radius,
         });
     }
+}
+
+/// Whether a robot waiting for `Execute` on a shared grid sends its early answer to the first
+/// tick now (IO-free): only before the phase's execution began (`executed` false; after it,
+/// tick 0 is past and a tick-0 horizon centred on the start is stale, wrong for a robot that
+/// stands elsewhere, and an experiment's next phase could take it for its own first tick), and
+/// then when nothing was sent for the values of now: `sent_with` is the count of merged-hint
+/// entries applied when the last one was made (`None`: none sent), `applied` the count now,
+/// `changed` whether settling the values just changed them.
+pub fn early_answer_due(
+    executed: bool,
+    changed: bool,
+    sent_with: Option<u64>,
+    applied: u64,
+) -> bool {
+    !executed && (changed || sent_with != Some(applied))
 }
 
 /// A robot's packed rankings per cell of its map, each computed the first time a horizon
@@ -504,6 +522,34 @@ mod tests {
             "2 + 3 ≤ 8: the next period too"
         );
         assert_eq!(e.due(4, Cell::new(9, 9)), Some(3), "moved too far");
+    }
+
+    #[test]
+    fn the_early_answer_goes_out_before_execute_and_never_after_it() {
+        // waiting after learning: nothing sent yet, then only when the values changed
+        assert!(early_answer_due(false, false, None, 0));
+        assert!(!early_answer_due(false, false, Some(7), 7));
+        assert!(
+            early_answer_due(false, false, Some(7), 9),
+            "merged hints applied since"
+        );
+        assert!(
+            early_answer_due(false, true, Some(7), 7),
+            "settling changed the values"
+        );
+        // back to waiting after the execution (its final grant read): `execute` took what was
+        // prepared (`None`) and hints keep arriving, yet tick 0 is past: nothing is due
+        for (changed, sent_with, applied) in [
+            (false, None, 0),
+            (true, None, 3),
+            (false, Some(1), 3),
+            (true, Some(3), 3),
+        ] {
+            assert!(
+                !early_answer_due(true, changed, sent_with, applied),
+                "stale tick-0 horizon after the execution ({changed}, {sent_with:?}, {applied})"
+            );
+        }
     }
 
     #[test]

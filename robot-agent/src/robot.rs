@@ -227,6 +227,9 @@ struct Phase {
     /// (see [`crate::execute::Prepared`]); `None` until then, or since the values changed.
     /// With the count of merged-hint entries applied when it was made (more since: stale).
     prepared: Option<(crate::execute::Prepared, u64)>,
+    /// `Execute` came for this phase: its first tick is granted or past, so the early answer
+    /// to it is not sent again ([`crate::execute::early_answer_due`]).
+    executed: bool,
 }
 
 impl Phase {
@@ -414,6 +417,7 @@ impl Robot<'_> {
             reported: false,
             shared_model: min_sharing && cfg.extras.needs_model(),
             prepared: None,
+            executed: false,
         })
     }
 

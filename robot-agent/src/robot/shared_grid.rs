@@ -10,7 +10,7 @@ use bus::{BusError, monotonic_ns};
 use planner::Cell;
 
 use crate::error::AgentError;
-use crate::execute::{Answering, Prepared};
+use crate::execute::{Answering, Prepared, early_answer_due};
 
 use super::{Phase, Robot};
 
@@ -21,12 +21,13 @@ impl Robot<'_> {
     /// 0 on any fleet horizon, see `mapf::Coverage::answers`). Again only when the values
     /// changed since. The coordinator takes it if it is this phase's and centered where the
     /// robot starts; the robot still answers the first grant it reads, so one the coordinator
-    /// did not take costs only the wakeup it saved.
+    /// did not take costs only the wakeup it saved. Never after the phase's execution began
+    /// ([`early_answer_due`]): a horizon for a tick already past is stale.
     pub(super) fn prepare_execution(&mut self, p: &mut Phase) {
         let changed = p.learner.settle();
         let applied = self.applier.counters().entries_applied;
-        if !self.args.shared_grid || !changed && p.prepared.as_ref().is_some_and(|r| r.1 == applied)
-        {
+        let sent_with = p.prepared.as_ref().map(|r| r.1);
+        if !self.args.shared_grid || !early_answer_due(p.executed, changed, sent_with, applied) {
             return;
         }
         let ready = p.prepare();
@@ -51,6 +52,8 @@ impl Robot<'_> {
     /// ends (a grant that is not `Moving`, this robot no longer on the grid, `Stop`, a signal);
     /// see [`crate::execute`] for the protocol and the ranking.
     pub(super) fn execute(&mut self, p: &mut Phase, horizon: u8) -> Result<(), AgentError> {
+        // from now on tick 0 is granted or past: no more early answers this phase
+        p.executed = true;
         // the values it ranks by, consistent with every merged hint applied so far, and what
         // it ranks with: made while it waited unless the values changed since
         let changed = p.learner.settle();
