@@ -217,7 +217,9 @@ impl TryFrom<u8> for GridState {
 /// starts) when the execution begins, then, once every robot on the grid sent its `Intent` for
 /// the tick (or was waited for long enough), the configuration of the next tick. A robot moves
 /// only to the cell granted here. Entry `i` of each array is robot `i`'s; `present[i]` is 0 for a
-/// robot that left the grid (declared lost) or has no entry (`i ≥ robots`).
+/// robot that left the grid (declared lost) or has no entry (`i ≥ robots`), and such an entry's
+/// cell is (0, 0), not a position. `seq` equals `tick` (one grant per tick; both restart at 0 in
+/// each execution: an experiment's next phase, a restarted coordinator).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("qfleet::v1::Grant")]

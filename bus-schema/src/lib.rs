@@ -17,8 +17,9 @@ pub use names::{
     parse_robot_node_name, robot_node_name,
 };
 pub use robot_to_coordinator::{
-    FinalReport, HINT_BATCH_CAP, HORIZON_CELLS, HORIZON_RADIUS_CAP, Intent, IntentHorizon,
-    LatencySummary, PseudoTargetDiscovery, QHint, QHintBatch, Register, RobotState, RobotStatus,
+    EARLY_HORIZON_RADIUS, FinalReport, HINT_BATCH_CAP, HORIZON_CELLS, HORIZON_RADIUS_CAP,
+    HORIZON_WAIT_ONLY, Intent, IntentHorizon, LatencySummary, MOVE_NAMES, PseudoTargetDiscovery,
+    QHint, QHintBatch, Register, RobotState, RobotStatus,
 };
 
 /// Version of this wire contract; sent in `Register`, `Control` and `FinalReport` and checked at

@@ -275,7 +275,9 @@ const _: () = assert!(size_of::<FinalReport>() == 176 && align_of::<FinalReport>
 /// best first — 0 wait, 1 up (y − 1), 2 right (x + 1), 3 down (y + 1), 4 left (x − 1) —
 /// ordered by the robot's own learned values; the coordinator grants one of them (or a wait)
 /// so that no two robots ever hold one cell or swap cells. `cell_x`/`cell_y` is where the robot
-/// stands (it must equal the coordinator's record).
+/// stands (it must equal the coordinator's record). Robots send `count` 1 to 5 distinct codes;
+/// the coordinator reads at most 5, takes `count` 0 as "no preference" and drops an intent
+/// with a repeated or unknown code; `ranked[count..]` is zero.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("qfleet::v1::Intent")]
@@ -306,6 +308,26 @@ pub const HORIZON_RADIUS_CAP: u8 = 8;
 /// Cells of the largest horizon: the diamond of radius [`HORIZON_RADIUS_CAP`], `2r² + 2r + 1`.
 pub const HORIZON_CELLS: usize = 145;
 
+/// Radius of the early [`IntentHorizon`] for tick 0 that a robot sends at its start while it
+/// waits for `Execute`: the widest, so it answers tick 0 whatever horizon the fleet is asked
+/// for (the aligned-radius rule does not apply to it).
+pub const EARLY_HORIZON_RADIUS: u8 = HORIZON_RADIUS_CAP;
+
+/// Names of the move codes of [`Intent::ranked`] and [`IntentHorizon::ranked`], the code being
+/// the index: what a decoder prints, and what the README's code table is made from.
+pub const MOVE_NAMES: [&str; 5] = [
+    "wait",
+    "up (y − 1)",
+    "right (x + 1)",
+    "down (y + 1)",
+    "left (x − 1)",
+];
+
+/// The packed ranking "wait only" (move code 0 + 1 in the first group), which a horizon carries
+/// at a diamond cell that is a wall or off the map: a robot is never there, and the entry must
+/// still be a valid ranking.
+pub const HORIZON_WAIT_ONLY: u16 = 1;
+
 /// A robot's rankings for every cell it may stand on within the next `radius` ticks, so the
 /// coordinator can resolve `radius + 1` ticks before it needs this robot again (latest-wins).
 ///
@@ -316,7 +338,11 @@ pub const HORIZON_CELLS: usize = 145;
 /// `dx = −(radius − |dy|)` to `radius − |dy|`. A ranking is packed into 16 bits: per rank, best
 /// first from the low bits, the move code + 1 in three bits; a zero group ends it (0: no
 /// preference). Only the first `2·radius² + 2·radius + 1` entries are meaningful, the rest are
-/// zero. It answers ticks `tick ..= tick + radius` while the robot stands inside the diamond.
+/// zero (the coordinator drops a horizon with anything else there). A diamond cell that is a
+/// wall or off the map carries [`HORIZON_WAIT_ONLY`]. It answers ticks `tick ..= tick + radius`
+/// while the robot stands inside the diamond. The early horizon for tick 0 (radius
+/// [`EARLY_HORIZON_RADIUS`] at the robot's start, sent while it waits for `Execute`) is the one
+/// exception to the aligned-radius rule of the README.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("qfleet::v1::IntentHorizon")]

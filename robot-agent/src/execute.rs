@@ -33,7 +33,7 @@
 //! # The first tick, answered early
 //! A robot started for a shared grid (`--shared-grid`) does not wait for `Execute` to answer
 //! the first tick: while it waits after learning, it makes what it ranks with ([`Prepared`])
-//! and sends the horizon of radius `HORIZON_RADIUS_CAP` at its start for tick 0 (again when
+//! and sends the horizon of radius `EARLY_HORIZON_RADIUS` at its start for tick 0 (again when
 //! merged hints change its values, but never once `Execute` came: tick 0 is then granted or
 //! past, and a horizon for it is stale; [`early_answer_due`]). That horizon answers tick 0 on
 //! any fleet horizon, so a
@@ -56,7 +56,7 @@
 //! it explored still knows its way back. On its goal a robot prefers to wait. Walls and the
 //! border are never named.
 
-use bus::bus_schema::{HORIZON_CELLS, HORIZON_RADIUS_CAP};
+use bus::bus_schema::{EARLY_HORIZON_RADIUS, HORIZON_CELLS, HORIZON_WAIT_ONLY};
 use mapf::horizon::{Coverage, aligned_radius, diamond_len, diamond_offset, offset_cell, pack};
 use mapf::{Intent, Move};
 use planner::task::Task;
@@ -217,10 +217,10 @@ impl Answering {
     }
 
     /// The answer to the first tick went out before `Execute`: the horizon of radius
-    /// [`HORIZON_RADIUS_CAP`] at `start` (it answers tick 0 on any fleet horizon, and a robot
+    /// [`EARLY_HORIZON_RADIUS`] at `start` (it answers tick 0 on any fleet horizon, and a robot
     /// that stays within it is not asked again, as after any answer).
     pub fn answered_early(&mut self, start: Cell) {
-        self.answered(0, start, HORIZON_RADIUS_CAP);
+        self.answered(0, start, EARLY_HORIZON_RADIUS);
     }
 
     /// An answer for `tick` from `cell` with `radius` went out.
@@ -282,15 +282,15 @@ impl RankCache {
 pub struct Prepared {
     /// The ranker of the robot's values.
     pub ranker: Ranker,
-    /// Rankings made so far (every cell within [`HORIZON_RADIUS_CAP`] of the start).
+    /// Rankings made so far (every cell within [`EARLY_HORIZON_RADIUS`] of the start).
     pub cache: RankCache,
-    /// The horizon of radius [`HORIZON_RADIUS_CAP`] at the start, as the wire packs it: the
+    /// The horizon of radius [`EARLY_HORIZON_RADIUS`] at the start, as the wire packs it: the
     /// early answer to the first tick.
     pub first: [u16; HORIZON_CELLS],
 }
 
 impl Prepared {
-    /// Ranks every cell within [`HORIZON_RADIUS_CAP`] moves of `task`'s start by `q` (see
+    /// Ranks every cell within [`EARLY_HORIZON_RADIUS`] moves of `task`'s start by `q` (see
     /// [`Ranker::new`] for the rest).
     pub fn new(task: &Task, q: &QTable, tried_pairs: &[u32], gamma: f32) -> Self {
         let ranker = Ranker::new(task, tried_pairs, gamma);
@@ -301,7 +301,7 @@ impl Prepared {
             q,
             &mut cache,
             task.start,
-            HORIZON_RADIUS_CAP,
+            EARLY_HORIZON_RADIUS,
             &mut first,
         );
         Prepared {
@@ -326,7 +326,7 @@ impl Ranker {
         out: &mut [u16; HORIZON_CELLS],
     ) {
         let n = diamond_len(radius).min(HORIZON_CELLS);
-        let wait_only = pack(&Intent::new(&[Move::Wait]).expect("one move"));
+        let wait_only = HORIZON_WAIT_ONLY;
         let grid = &task.grid;
         for (i, slot) in out.iter_mut().enumerate() {
             *slot = 0;
@@ -456,7 +456,7 @@ mod tests {
         q.row_mut(t.grid.index(Cell::new(1, 0)))[Action::Left as usize] = 0.7;
         let ready = Prepared::new(&t, &q, &[], 0.9);
         let fresh = Ranker::new(&t, &[], 0.9);
-        for radius in [0, 2, HORIZON_RADIUS_CAP] {
+        for radius in [0, 2, EARLY_HORIZON_RADIUS] {
             let (mut a, mut b) = ([0u16; HORIZON_CELLS], [0u16; HORIZON_CELLS]);
             let mut cache = ready.cache.clone();
             ready
@@ -474,7 +474,7 @@ mod tests {
             &q,
             &mut RankCache::new(&t),
             t.start,
-            HORIZON_RADIUS_CAP,
+            EARLY_HORIZON_RADIUS,
             &mut widest,
         );
         assert_eq!(ready.first, widest);
@@ -507,7 +507,7 @@ mod tests {
         assert_eq!(b.due(4, at), None);
         assert_eq!(b.due(5, at), Some(0));
         // an early answer: the first tick is still answered when its grant is read; later
-        // ticks as after any answer of radius HORIZON_RADIUS_CAP
+        // ticks as after any answer of radius EARLY_HORIZON_RADIUS
         let mut e = Answering::new(3);
         e.answered_early(at);
         assert_eq!(
@@ -548,6 +548,25 @@ mod tests {
             assert!(
                 !early_answer_due(true, changed, sent_with, applied),
                 "stale tick-0 horizon after the execution ({changed}, {sent_with:?}, {applied})"
+            );
+        }
+    }
+
+    #[test]
+    fn the_wire_contract_names_the_codes_this_robot_packs() {
+        use bus::bus_schema::MOVE_NAMES;
+        assert_eq!(
+            HORIZON_WAIT_ONLY,
+            pack(&Intent::new(&[Move::Wait]).unwrap()),
+            "a wall or off-map cell of a horizon carries the README's wait-only value"
+        );
+        assert_eq!(MOVE_NAMES[usize::from(WAIT)], "wait");
+        for a in Action::ALL {
+            let name = format!("{a:?}").to_lowercase();
+            assert!(
+                MOVE_NAMES[usize::from(move_code(a))].starts_with(&name),
+                "{a:?} is code {}",
+                move_code(a)
             );
         }
     }

@@ -4,7 +4,7 @@
 
 use std::time::{Duration, Instant};
 
-use bus::bus_schema::{GRANT_CAP, GridState, HORIZON_CELLS, HORIZON_RADIUS_CAP, RobotStatus};
+use bus::bus_schema::{EARLY_HORIZON_RADIUS, GRANT_CAP, GridState, HORIZON_CELLS, RobotStatus};
 use bus::iceoryx2::prelude::PayloadHeader;
 use bus::{BusError, monotonic_ns};
 use planner::Cell;
@@ -17,7 +17,7 @@ use super::{Phase, Robot};
 impl Robot<'_> {
     /// Settles the values merged hints changed and, on a shared grid (`--shared-grid`), makes
     /// what `Execute` will rank with ([`Prepared`]) and sends the answer to the execution's
-    /// first tick: the horizon of radius [`HORIZON_RADIUS_CAP`] at its start (it answers tick
+    /// first tick: the horizon of radius [`EARLY_HORIZON_RADIUS`] at its start (it answers tick
     /// 0 on any fleet horizon, see `mapf::Coverage::answers`). Again only when the values
     /// changed since. The coordinator takes it if it is this phase's and centered where the
     /// robot starts; the robot still answers the first grant it reads, so one the coordinator
@@ -39,7 +39,7 @@ impl Robot<'_> {
             m.tick = 0;
             m.cell_x = start.x;
             m.cell_y = start.y;
-            m.radius = HORIZON_RADIUS_CAP;
+            m.radius = EARLY_HORIZON_RADIUS;
             m.ranked = ranks;
             m.send_time_ns = monotonic_ns();
         });
