@@ -234,6 +234,95 @@ fn layouts() -> Vec<Layout> {
     ]
 }
 
+/// The contract's constants as the README's table shows them: name, value, meaning.
+fn constants() -> Vec<(&'static str, String, &'static str)> {
+    vec![
+        (
+            "SCHEMA_VERSION",
+            SCHEMA_VERSION.to_string(),
+            "the contract's version, in `Register`, `Control` and `FinalReport` and every type name's `vN`",
+        ),
+        (
+            "MAX_ROBOTS",
+            MAX_ROBOTS.to_string(),
+            "largest fleet: robot ids are `0..robots`",
+        ),
+        (
+            "ROBOT_ID_ALL",
+            format!("0x{ROBOT_ID_ALL:08X}"),
+            "`Control.robot_id` addressing every robot; `MergedHintBatch.origin_robot` \"the fleet\"",
+        ),
+        (
+            "RUN_ID_MAX_LEN",
+            RUN_ID_MAX_LEN.to_string(),
+            "longest run id, characters `A-Z a-z 0-9 _ -`",
+        ),
+        (
+            "HINT_BATCH_CAP",
+            HINT_BATCH_CAP.to_string(),
+            "entries of a `QHintBatch` / `MergedHintBatch`; `count` of them are valid",
+        ),
+        (
+            "REASON_LEN",
+            REASON_LEN.to_string(),
+            "bytes of `Control.reason`",
+        ),
+        (
+            "GRANT_CAP",
+            GRANT_CAP.to_string(),
+            "robot entries of a `Grant`; `robots` of them are used",
+        ),
+        (
+            "HORIZON_RADIUS_CAP",
+            HORIZON_RADIUS_CAP.to_string(),
+            "largest `IntentHorizon.radius`, and largest horizon `h` an `Execute` asks for",
+        ),
+        (
+            "HORIZON_CELLS",
+            HORIZON_CELLS.to_string(),
+            "entries of `IntentHorizon.ranked`: the diamond of radius `HORIZON_RADIUS_CAP`",
+        ),
+        (
+            "EARLY_HORIZON_RADIUS",
+            EARLY_HORIZON_RADIUS.to_string(),
+            "radius of the early tick-0 horizon a robot sends at its start before `Execute`",
+        ),
+        (
+            "HORIZON_WAIT_ONLY",
+            HORIZON_WAIT_ONLY.to_string(),
+            "packed ranking \"wait only\": what a horizon carries at a wall or off-map cell",
+        ),
+    ]
+}
+
+/// Every value of a `u8` enumeration with its name (what `TryFrom<u8>` accepts).
+fn codes<T: TryFrom<u8> + core::fmt::Debug>() -> Vec<(u8, String)> {
+    (0..=u8::MAX)
+        .filter_map(|b| T::try_from(b).ok().map(|v| (b, format!("{v:?}"))))
+        .collect()
+}
+
+/// The README's code tables: which fields, and their codes with names.
+fn code_tables() -> Vec<(&'static str, Vec<(u8, String)>)> {
+    let moves = MOVE_NAMES
+        .iter()
+        .enumerate()
+        .map(|(i, n)| (i as u8, (*n).to_string()))
+        .collect();
+    vec![
+        (
+            "`RobotState.status`, `FinalReport.status`",
+            codes::<RobotStatus>(),
+        ),
+        ("`Control.command`", codes::<Command>()),
+        ("`Grant.state`", codes::<GridState>()),
+        (
+            "`Intent.ranked` (and `IntentHorizon.ranked`, packed as code + 1)",
+            moves,
+        ),
+    ]
+}
+
 fn topic_of(type_name: &str) -> Option<Topic> {
     Topic::ALL.into_iter().find(|t| t.type_name() == type_name)
 }
@@ -296,6 +385,40 @@ fn generate() -> String {
             t.payload_align(),
         )
         .unwrap();
+    }
+    let n = Topic::ALL.len();
+    writeln!(w).unwrap();
+    writeln!(
+        w,
+        "A run has **{n}** topics: {n} publish-subscribe services and their {n} `…/wake` event \
+         services, {} services in all. The coordinator creates every one of them when it starts, \
+         in every run (a learning run too, where the shared-grid topics stay silent).",
+        2 * n
+    )
+    .unwrap();
+    writeln!(w).unwrap();
+    writeln!(w, "### Constants").unwrap();
+    writeln!(w).unwrap();
+    writeln!(w, "| constant | value | meaning |").unwrap();
+    writeln!(w, "|---|---:|---|").unwrap();
+    for (name, value, meaning) in constants() {
+        writeln!(w, "| `{name}` | {value} | {meaning} |").unwrap();
+    }
+    writeln!(w).unwrap();
+    writeln!(w, "### Codes").unwrap();
+    writeln!(w).unwrap();
+    writeln!(
+        w,
+        "Enumerations travel as `u8`; a decoder treats any value not listed as an error."
+    )
+    .unwrap();
+    writeln!(w).unwrap();
+    writeln!(w, "| field | code | name |").unwrap();
+    writeln!(w, "|---|---:|---|").unwrap();
+    for (field, values) in code_tables() {
+        for (code, name) in values {
+            writeln!(w, "| {field} | {code} | {name} |").unwrap();
+        }
     }
     for l in layouts() {
         writeln!(w).unwrap();
@@ -421,4 +544,125 @@ fn readme_layout_section_matches_the_real_layout() {
             "README.md's layout section is out of date; rerun with BUS_SCHEMA_BLESS=1 to rewrite it.\nExpected:\n{generated}"
         );
     }
+}
+
+/// The README with its generated section cut out: the hand-written prose.
+fn readme_prose() -> String {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/README.md");
+    let readme = std::fs::read_to_string(path).expect("README.md is readable");
+    match (readme.find(BEGIN), readme.find(END)) {
+        (Some(a), Some(b)) if a < b => format!("{}{}", &readme[..a], &readme[b + END.len()..]),
+        _ => panic!("README.md lacks the layout markers"),
+    }
+}
+
+/// The cells of the markdown table rows (`| a | b |`) of the prose section headed `heading`.
+fn prose_table(prose: &str, heading: &str) -> Vec<Vec<String>> {
+    let start = prose
+        .find(heading)
+        .unwrap_or_else(|| panic!("README.md has no section {heading:?}"));
+    let body = &prose[start + heading.len()..];
+    let body = &body[..body.find("\n## ").unwrap_or(body.len())];
+    body.lines()
+        .filter(|l| l.starts_with('|') && !l.starts_with("|---"))
+        .skip(1) // the header row
+        .map(|l| {
+            l.trim_matches('|')
+                .split(" | ")
+                .map(|c| c.trim().to_string())
+                .collect()
+        })
+        .collect()
+}
+
+#[test]
+fn readme_describes_every_field_of_the_shared_grid_types() {
+    let prose = readme_prose();
+    let rows = prose_table(&prose, "## The shared grid, field by field");
+    let all = layouts();
+    let mut described: Vec<(String, String)> = Vec::new();
+    for row in &rows {
+        let [ty, field, meaning] = row.as_slice() else {
+            panic!("a field row has three cells: {row:?}");
+        };
+        let (ty, field) = (ty.trim_matches('`'), field.trim_matches('`'));
+        let l = all
+            .iter()
+            .find(|l| l.rust_name == ty)
+            .unwrap_or_else(|| panic!("README describes a type that does not exist: {ty}"));
+        assert!(
+            l.fields.iter().any(|f| f.name == field),
+            "README describes {ty}.{field}, which the type does not have"
+        );
+        assert!(meaning.len() > 10, "{ty}.{field}: say what it means");
+        described.push((ty.to_string(), field.to_string()));
+    }
+    // the shared grid's three types at least, and every type named there in full
+    for ty in ["Grant", "Intent", "IntentHorizon"] {
+        assert!(described.iter().any(|d| d.0 == ty), "{ty} is not described");
+    }
+    for l in all
+        .iter()
+        .filter(|l| described.iter().any(|d| d.0 == l.rust_name))
+    {
+        for f in l.fields.iter().filter(|f| !f.name.starts_with("_pad")) {
+            assert!(
+                described
+                    .iter()
+                    .any(|d| d.0 == l.rust_name && d.1 == f.name),
+                "README's field table lacks {}.{}",
+                l.rust_name,
+                f.name
+            );
+        }
+    }
+}
+
+#[test]
+fn readme_prose_quotes_constants_and_service_counts_truly() {
+    let prose = readme_prose();
+    // "`NAME` (value)" or "`NAME` (= value)" anywhere in the prose gives the constant's value
+    for (name, value, _) in constants() {
+        let quoted = format!("`{name}` (");
+        for (at, _) in prose.match_indices(&quoted) {
+            let rest = &prose[at + quoted.len()..];
+            let said = rest[..rest.find(')').unwrap_or(rest.len())].trim_start_matches("= ");
+            assert_eq!(
+                said, value,
+                "README says {name} is {said}, the code {value}"
+            );
+        }
+    }
+    // "all N publish-subscribe services" / "all N topics" / "all N services"
+    let n = Topic::ALL.len();
+    let words = [
+        "zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten",
+        "eleven", "twelve", "thirteen", "fourteen", "fifteen", "sixteen",
+    ];
+    let number = |w: &str| {
+        w.parse::<usize>()
+            .ok()
+            .or_else(|| words.iter().position(|x| x.eq_ignore_ascii_case(w)))
+    };
+    let mut seen = 0;
+    for (at, _) in prose.match_indices("all ") {
+        let mut it = prose[at + 4..].split_whitespace();
+        let (Some(count), Some(what)) = (it.next().and_then(number), it.next()) else {
+            continue;
+        };
+        let want = match what.trim_end_matches([',', '.', ';', ')']) {
+            "publish-subscribe" | "topics" => n,
+            "services" => 2 * n,
+            _ => continue,
+        };
+        seen += 1;
+        assert_eq!(
+            count, want,
+            "README says \"all {count} {what}\"; the run has {n} topics"
+        );
+    }
+    assert!(
+        seen > 0,
+        "the observer steps say how many services to wait for"
+    );
 }
