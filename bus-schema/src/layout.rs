@@ -323,6 +323,63 @@ fn code_tables() -> Vec<(&'static str, Vec<(u8, String)>)> {
     ]
 }
 
+/// `[`X`](path)` and `[`X`]` (rustdoc links) → `` `X` ``; `|` escaped for a table cell.
+fn plain_doc(doc: &str) -> String {
+    let mut out = String::new();
+    let mut rest = doc;
+    while let Some(at) = rest.find("[`") {
+        out.push_str(&rest[..at]);
+        let after = &rest[at + 1..];
+        let Some(end) = after.find("`]") else {
+            out.push_str(&rest[at..]);
+            rest = "";
+            break;
+        };
+        out.push_str(&after[..end + 1]);
+        rest = &after[end + 2..];
+        if rest.starts_with('(')
+            && let Some(close) = rest.find(')')
+        {
+            rest = &rest[close + 1..];
+        }
+    }
+    out.push_str(rest);
+    out.replace('|', "\\|")
+}
+
+/// Every message field's doc comment, read from the source: (type, field, doc). The README's
+/// layout tables carry them, so a reader needs no Rust docs.
+fn field_docs() -> Vec<(String, String, String)> {
+    let mut out = Vec::new();
+    for src in [
+        include_str!("robot_to_coordinator.rs"),
+        include_str!("coordinator_to_robot.rs"),
+    ] {
+        let mut current: Option<String> = None;
+        let mut doc: Vec<&str> = Vec::new();
+        for line in src.lines() {
+            let t = line.trim();
+            if let Some(rest) = t.strip_prefix("pub struct ") {
+                current = rest.split([' ', '{']).next().map(str::to_string);
+                doc.clear();
+            } else if line.starts_with('}') {
+                current = None;
+                doc.clear();
+            } else if let Some(d) = t.strip_prefix("///") {
+                doc.push(d.trim());
+            } else if let (Some(ty), Some(rest)) = (&current, t.strip_prefix("pub ")) {
+                if let Some((name, _)) = rest.split_once(':') {
+                    out.push((ty.clone(), name.to_string(), plain_doc(&doc.join(" "))));
+                }
+                doc.clear();
+            } else if !t.starts_with("#[") {
+                doc.clear();
+            }
+        }
+    }
+    out
+}
+
 fn topic_of(type_name: &str) -> Option<Topic> {
     Topic::ALL.into_iter().find(|t| t.type_name() == type_name)
 }
@@ -420,6 +477,7 @@ fn generate() -> String {
             writeln!(w, "| {field} | {code} | {name} |").unwrap();
         }
     }
+    let docs = field_docs();
     for l in layouts() {
         writeln!(w).unwrap();
         writeln!(
@@ -434,12 +492,16 @@ fn generate() -> String {
             None => writeln!(w, "Element type, embedded in other messages.").unwrap(),
         }
         writeln!(w).unwrap();
-        writeln!(w, "| offset | size | type | field |").unwrap();
-        writeln!(w, "|---:|---:|---|---|").unwrap();
+        writeln!(w, "| offset | size | type | field | meaning |").unwrap();
+        writeln!(w, "|---:|---:|---|---|---|").unwrap();
         for f in &l.fields {
+            let meaning = docs
+                .iter()
+                .find(|d| d.0 == l.rust_name && d.1 == f.name)
+                .map_or("", |d| d.2.as_str());
             writeln!(
                 w,
-                "| {} | {} | `{}` | `{}` |",
+                "| {} | {} | `{}` | `{}` | {meaning} |",
                 f.offset, f.size, f.ty, f.name
             )
             .unwrap();
@@ -491,6 +553,26 @@ fn fields_tile_each_type_without_gaps() {
             l.rust_name, l.size
         );
     }
+}
+
+#[test]
+fn every_field_has_a_meaning_for_the_readme() {
+    let docs = field_docs();
+    for l in layouts() {
+        for f in &l.fields {
+            let doc = docs.iter().find(|d| d.0 == l.rust_name && d.1 == f.name);
+            assert!(
+                doc.is_some_and(|d| d.2.len() > 5),
+                "{}.{}: no doc comment found in the source for the README",
+                l.rust_name,
+                f.name
+            );
+        }
+    }
+    assert_eq!(
+        plain_doc("see [`Grant`](crate::Grant) and [`GridState`]"),
+        "see `Grant` and `GridState`"
+    );
 }
 
 #[test]

@@ -361,7 +361,8 @@ pub struct IntentHorizon {
     pub _pad0: [u8; 3],
     /// Monotonic time the message was written.
     pub send_time_ns: u64,
-    /// Packed rankings, one per diamond cell (see the type's docs).
+    /// Packed rankings, one per diamond cell (the type's docs; the README's "The shared grid, field
+    /// by field").
     pub ranked: [u16; HORIZON_CELLS],
     /// Explicit padding, always zero.
     pub _pad1: [u8; 6],
