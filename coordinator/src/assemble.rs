@@ -113,6 +113,16 @@ fn robot_entry(e: &Engine, id: usize, slot: &Slot, task: &Task, dir: &OutDir) ->
     }
 }
 
+/// Robots whose accepted report says they stopped without a greedy path to the goal.
+fn without_path(e: &Engine) -> Vec<u32> {
+    e.robots
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| s.report.is_some_and(|r| r.final_path_len < 0))
+        .map(|(i, _)| i as u32)
+        .collect()
+}
+
 /// The liveness part of a result.
 pub(crate) fn liveness(e: &Engine) -> LivenessReport {
     let ids = |f: &dyn Fn(&Slot) -> bool| {
@@ -187,6 +197,7 @@ pub(crate) fn run_result(
     let all_optimal = robots
         .iter()
         .all(|r| r.final_path_len.is_some() && r.final_path_len == r.optimal_path_len);
+    let without_path = without_path(e);
     RunResult {
         run_id: args.run_id.clone(),
         map: task.map_name.clone(),
@@ -196,6 +207,7 @@ pub(crate) fn run_result(
         merge: args.merge,
         apply: None,
         all_optimal,
+        without_path,
         discoveries_sent: robots.iter().map(|r| r.discoveries_sent).sum(),
         discoveries_received: e.disc.received(),
         discoveries_from_lost: e

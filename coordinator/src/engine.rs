@@ -819,7 +819,12 @@ impl Engine {
             );
             return;
         };
-        slot.report = Some(*r);
+        // a robot that computes no optimum (-1) is judged against ours: the result shows ours
+        let mut kept = *r;
+        if let (-1, Some(o)) = (kept.optimal_path_len, optimum) {
+            kept.optimal_path_len = i32::try_from(o).unwrap_or(-1);
+        }
+        slot.report = Some(kept);
         if r.send_time_ns != 0 && r.send_time_ns <= now {
             record(&mut self.h.report, now - r.send_time_ns);
         }

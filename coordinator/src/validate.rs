@@ -61,16 +61,113 @@ pub enum Invalid {
     /// A count or length that contradicts another field or the run.
     #[error("{0}")]
     Inconsistent(&'static str),
-    /// A path length that contradicts the coordinator's own BFS optimum of the robot's task.
-    #[error("{what} {got} against the BFS optimum {optimum} of the robot's task on this map")]
-    Optimum {
-        /// Which length.
-        what: &'static str,
-        /// What the report said.
+    /// Path lengths no honest robot on this task can report (see [`PathVerdict`]).
+    #[error(transparent)]
+    Forged(#[from] Forgery),
+}
+
+/// What a report's two path lengths say, judged against the coordinator's own BFS optimum of
+/// the robot's task: forged, or one of three honest endings. Issue 36: a robot that stopped
+/// before its greedy policy reached the goal reports `final_path_len` −1 (and a robot that
+/// computes no optimum, `optimal_path_len` −1); both are honest, only a path *shorter* than
+/// the optimum (no path beats BFS) or another optimum than the coordinator's is a forgery.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PathVerdict {
+    /// `final_path_len` −1: no greedy path to the goal yet (it loops, or the robot stopped
+    /// early); honest, and the result lists the robot in `without_path`.
+    NoPathYet,
+    /// A path exactly as long as the optimum.
+    Optimal,
+    /// A path `extra` moves longer than the optimum: honest, suboptimal.
+    Longer {
+        /// Moves beyond the optimum (≥ 1).
+        extra: u32,
+    },
+    /// A path the coordinator cannot judge: it knows no optimum for this task.
+    Unjudged,
+    /// Lengths that cannot come from an honest robot on this task.
+    Forged(Forgery),
+}
+
+/// Why a report's path lengths are a forgery (or garbage), see [`PathVerdict::Forged`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum Forgery {
+    /// A greedy path shorter than the BFS optimum: no path beats BFS.
+    #[error(
+        "final_path_len {got} against the BFS optimum {optimum} of the robot's task on this \
+         map: no path is shorter"
+    )]
+    Shorter {
+        /// The claimed path length.
+        got: u32,
+        /// The coordinator's optimum.
+        optimum: u32,
+    },
+    /// An optimum other than the coordinator's (−1, "not computed", is honest).
+    #[error(
+        "optimal_path_len {got} against the BFS optimum {optimum} of the robot's task on this \
+         map"
+    )]
+    OtherOptimum {
+        /// The claimed optimum.
         got: i32,
         /// The coordinator's optimum.
-        optimum: i64,
+        optimum: u32,
     },
+    /// A length below −1, or above the map's cell count (a path that loops is reported as −1).
+    #[error("{what} {got} is no path length on a map of {cells} cells")]
+    NotALength {
+        /// Which length (`final_path_len` or `optimal_path_len`).
+        what: &'static str,
+        /// The claimed length.
+        got: i32,
+        /// Cells of the map.
+        cells: u64,
+    },
+}
+
+impl PathVerdict {
+    /// Judges a report's `final_path_len` and `optimal_path_len` (−1 = none / not computed)
+    /// on a map of `cells` cells against the coordinator's BFS optimum of the robot's task
+    /// (`None`: unknown, only the ranges are checked).
+    pub fn judge(final_len: i32, claimed_optimum: i32, optimum: Option<u32>, cells: u64) -> Self {
+        let length = |what: &'static str, got: i32| -> Result<Option<u32>, Forgery> {
+            match got {
+                -1 => Ok(None),
+                v if v < -1 || v as u64 > cells => Err(Forgery::NotALength { what, got, cells }),
+                v => Ok(Some(v as u32)),
+            }
+        };
+        let (path, claimed) = match (
+            length("final_path_len", final_len),
+            length("optimal_path_len", claimed_optimum),
+        ) {
+            (Ok(p), Ok(c)) => (p, c),
+            (Err(f), _) | (_, Err(f)) => return PathVerdict::Forged(f),
+        };
+        let Some(optimum) = optimum else {
+            return match path {
+                None => PathVerdict::NoPathYet,
+                Some(_) => PathVerdict::Unjudged,
+            };
+        };
+        if let Some(got) = claimed
+            && got != optimum
+        {
+            return PathVerdict::Forged(Forgery::OtherOptimum {
+                got: claimed_optimum,
+                optimum,
+            });
+        }
+        match path {
+            None => PathVerdict::NoPathYet,
+            Some(got) if got < optimum => PathVerdict::Forged(Forgery::Shorter { got, optimum }),
+            Some(got) if got == optimum => PathVerdict::Optimal,
+            Some(got) => PathVerdict::Longer {
+                extra: got - optimum,
+            },
+        }
+    }
 }
 
 fn goal(got: u32, shape: &Shape, assigned: Option<u32>) -> Result<(), Invalid> {
@@ -144,19 +241,27 @@ pub fn state(s: &RobotState, shape: &Shape, assigned: Option<u32>) -> Result<(),
     Ok(())
 }
 
+/// A final report the coordinator accepted: its status and what its path lengths say.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Accepted {
+    /// `Finished` or `Failed`.
+    pub status: RobotStatus,
+    /// The path verdict: never [`PathVerdict::Forged`].
+    pub path: PathVerdict,
+}
+
 /// A final report, fully: schema version, the goal the robot was assigned, a final status,
-/// path lengths ≥ −1, episodes within what was asked (`max_episodes`, 0 = unknown), finite
-/// non-negative `avg_steps`, acked ≤ sent, and a latency summary that is ordered; and, when
-/// the coordinator knows the BFS optimum of the robot's task on its own map (`optimum`), an
-/// `optimal_path_len` equal to it and a `final_path_len` not shorter (no path beats BFS: a
-/// shorter one is forged).
+/// path lengths judged by [`PathVerdict::judge`] against the coordinator's BFS optimum of the
+/// robot's task (`optimum`, when it knows one), episodes within what was asked
+/// (`max_episodes`, 0 = unknown), finite non-negative `avg_steps`, acked ≤ sent, and a
+/// latency summary that is ordered.
 pub fn report(
     r: &FinalReport,
     shape: &Shape,
     assigned: Option<u32>,
     max_episodes: u32,
     optimum: Option<u32>,
-) -> Result<RobotStatus, Invalid> {
+) -> Result<Accepted, Invalid> {
     if r.schema_version != SCHEMA_VERSION {
         return Err(Invalid::Schema(r.schema_version));
     }
@@ -168,31 +273,15 @@ pub fn report(
     if !(r.avg_steps.is_finite() && r.avg_steps >= 0.0) {
         return Err(Invalid::Value("avg_steps"));
     }
-    let cells = shape.cells() as i64;
-    for (v, what) in [
-        (r.final_path_len, "final_path_len"),
-        (r.optimal_path_len, "optimal_path_len"),
-    ] {
-        if v < -1 || i64::from(v) > cells {
-            return Err(Invalid::Value(what));
-        }
-    }
-    if let Some(opt) = optimum.map(i64::from) {
-        if i64::from(r.optimal_path_len) != opt {
-            return Err(Invalid::Optimum {
-                what: "optimal_path_len",
-                got: r.optimal_path_len,
-                optimum: opt,
-            });
-        }
-        if r.final_path_len >= 0 && i64::from(r.final_path_len) < opt {
-            return Err(Invalid::Optimum {
-                what: "final_path_len",
-                got: r.final_path_len,
-                optimum: opt,
-            });
-        }
-    }
+    let path = match PathVerdict::judge(
+        r.final_path_len,
+        r.optimal_path_len,
+        optimum,
+        shape.cells() as u64,
+    ) {
+        PathVerdict::Forged(f) => return Err(f.into()),
+        v => v,
+    };
     if r.first_optimal_episode < -1 {
         return Err(Invalid::Value("first_optimal_episode"));
     }
@@ -213,7 +302,7 @@ pub fn report(
     if l.count > 0 && !(l.min_ns <= l.p50_ns && l.p50_ns <= l.p99_ns && l.p99_ns <= l.max_ns) {
         return Err(Invalid::Inconsistent("latency percentiles out of order"));
     }
-    Ok(status)
+    Ok(Accepted { status, path })
 }
 
 #[cfg(test)]
@@ -247,7 +336,10 @@ mod tests {
     fn a_plausible_report_is_accepted_with_its_status() {
         assert_eq!(
             report(&good_report(), &SHAPE, Some(1), 100, None),
-            Ok(RobotStatus::Finished)
+            Ok(Accepted {
+                status: RobotStatus::Finished,
+                path: PathVerdict::Unjudged
+            })
         );
         let failed = FinalReport {
             status: RobotStatus::Failed.as_u8(),
@@ -257,7 +349,10 @@ mod tests {
         };
         assert_eq!(
             report(&failed, &SHAPE, Some(1), 0, None),
-            Ok(RobotStatus::Failed)
+            Ok(Accepted {
+                status: RobotStatus::Failed,
+                path: PathVerdict::NoPathYet
+            })
         );
     }
 
@@ -449,32 +544,201 @@ mod tests {
         r.optimal_path_len = 19;
         r.final_path_len = 18;
         let e = report(&r, &SHAPE, Some(1), 100, Some(19)).unwrap_err();
-        assert!(matches!(
+        assert_eq!(
             e,
-            Invalid::Optimum {
-                what: "final_path_len",
+            Invalid::Forged(Forgery::Shorter {
                 got: 18,
                 optimum: 19
-            }
-        ));
+            })
+        );
         assert!(e.to_string().contains("BFS optimum 19"), "{e}");
         // claiming the optimum is 18 does not help: the coordinator's own optimum counts
         r.optimal_path_len = 18;
         assert!(matches!(
             report(&r, &SHAPE, Some(1), 100, Some(19)),
-            Err(Invalid::Optimum {
-                what: "optimal_path_len",
-                ..
-            })
+            Err(Invalid::Forged(Forgery::OtherOptimum { got: 18, .. }))
         ));
         // an optimal or longer path, or none at all (-1), is fine
-        for len in [19, 25, -1] {
+        for (len, verdict) in [
+            (19, PathVerdict::Optimal),
+            (25, PathVerdict::Longer { extra: 6 }),
+            (-1, PathVerdict::NoPathYet),
+        ] {
             r.optimal_path_len = 19;
             r.final_path_len = len;
-            assert!(report(&r, &SHAPE, Some(1), 100, Some(19)).is_ok(), "{len}");
+            assert_eq!(
+                report(&r, &SHAPE, Some(1), 100, Some(19)).map(|a| a.path),
+                Ok(verdict),
+                "{len}"
+            );
         }
         // no optimum known: the old checks only
         r.final_path_len = 3;
         assert!(report(&r, &SHAPE, Some(1), 100, None).is_ok());
+    }
+
+    #[test]
+    fn the_honest_no_path_yet_report_of_issue_36_is_accepted() {
+        // `qfleet bench --scale` at 256 robots: a robot that computes no optimum and stopped
+        // without a path reports -1 / -1; the map's optimum is 318
+        let shape = Shape {
+            width: 64,
+            height: 256,
+            goals: 1,
+        };
+        let r = FinalReport {
+            goal_id: 0,
+            final_path_len: -1,
+            optimal_path_len: -1,
+            first_optimal_episode: -1,
+            episodes: 1,
+            ..good_report()
+        };
+        assert_eq!(
+            report(&r, &shape, Some(0), 1, Some(318)),
+            Ok(Accepted {
+                status: RobotStatus::Finished,
+                path: PathVerdict::NoPathYet
+            })
+        );
+    }
+
+    /// The path verdict as a specification: each case one line, `(final_path_len,
+    /// optimal_path_len, the coordinator's optimum, verdict)` on a map of 80 cells.
+    #[test]
+    fn path_verdicts_tell_a_forgery_from_no_path_yet_and_from_a_longer_path() {
+        use Forgery::*;
+        use PathVerdict::*;
+        const CELLS: u64 = 80;
+        let cases: &[(i32, i32, Option<u32>, PathVerdict)] = &[
+            // honest endings
+            (-1, -1, Some(19), NoPathYet),
+            (-1, 19, Some(19), NoPathYet),
+            (19, 19, Some(19), Optimal),
+            (19, -1, Some(19), Optimal), // a robot that computes no optimum
+            (20, 19, Some(19), Longer { extra: 1 }),
+            (80, -1, Some(19), Longer { extra: 61 }), // as long as the map has cells
+            // forgeries: shorter than BFS, or another optimum
+            (
+                18,
+                19,
+                Some(19),
+                Forged(Shorter {
+                    got: 18,
+                    optimum: 19,
+                }),
+            ),
+            (
+                0,
+                -1,
+                Some(19),
+                Forged(Shorter {
+                    got: 0,
+                    optimum: 19,
+                }),
+            ),
+            (
+                19,
+                18,
+                Some(19),
+                Forged(OtherOptimum {
+                    got: 18,
+                    optimum: 19,
+                }),
+            ),
+            (
+                -1,
+                0,
+                Some(19),
+                Forged(OtherOptimum {
+                    got: 0,
+                    optimum: 19,
+                }),
+            ),
+            // 0: start on the goal
+            (0, 0, Some(0), Optimal),
+            (0, -1, Some(0), Optimal),
+            (3, 0, Some(0), Longer { extra: 3 }),
+            // negative other than -1, and huge: no length at all
+            (
+                -2,
+                19,
+                Some(19),
+                Forged(NotALength {
+                    what: "final_path_len",
+                    got: -2,
+                    cells: CELLS,
+                }),
+            ),
+            (
+                i32::MIN,
+                -1,
+                None,
+                Forged(NotALength {
+                    what: "final_path_len",
+                    got: i32::MIN,
+                    cells: CELLS,
+                }),
+            ),
+            (
+                19,
+                -7,
+                Some(19),
+                Forged(NotALength {
+                    what: "optimal_path_len",
+                    got: -7,
+                    cells: CELLS,
+                }),
+            ),
+            (
+                81,
+                19,
+                Some(19),
+                Forged(NotALength {
+                    what: "final_path_len",
+                    got: 81,
+                    cells: CELLS,
+                }),
+            ),
+            (
+                i32::MAX,
+                i32::MAX,
+                Some(19),
+                Forged(NotALength {
+                    what: "final_path_len",
+                    got: i32::MAX,
+                    cells: CELLS,
+                }),
+            ),
+            // no optimum known to the coordinator: ranges only
+            (-1, -1, None, NoPathYet),
+            (3, -1, None, Unjudged),
+            (3, 40, None, Unjudged),
+        ];
+        for &(path, claimed, optimum, want) in cases {
+            assert_eq!(
+                PathVerdict::judge(path, claimed, optimum, CELLS),
+                want,
+                "final {path}, claimed optimum {claimed}, optimum {optimum:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn forgeries_say_what_was_claimed_against_what() {
+        let e = Invalid::from(Forgery::OtherOptimum {
+            got: -5,
+            optimum: 318,
+        });
+        assert!(e.to_string().contains("against the BFS optimum 318"), "{e}");
+        let e = Invalid::from(Forgery::NotALength {
+            what: "final_path_len",
+            got: -2,
+            cells: 80,
+        });
+        assert_eq!(
+            e.to_string(),
+            "final_path_len -2 is no path length on a map of 80 cells"
+        );
     }
 }

@@ -646,6 +646,9 @@ fn scale_point_inner(
     let coord_cpu = reports.first().and_then(|r| r.peer_cpu_ns).unwrap_or(0);
     let sent: u64 = reports.iter().map(|r| r.updates_sent).sum();
     row.merged_per_s = c.merged_per_s;
+    row.reports = c.reports;
+    row.without_path = c.without_path;
+    row.rejected = c.rejected;
     row.updates_sent = sent;
     row.updates_merged = c.samples;
     row.batches_lost = reports.iter().map(|r| r.batches_lost).sum();

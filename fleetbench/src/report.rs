@@ -131,6 +131,12 @@ pub struct ScaleRow {
     pub cpu_robots_pct: f64,
     /// CPU of the coordinator.
     pub cpu_coordinator_pct: f64,
+    /// Robots whose final report the coordinator accepted (all `robots` when none was lost).
+    pub reports: u64,
+    /// Of those, robots that stopped without a path (every scale robot: they learn nothing).
+    pub without_path: u64,
+    /// Messages the coordinator rejected as invalid.
+    pub rejected: u64,
     /// Whether every process ran to completion.
     pub completed: bool,
     /// Why not.

@@ -286,6 +286,15 @@ pub struct ChildReport {
     pub merged_seen: u64,
     /// Coordinator: Q-updates merged per second over its active time (its own figure).
     pub merged_per_s: f64,
+    /// Coordinator: robots whose final report arrived and was accepted.
+    #[serde(default)]
+    pub reports: u64,
+    /// Coordinator: of those, robots that stopped without a path (`without_path`).
+    #[serde(default)]
+    pub without_path: u64,
+    /// Coordinator: messages it rejected as invalid (`rejected` of its result).
+    #[serde(default)]
+    pub rejected: u64,
 }
 
 #[cfg(test)]

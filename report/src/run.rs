@@ -302,6 +302,11 @@ pub struct RunResult {
     pub robots: Vec<RobotEntry>,
     /// Whether every robot ended on a shortest path.
     pub all_optimal: bool,
+    /// Robots whose final report was accepted with no greedy path to the goal (`final_path_len`
+    /// null: they stopped before they found one, an honest "no path yet"), so a reader tells
+    /// them from robots that were lost or whose report was rejected (issue 36).
+    #[serde(default)]
+    pub without_path: Vec<u32>,
     /// Discoveries the robots report as published.
     pub discoveries_sent: u64,
     /// Distinct discoveries the coordinator received.
@@ -521,5 +526,27 @@ mod tests {
             );
         }
         assert_eq!(format!("{:8}|", RobotOutcome::Lost), "lost    |");
+    }
+
+    /// A result as written before `without_path` existed (issue 36): the smallest one a run
+    /// could write.
+    const OLD_RESULT: &str = r#"{"run_id": "r", "map": "m", "start": "(0, 0)", "goal": "(1, 1)",
+        "wait": "hybrid", "merge": "max", "robots": [], "all_optimal": false,
+        "discoveries_sent": 0, "discoveries_received": 0, "discovery_duplicates": 0,
+        "pseudo_targets": 0, "latency_ns": {}, "throughput": {"messages_per_s": 0.0,
+        "q_updates_merged_per_s": 0.0, "messages": 0, "q_updates_merged": 0,
+        "fleet_changes": 0, "merged_batches_sent": 0, "active_s": 0.0},
+        "liveness": {"checks": 0, "lost": [], "alive_at_end": []}, "rejected": 0,
+        "interrupted": false, "elapsed_s": 0.0}"#;
+
+    #[test]
+    fn robots_without_a_path_survive_a_round_trip_and_old_results_still_parse() {
+        let mut r: RunResult = serde_json::from_str(OLD_RESULT).unwrap();
+        assert!(r.without_path.is_empty());
+        r.without_path = vec![3, 250];
+        let json = serde_json::to_value(&r).unwrap();
+        assert_eq!(json["without_path"], serde_json::json!([3, 250]));
+        let back: RunResult = serde_json::from_value(json).unwrap();
+        assert_eq!(back.without_path, vec![3, 250]);
     }
 }

@@ -551,6 +551,13 @@ fn print_human(r: &RunResult, out: &Path, temp_out: bool) -> Result<()> {
         r.discoveries_sent,
         r.discoveries_received
     )?;
+    if !r.without_path.is_empty() {
+        let ids: Vec<String> = r.without_path.iter().map(u32::to_string).collect();
+        out!(
+            "  without a path     robot(s) {} stopped before they found one",
+            ids.join(", ")
+        )?;
+    }
     out!("  latency            count      p50        p90        p99        p99.9      max")?;
     for (k, s) in &r.latency_ns {
         latency_row(k, s)?;

@@ -20,7 +20,7 @@ use contract::coordinator::MergeRule;
 use planner::QTable;
 use planner::task::Task;
 use qfleet_args::MapArgs;
-use report::{OutDir, OutFile, RunResult};
+use report::{OutDir, OutFile, RobotOutcome, RunResult};
 use sharing::{ApplyCtx, HintBatcher, MergedApplier};
 
 use super::{Deadline, Updates, Window, idle_peer_cpu, save, window_ns};
@@ -83,8 +83,8 @@ pub fn coordinator(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
     t.finish(&mut r);
     // the role process only waited: the coordinator's CPU is its child's
     r.self_cpu_ns = crate::cpu::children_cpu_ns().saturating_sub(cpu0);
-    // 4: the run completed but a robot sent no valid report — the bench robots send none worth
-    // checking and leave at once; the merge figures are complete all the same
+    // 4: the run completed but a robot's report did not count; the merge figures are complete
+    // all the same, and the row says how many reports counted (`reports`)
     if !matches!(status.code(), Some(0 | 4)) {
         return Err(BenchError::Coordinator(format!(
             "qfleet-coordinator ended with {status} (its result, if any, is in {})",
@@ -96,6 +96,13 @@ pub fn coordinator(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
         .map_err(|e| BenchError::Coordinator(e.to_string()))?;
     r.samples = result.throughput.q_updates_merged;
     r.merged_per_s = result.throughput.q_updates_merged_per_s;
+    r.reports = result
+        .robots
+        .iter()
+        .filter(|x| matches!(x.status, RobotOutcome::Finished | RobotOutcome::Stopped))
+        .count() as u64;
+    r.without_path = result.without_path.len() as u64;
+    r.rejected = result.rejected;
     Ok(r)
 }
 
@@ -157,7 +164,9 @@ fn send_hints(
 }
 
 /// Tells the coordinator these robots are done, waits for its `Stop` (merged hints meanwhile
-/// are latest-wins and may be left unread), sends each final report and closes.
+/// are latest-wins and may be left unread), sends each final report and closes. The report is
+/// an honest "no path yet": these robots learn nothing and compute no optimum (both −1), which
+/// the coordinator accepts and lists in its result's `without_path`.
 fn finish(buses: Vec<RobotBus>, timeout: Duration) -> Result<(), BenchError> {
     for bus in &buses {
         bus.state.send(&RobotState {
