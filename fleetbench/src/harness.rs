@@ -643,7 +643,9 @@ fn scale_point_inner(
     }
     let wall_ns = reports.iter().map(|r| r.wall_ns).max().unwrap_or(0);
     let robots_cpu: u64 = reports.iter().map(|r| r.self_cpu_ns).sum();
-    let coord_cpu = reports.first().and_then(|r| r.peer_cpu_ns).unwrap_or(0);
+    // the coordinator role process only waits: its child's CPU is the coordinator's (robot
+    // 0's `peer_cpu_ns` is the waiting role process's, which said 0 %)
+    let coord_cpu = c.self_cpu_ns;
     let sent: u64 = reports.iter().map(|r| r.updates_sent).sum();
     row.merged_per_s = c.merged_per_s;
     row.reports = c.reports;
@@ -663,7 +665,7 @@ fn scale_point_inner(
         row.loop_p99_ns = h.value_at_quantile(0.99);
     }
     row.cpu_robots_pct = crate::cpu::pct(robots_cpu, wall_ns);
-    row.cpu_coordinator_pct = crate::cpu::pct(coord_cpu, wall_ns);
+    row.cpu_coordinator_pct = crate::cpu::pct(coord_cpu, c.wall_ns.max(wall_ns));
     row.cpu_pct = row.cpu_robots_pct + row.cpu_coordinator_pct;
     Ok(())
 }

@@ -143,6 +143,89 @@ pub struct ScaleRow {
     pub error: Option<String>,
 }
 
+/// How a scale point went, as its status column says it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ScaleStatus {
+    /// Every update sent was merged and every robot's report counted.
+    Ok,
+    /// Some updates were never merged (at most half), or a report did not count.
+    Degraded,
+    /// The point failed, or most updates sent were never merged (issue 36: "ok" was printed
+    /// while 61 % were never merged).
+    Missed,
+}
+
+impl ScaleRow {
+    /// Percent of the updates sent that the coordinator merged (100 when none were sent).
+    pub fn merged_pct(&self) -> f64 {
+        if self.updates_sent == 0 {
+            100.0
+        } else {
+            100.0 * self.updates_merged as f64 / self.updates_sent as f64
+        }
+    }
+
+    /// Updates sent that the coordinator neither merged nor rejected as invalid: overwritten
+    /// in its latest-wins hint buffers or still unread when the run ended.
+    pub fn never_merged(&self) -> u64 {
+        self.updates_sent
+            .saturating_sub(self.updates_merged)
+            .saturating_sub(self.rejected)
+    }
+
+    /// The status and its reason: `Missed` when the point failed or more than half of the
+    /// updates sent were never merged, `Degraded` when any were or a report did not count.
+    pub fn status(&self) -> (ScaleStatus, String) {
+        if let Some(e) = &self.error {
+            return (ScaleStatus::Missed, e.clone());
+        }
+        let lost = self.never_merged();
+        let share = if self.updates_sent == 0 {
+            0.0
+        } else {
+            lost as f64 / self.updates_sent as f64
+        };
+        let mut why = Vec::new();
+        if lost > 0 {
+            why.push(format!(
+                "{:.0} % never merged ({lost} of {} updates: overwritten in the coordinator's \
+                 latest-wins hint buffers or unread at the end)",
+                (share * 100.0).max(1.0),
+                self.updates_sent
+            ));
+        }
+        if self.rejected > 0 {
+            why.push(format!("{} messages rejected as invalid", self.rejected));
+        }
+        if self.reports < u64::from(self.robots) {
+            why.push(format!(
+                "{} of {} robots' reports did not count",
+                u64::from(self.robots) - self.reports,
+                self.robots
+            ));
+        }
+        let status = if share > 0.5 {
+            ScaleStatus::Missed
+        } else if why.is_empty() {
+            ScaleStatus::Ok
+        } else {
+            ScaleStatus::Degraded
+        };
+        let mut text = match status {
+            ScaleStatus::Ok => "ok".to_string(),
+            ScaleStatus::Degraded => format!("degraded: {}", why.join("; ")),
+            ScaleStatus::Missed => format!("MISSED: {}", why.join("; ")),
+        };
+        let _ = write!(
+            text,
+            " ({} of {} merged, {} batches unacked, {} without a path)",
+            self.updates_merged, self.updates_sent, self.batches_lost, self.without_path
+        );
+        (status, text)
+    }
+}
+
 /// One goal of the issue and whether this run met it.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct Goal {
@@ -383,11 +466,12 @@ impl Report {
         if !self.scale.is_empty() {
             let _ = writeln!(
                 s,
-                "\n{:>6} {:>6} {:>14} {:>14} {:>10} {:>10} {:>8} {:>8} {:>8}  status",
+                "\n{:>6} {:>6} {:>14} {:>14} {:>8} {:>10} {:>10} {:>8} {:>8} {:>8}  status",
                 "robots",
                 "batch",
                 "merged/s",
                 "offered/s",
+                "merged%",
                 "loop p50",
                 "loop p99",
                 "cpu%",
@@ -397,20 +481,18 @@ impl Report {
             for r in &self.scale {
                 let _ = writeln!(
                     s,
-                    "{:>6} {:>6} {:>14.0} {:>14.0} {:>10} {:>10} {:>8.0} {:>8.0} {:>8.0}  {}",
+                    "{:>6} {:>6} {:>14.0} {:>14.0} {:>8.1} {:>10} {:>10} {:>8.0} {:>8.0} {:>8.0}  {}",
                     r.robots,
                     r.batch,
                     r.merged_per_s,
                     r.offered_per_s,
+                    r.merged_pct(),
                     us(r.loop_p50_ns),
                     us(r.loop_p99_ns),
                     r.cpu_pct,
                     r.cpu_coordinator_pct,
                     r.cpu_robots_pct,
-                    r.error.clone().unwrap_or_else(|| format!(
-                        "ok ({} of {} merged, {} batches unacked)",
-                        r.updates_merged, r.updates_sent, r.batches_lost
-                    ))
+                    r.status().1
                 );
             }
         }
@@ -479,7 +561,7 @@ impl Report {
                     r.cpu_pct,
                     r.cpu_coordinator_pct,
                     r.cpu_robots_pct,
-                    r.error.as_deref().unwrap_or("ok")
+                    r.status().1
                 );
             }
         }
@@ -576,5 +658,67 @@ impl Report {
             crate::plot::scale(&dir.join("scale.svg"), &self.scale)?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(sent: u64, merged: u64) -> ScaleRow {
+        ScaleRow {
+            robots: 256,
+            batch: 256,
+            updates_sent: sent,
+            updates_merged: merged,
+            reports: 256,
+            without_path: 256,
+            completed: true,
+            ..ScaleRow::default()
+        }
+    }
+
+    #[test]
+    fn the_status_never_says_ok_while_updates_were_never_merged() {
+        assert_eq!(row(1000, 1000).status().0, ScaleStatus::Ok);
+        assert!(row(1000, 1000).status().1.starts_with("ok ("));
+        // issue 36: 61 % never merged printed "ok"
+        let (s, text) = row(1000, 390).status();
+        assert_eq!(s, ScaleStatus::Missed);
+        assert!(text.starts_with("MISSED: 61 % never merged"), "{text}");
+        let (s, text) = row(1000, 850).status();
+        assert_eq!(s, ScaleStatus::Degraded);
+        assert!(text.starts_with("degraded: 15 % never merged"), "{text}");
+        // one update in a million still says so
+        let (s, text) = row(1_000_000, 999_999).status();
+        assert_eq!(s, ScaleStatus::Degraded);
+        assert!(text.contains("1 of 1000000 updates"), "{text}");
+    }
+
+    #[test]
+    fn rejected_updates_and_reports_that_did_not_count_are_named() {
+        let r = ScaleRow {
+            rejected: 10,
+            reports: 250,
+            ..row(1000, 990)
+        };
+        let (s, text) = r.status();
+        assert_eq!(s, ScaleStatus::Degraded);
+        assert!(text.contains("10 messages rejected"), "{text}");
+        assert!(
+            text.contains("6 of 256 robots' reports did not count"),
+            "{text}"
+        );
+        assert!(!text.contains("never merged"), "{text}");
+        let failed = ScaleRow {
+            error: Some("robot 3 timed out".into()),
+            ..row(0, 0)
+        };
+        assert_eq!(
+            failed.status(),
+            (ScaleStatus::Missed, "robot 3 timed out".into())
+        );
+        assert_eq!(row(0, 0).merged_pct(), 100.0);
+        assert_eq!(row(1000, 390).merged_pct(), 39.0);
     }
 }
