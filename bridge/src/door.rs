@@ -120,12 +120,72 @@ pub struct DoorReport {
     pub refused_by_source: Vec<SourceRefusals>,
     /// Refusals of sources past those.
     pub refused_other_sources: u64,
+    /// Refused credentials: a probe with a wrong join secret ([`crate::probe`]), or a Zenoh
+    /// handshake the hub's session ended at once ([`handshake_refused`]).
+    pub refused_credentials: u64,
+    /// Refused credentials per source, the first [`SOURCES_KEPT`] sources.
+    pub refused_credentials_by_source: Vec<SourceRefusals>,
+    /// Refused credentials of sources past those.
+    pub refused_credentials_other_sources: u64,
 }
 
 impl DoorReport {
     /// Every refusal, whatever its reason.
     pub fn refused(&self) -> u64 {
         self.refused_source_busy + self.refused_source_rate + self.refused_full
+    }
+}
+
+/// A relayed connection the hub's Zenoh session ended within this long of its start is
+/// counted as a refused handshake: Zenoh refuses a wrong password (or none) in its first
+/// exchange, while a session it accepts lives for the whole join.
+pub const HANDSHAKE_WITHIN: Duration = Duration::from_secs(2);
+
+/// Whether a relayed connection was a handshake Zenoh refused: the hub's side ended it first,
+/// `lasted` after it was relayed.
+pub fn handshake_refused(upstream_ended_first: bool, lasted: Duration) -> bool {
+    upstream_ended_first && lasted < HANDSHAKE_WITHIN
+}
+
+/// Counts per source, the first [`SOURCES_KEPT`] sources one by one and the rest together, so
+/// a flood of addresses cannot grow it.
+#[derive(Debug, Default)]
+struct BySource {
+    kept: Vec<(IpAddr, u64)>,
+    other: u64,
+}
+
+impl BySource {
+    /// Counts one for `key`; true the first time a kept source is counted (worth a log line).
+    fn count(&mut self, key: IpAddr) -> bool {
+        if let Some((_, n)) = self.kept.iter_mut().find(|(k, _)| *k == key) {
+            *n += 1;
+            false
+        } else if self.kept.len() < SOURCES_KEPT {
+            self.kept.push((key, 1));
+            true
+        } else {
+            self.other += 1;
+            false
+        }
+    }
+
+    fn list(&self) -> Vec<SourceRefusals> {
+        self.kept
+            .iter()
+            .map(|(k, n)| SourceRefusals {
+                source: source_name(*k),
+                refused: *n,
+            })
+            .collect()
+    }
+}
+
+/// A source as the report names it: an IPv4 address, or an IPv6 /64 prefix.
+pub fn source_name(key: IpAddr) -> String {
+    match key {
+        IpAddr::V4(a) => a.to_string(),
+        IpAddr::V6(a) => format!("{a}/64"),
     }
 }
 
@@ -146,7 +206,8 @@ pub struct Gate {
     limits: Limits,
     sources: HashMap<IpAddr, Source>,
     open: u32,
-    refused_by: Vec<(IpAddr, u64)>,
+    refused_by: BySource,
+    credentials: BySource,
     report: DoorReport,
 }
 
@@ -182,7 +243,8 @@ impl Gate {
             limits: l,
             sources: HashMap::new(),
             open: 0,
-            refused_by: Vec::new(),
+            refused_by: BySource::default(),
+            credentials: BySource::default(),
             report: DoorReport::default(),
         }
     }
@@ -267,13 +329,14 @@ impl Gate {
     }
 
     fn count_refused(&mut self, key: IpAddr) {
-        if let Some((_, n)) = self.refused_by.iter_mut().find(|(k, _)| *k == key) {
-            *n += 1;
-        } else if self.refused_by.len() < SOURCES_KEPT {
-            self.refused_by.push((key, 1));
-        } else {
-            self.report.refused_other_sources += 1;
-        }
+        self.refused_by.count(key);
+    }
+
+    /// `src` failed to prove the join secret (a probe, or a Zenoh handshake refused): counted
+    /// per source; true the first time a source is (log one line for it, not one per try).
+    pub fn refused_credentials(&mut self, src: IpAddr) -> bool {
+        self.report.refused_credentials += 1;
+        self.credentials.count(source_of(src))
     }
 
     /// A connection admitted from `src` has ended (whoever closed it).
@@ -315,17 +378,10 @@ impl Gate {
     pub fn report(&self, listen: &str) -> DoorReport {
         let mut r = self.report.clone();
         r.listen = listen.to_string();
-        r.refused_by_source = self
-            .refused_by
-            .iter()
-            .map(|(k, n)| SourceRefusals {
-                source: match k {
-                    IpAddr::V4(a) => a.to_string(),
-                    IpAddr::V6(a) => format!("{a}/64"),
-                },
-                refused: *n,
-            })
-            .collect();
+        r.refused_by_source = self.refused_by.list();
+        r.refused_other_sources = self.refused_by.other;
+        r.refused_credentials_by_source = self.credentials.list();
+        r.refused_credentials_other_sources = self.credentials.other;
         r
     }
 }
@@ -583,5 +639,48 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn refused_credentials_are_counted_per_source_bounded_and_logged_once_per_source() {
+        let mut g = Gate::new(Limits::default());
+        // the first refusal of a source is worth a log line, the next ones only a count
+        assert!(g.refused_credentials(ip(1)));
+        assert!(!g.refused_credentials(ip(1)));
+        // an IPv6 host counts as its /64, however many addresses it uses
+        let v6 = |last| IpAddr::V6(Ipv6Addr::new(0xfd00, 0, 0, 1, 0, 0, 0, last));
+        assert!(g.refused_credentials(v6(1)));
+        assert!(!g.refused_credentials(v6(2)));
+        // a flood of addresses: the first SOURCES_KEPT are named, the rest counted together
+        for n in 2..200 {
+            g.refused_credentials(ip(n));
+        }
+        let r = g.report("x");
+        assert_eq!(r.refused_credentials, 4 + 198);
+        assert_eq!(r.refused_credentials_by_source.len(), SOURCES_KEPT);
+        assert_eq!(r.refused_credentials_by_source[0].refused, 2);
+        assert_eq!(r.refused_credentials_by_source[1].source, "fd00:0:0:1::/64");
+        assert_eq!(
+            r.refused_credentials_other_sources,
+            202 - r
+                .refused_credentials_by_source
+                .iter()
+                .map(|s| s.refused)
+                .sum::<u64>()
+        );
+        // it refuses no connection: the connection limits are not touched
+        assert_eq!(r.refused(), 0);
+        assert_eq!(g.open(), 0);
+    }
+
+    #[test]
+    fn only_a_session_the_hub_ended_early_is_a_refused_handshake() {
+        let early = HANDSHAKE_WITHIN / 4;
+        assert!(handshake_refused(true, early));
+        // the joining host left: not a refusal
+        assert!(!handshake_refused(false, early));
+        // a session that lived past the handshake ended for another reason
+        assert!(!handshake_refused(true, HANDSHAKE_WITHIN));
+        assert!(!handshake_refused(true, HANDSHAKE_WITHIN * 30));
     }
 }

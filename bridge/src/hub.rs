@@ -147,7 +147,7 @@ impl Hub {
         let at = link::listen_address(&opts.listen)?;
         let (session, upstream) =
             link::listen_loopback(opts.tuning, &link::SessionAuth::of(&opts.secret))?;
-        let door = FrontDoor::open(at, upstream, opts.door)?;
+        let door = FrontDoor::open(at, upstream, opts.door, opts.secret.clone())?;
         let stop = Arc::new(AtomicBool::new(false));
         let flag = Arc::clone(&stop);
         let (waker, wakes) = wake_pair()?;

@@ -34,6 +34,7 @@ pub mod health;
 pub mod hub;
 pub mod join;
 pub mod link;
+pub mod probe;
 pub mod relay;
 pub mod reliable;
 pub mod remote;
@@ -98,6 +99,16 @@ pub enum BridgeError {
     /// The coordinator's host refused the join.
     #[error("join refused by the coordinator's host: {0}")]
     Refused(String),
+    /// The coordinator's host's front door checked this host's proof of the join secret and
+    /// refused it: the secret is not the run's.
+    #[error(
+        "{endpoint} refused this host's credentials: the join secret is not the one of the run \
+         listening there"
+    )]
+    Credentials {
+        /// The coordinator's host.
+        endpoint: String,
+    },
     /// The join exchange failed.
     #[error("join failed: {0}")]
     Join(String),

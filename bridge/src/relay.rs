@@ -9,6 +9,11 @@
 //! connection that sends no byte within [`Limits::first_byte_within`] is closed by the door
 //! and never reaches Zenoh. Both sockets of a relayed connection have `TCP_NODELAY`; bytes are
 //! copied through one buffer per direction, made once per connection.
+//!
+//! A connection that opens with [`probe::MAGIC`] is a joining host's probe of its secret: the
+//! door answers it itself ([`crate::probe`]) and never relays it. A refused proof, and a relayed
+//! connection that Zenoh ended during its handshake ([`door::handshake_refused`]), count as
+//! refused credentials per source, with one log line per source.
 
 use std::net::{IpAddr, SocketAddr};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -18,8 +23,12 @@ use std::time::{Duration, Instant};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::Notify;
 
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
 use crate::BridgeError;
-use crate::door::{DoorReport, Gate, Limits, Verdict};
+use crate::door::{self, DoorReport, Gate, Limits, Verdict};
+use crate::probe::{self, Opening};
+use crate::seal::{self, Secret};
 
 /// How long the door waits for the hub's own listener to take a relayed connection (it is on
 /// this host: anything slower means it is gone).
@@ -48,11 +57,12 @@ fn io_error(what: String) -> impl FnOnce(std::io::Error) -> BridgeError {
 
 impl FrontDoor {
     /// Binds `listen` (an error at once if it cannot) and relays what `limits` admit to
-    /// `upstream`.
+    /// `upstream`; probes are checked against `secret`, the run's.
     pub fn open(
         listen: SocketAddr,
         upstream: SocketAddr,
         limits: Limits,
+        secret: Secret,
     ) -> Result<FrontDoor, BridgeError> {
         let std_listener = std::net::TcpListener::bind(listen)
             .map_err(io_error(format!("listening on {listen}")))?;
@@ -77,7 +87,7 @@ impl FrontDoor {
         let (g, s) = (Arc::clone(&gate), Arc::clone(&stop));
         let thread = std::thread::Builder::new()
             .name("qfleet-door".into())
-            .spawn(move || rt.block_on(accept(listener, upstream, g, s)))
+            .spawn(move || rt.block_on(accept(listener, upstream, g, s, Arc::new(secret))))
             .map_err(|e| BridgeError::Thread(e.to_string()))?;
         Ok(FrontDoor {
             listen: bound,
@@ -124,6 +134,7 @@ async fn accept(
     upstream: SocketAddr,
     gate: Arc<Mutex<Gate>>,
     stop: Arc<Notify>,
+    secret: Arc<Secret>,
 ) {
     let first_byte = lock(&gate).limits().first_byte_within;
     let mut tasks = tokio::task::JoinSet::new();
@@ -138,7 +149,7 @@ async fn accept(
                     let verdict = lock(&gate).admit(src, Instant::now());
                     if verdict == Verdict::Admit {
                         let open = Open { gate: Arc::clone(&gate), src };
-                        tasks.spawn(relay(stream, open, upstream, first_byte));
+                        tasks.spawn(relay(stream, open, upstream, first_byte, Arc::clone(&secret)));
                     } else {
                         // a reset, not a FIN: nothing of it lingers on this host
                         let _ = stream.set_zero_linger();
@@ -163,13 +174,68 @@ impl Drop for Open {
     }
 }
 
-/// Waits for the first byte, then copies both ways until either side ends; then both close.
-async fn relay(inbound: TcpStream, open: Open, upstream: SocketAddr, first_byte: Duration) {
+impl Open {
+    /// Counts refused credentials of this connection's source; logs the first of a source.
+    fn refused_credentials(&self, how: &str) {
+        if lock(&self.gate).refused_credentials(self.src) {
+            report::log_line!(
+                "qfleet: front door: {} {how} (further refusals of it are only counted: \
+                 bridge.json door.refused_credentials)",
+                door::source_name(door::source_of(self.src))
+            );
+        }
+    }
+}
+
+/// Peeks until the first bytes tell a probe from a Zenoh session; `None`: the connection
+/// closed (or failed) first.
+async fn opening(inbound: &TcpStream) -> Option<Opening> {
+    let mut first = [0u8; probe::MAGIC.len()];
+    loop {
+        let n = inbound.peek(&mut first).await.ok().filter(|n| *n > 0)?;
+        match probe::opening(&first[..n]) {
+            Opening::Undecided => tokio::time::sleep(Duration::from_millis(5)).await,
+            decided => return Some(decided),
+        }
+    }
+}
+
+/// Answers a probe: a nonce, then the verdict on the proof of the secret; `None`: the
+/// connection failed or no randomness.
+async fn answer_probe(inbound: &mut TcpStream, secret: &Secret) -> Option<bool> {
+    let mut magic = [0u8; probe::MAGIC.len()];
+    inbound.read_exact(&mut magic).await.ok()?;
+    let mut nonce = [0u8; probe::NONCE_BYTES];
+    seal::random(&mut nonce).ok()?;
+    inbound.write_all(&nonce).await.ok()?;
+    let mut proof = [0u8; probe::PROOF_BYTES];
+    inbound.read_exact(&mut proof).await.ok()?;
+    let ok = secret.check_door_proof(&nonce, &proof);
+    let verdict = if ok { probe::ACCEPTED } else { probe::REFUSED };
+    inbound.write_all(&[verdict]).await.ok()?;
+    Some(ok)
+}
+
+/// Waits for the first bytes: a probe is answered here, a Zenoh session is copied both ways
+/// until either side ends; then both close.
+async fn relay(
+    mut inbound: TcpStream,
+    open: Open,
+    upstream: SocketAddr,
+    first_byte: Duration,
+    secret: Arc<Secret>,
+) {
     let _ = inbound.set_nodelay(true);
-    let mut one = [0u8; 1];
-    match tokio::time::timeout(first_byte, inbound.peek(&mut one)).await {
-        Ok(Ok(n)) if n > 0 => {}
-        Ok(_) => return, // closed (or failed) before a byte
+    match tokio::time::timeout(first_byte, opening(&inbound)).await {
+        Ok(Some(Opening::Probe)) => {
+            let answered = tokio::time::timeout(first_byte, answer_probe(&mut inbound, &secret));
+            if let Ok(Some(false)) = answered.await {
+                open.refused_credentials("sent a probe with a wrong join secret");
+            }
+            return;
+        }
+        Ok(Some(_)) => {}
+        Ok(None) => return, // closed (or failed) before a byte
         Err(_) => {
             lock(&open.gate).silent();
             let _ = inbound.set_zero_linger();
@@ -184,13 +250,19 @@ async fn relay(inbound: TcpStream, open: Open, upstream: SocketAddr, first_byte:
         }
     };
     let _ = outbound.set_nodelay(true);
+    let relayed = Instant::now();
     let (mut in_r, mut in_w) = inbound.into_split();
     let (mut out_r, mut out_w) = outbound.into_split();
     // Zenoh never half-closes a link: when either direction ends, the connection is over, and
     // closing both frees the source's slot even if the other end stays silent
-    tokio::select! {
-        _ = tokio::io::copy(&mut in_r, &mut out_w) => {}
-        _ = tokio::io::copy(&mut out_r, &mut in_w) => {}
+    let upstream_ended_first = tokio::select! {
+        _ = tokio::io::copy(&mut in_r, &mut out_w) => false,
+        _ = tokio::io::copy(&mut out_r, &mut in_w) => true,
+    };
+    if door::handshake_refused(upstream_ended_first, relayed.elapsed()) {
+        open.refused_credentials(
+            "was refused by Zenoh's password check (a wrong join secret, or none)",
+        );
     }
     drop(open);
 }
@@ -221,6 +293,36 @@ mod tests {
         addr
     }
 
+    fn run_secret() -> Secret {
+        Secret::new("door-test", [7; 32])
+    }
+
+    #[test]
+    fn a_probe_is_answered_by_the_door_and_a_wrong_secret_counted_once_per_source() {
+        let door = FrontDoor::open(
+            "127.0.0.1:0".parse().unwrap(),
+            echo(),
+            Limits::default(),
+            run_secret(),
+        )
+        .unwrap();
+        let at = door.local_addr();
+        let within = Duration::from_secs(5);
+        assert_eq!(
+            probe::knock(at, &run_secret(), within),
+            probe::Probe::Accepted
+        );
+        let wrong = Secret::new("door-test", [8; 32]);
+        assert_eq!(probe::knock(at, &wrong, within), probe::Probe::Refused);
+        assert_eq!(probe::knock(at, &wrong, within), probe::Probe::Refused);
+        let r = door.finish();
+        assert_eq!(r.refused_credentials, 2, "{r:?}");
+        assert_eq!(r.refused_credentials_by_source.len(), 1, "{r:?}");
+        assert_eq!(r.refused_credentials_by_source[0].source, "127.0.0.1");
+        assert_eq!(r.refused_credentials_by_source[0].refused, 2);
+        assert_eq!(r.refused(), 0, "a probe is no connection refusal: {r:?}");
+    }
+
     fn closed_by_door(s: &mut StdStream) -> bool {
         s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
         match s.read(&mut [0u8; 8]) {
@@ -237,7 +339,8 @@ mod tests {
             first_byte_within: Duration::from_millis(200),
             ..Limits::default()
         };
-        let door = FrontDoor::open("127.0.0.1:0".parse().unwrap(), echo(), limits).unwrap();
+        let door =
+            FrontDoor::open("127.0.0.1:0".parse().unwrap(), echo(), limits, run_secret()).unwrap();
         let at = door.local_addr();
         // a client that speaks gets its bytes back through the relay
         let mut a = StdStream::connect(at).unwrap();
@@ -268,7 +371,12 @@ mod tests {
     #[test]
     fn a_port_in_use_is_an_error_at_once() {
         let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-        let e = FrontDoor::open(taken.local_addr().unwrap(), echo(), Limits::default());
+        let e = FrontDoor::open(
+            taken.local_addr().unwrap(),
+            echo(),
+            Limits::default(),
+            run_secret(),
+        );
         assert!(matches!(e, Err(BridgeError::Door { .. })), "{e:?}");
     }
 }

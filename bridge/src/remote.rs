@@ -102,6 +102,15 @@ pub fn request(
     timeout: Duration,
     tuning: Tuning,
 ) -> Result<Joined, BridgeError> {
+    // a wrong secret is said in seconds; a door that does not answer leaves it to Zenoh
+    if let Ok(door) = link::listen_address(endpoint) {
+        let within = crate::probe::PROBE_WITHIN.min(timeout);
+        if crate::probe::knock(door, secret, within) == crate::probe::Probe::Refused {
+            return Err(BridgeError::Credentials {
+                endpoint: endpoint.to_string(),
+            });
+        }
+    }
     let session = link::connect(endpoint, timeout, tuning, &link::SessionAuth::of(secret))?;
     let deadline = Instant::now() + timeout;
     let knocker = Knocker::new(secret.clone())?;

@@ -188,6 +188,21 @@ impl Secret {
         hex(&self.mac(b"qfleet zenoh session v1").finalize().into_bytes())
     }
 
+    /// The answer to the front door's probe `nonce` ([`crate::probe`]): proves the secret to
+    /// the door before any Zenoh session, so a wrong secret is told apart from a dead host.
+    pub fn door_proof(&self, nonce: &[u8]) -> [u8; 32] {
+        let mut m = self.mac(b"qfleet door probe v1");
+        m.update(nonce);
+        m.finalize().into_bytes().into()
+    }
+
+    /// Whether `proof` answers the door's probe `nonce` (compared in constant time).
+    pub fn check_door_proof(&self, nonce: &[u8], proof: &[u8]) -> bool {
+        let mut m = self.mac(b"qfleet door probe v1");
+        m.update(nonce);
+        m.verify_slice(proof).is_ok()
+    }
+
     fn mac(&self, label: &[u8]) -> HmacSha256 {
         let mut m = <HmacSha256 as Mac>::new_from_slice(&self.key).expect("HMAC takes any key");
         m.update(label);

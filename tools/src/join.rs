@@ -449,7 +449,23 @@ impl JoinCmd {
             self.endpoint,
             self.robots
         );
-        let joined = bridge::request(&self.endpoint, &req, &secret, timeout, Tuning::default())?;
+        let joined = bridge::request(&self.endpoint, &req, &secret, timeout, Tuning::default())
+            .map_err(|e| match e {
+                bridge::BridgeError::Credentials { .. } => {
+                    let file = match &self.secret_file {
+                        Some(p) => format!("--secret-file {}", p.display()),
+                        None => SECRET_ENV.to_string(),
+                    };
+                    anyhow!(e)
+                        .context(format!(
+                            "the join secret of {file} (run {:?}) was refused: copy join.secret \
+                             from the out directory of the run now listening there",
+                            secret.run_id()
+                        ))
+                        .context(Exit::BadInput)
+                }
+                e => anyhow!(e),
+            })?;
         let plan = &joined.plan;
         if plan.plain && !self.insecure_plain {
             return Err(anyhow!(
