@@ -194,8 +194,14 @@ impl Drop for TwoHosts {
 /// A join secret for run `id` (or an experiment's run-id prefix) in a file of its own, mode
 /// 0600, outside both hosts' `--out`.
 fn secret_file(id: &str) -> (Scratch, String) {
+    secret_file_in(id, "secret")
+}
+
+/// A fresh join secret for run `id` in a scratch directory of its own (`{id}-{tag}`): another
+/// call gives the same run id with other key bytes, a wrong secret.
+fn secret_file_in(id: &str, tag: &str) -> (Scratch, String) {
     use std::os::unix::fs::PermissionsExt;
-    let dir = scratch(&format!("{id}-secret"));
+    let dir = scratch(&format!("{id}-{tag}"));
     let path = dir.join("join.secret");
     let secret = bridge::Secret::generate(id).expect("randomness");
     std::fs::write(&path, secret.text()).expect("write the secret");
@@ -1313,6 +1319,78 @@ fn a_stranger_on_the_network_reads_nothing_forges_nothing_and_takes_no_slot() {
         let meta = std::fs::metadata(da.join("join.secret")).expect("join.secret in --out");
         assert_eq!(meta.permissions().mode() & 0o077, 0);
     }
+    drop(hosts);
+    assert_no_leftovers(&id);
+}
+
+#[test]
+fn a_wrong_join_secret_is_refused_in_seconds_naming_the_file_and_counted_by_host_a() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(hosts) = TwoHosts::new("wrong-secret") else {
+        return;
+    };
+    let _ = bin("qfleet");
+    let id = run_id("mh-wrong");
+    let (da, db) = scratch_pair(&id);
+    let (_s, secret) = secret_file(&id);
+    let (_w, wrong) = secret_file_in(&id, "wrong");
+    let a = start_a(&hosts, &id, &da, 1, 1, &secret, &SHORT);
+    // host A's front door is up well within this (its hub starts before its robots)
+    std::thread::sleep(Duration::from_secs(5));
+    let started = std::time::Instant::now();
+    let b = start_b(&hosts, 1, &db, &wrong, &["--timeout", "60"]);
+    let out_b = wait_bounded(b, LIMIT);
+    let took = started.elapsed();
+    let eb = String::from_utf8_lossy(&out_b.stderr);
+    assert_eq!(out_b.status.code(), Some(2), "{}", describe(&out_b));
+    assert!(took < Duration::from_secs(10), "took {took:?}: {eb}");
+    assert!(
+        eb.contains("refused this host's credentials") && eb.contains(&wrong),
+        "{eb}"
+    );
+    // the run goes on without host B (its slot stays empty) and ends by itself
+    let out_a = wait_bounded(a, LIMIT);
+    let ea = String::from_utf8_lossy(&out_a.stderr);
+    assert_eq!(
+        ea.matches("front door: 10.77.0.2 sent a probe with a wrong join secret")
+            .count(),
+        1,
+        "{ea}"
+    );
+    let bridge: Value = serde_json::from_str(
+        &std::fs::read_to_string(da.join("bridge.json")).expect("bridge.json"),
+    )
+    .expect("bridge.json is JSON");
+    let door = &bridge["door"];
+    eprintln!("host A's front door: {door}");
+    assert!(door["refused_credentials"].as_u64() >= Some(1), "{door}");
+    assert_eq!(
+        door["refused_credentials_by_source"][0]["source"], "10.77.0.2",
+        "{door}"
+    );
+    drop(hosts);
+    assert_no_leftovers(&id);
+}
+
+#[test]
+fn a_join_to_a_host_that_is_down_still_says_it_may_not_be_running_or_reachable() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    let Some(hosts) = TwoHosts::new("down") else {
+        return;
+    };
+    let _ = bin("qfleet");
+    let id = run_id("mh-nohost");
+    let (_da, db) = scratch_pair(&id);
+    let (_s, secret) = secret_file(&id);
+    // nothing runs on host A
+    let b = start_b(&hosts, 1, &db, &secret, &["--timeout", "3"]);
+    let out_b = wait_bounded(b, LIMIT);
+    let eb = String::from_utf8_lossy(&out_b.stderr);
+    assert_eq!(out_b.status.code(), Some(1), "{}", describe(&out_b));
+    assert!(
+        eb.contains("running there, and reachable?") && !eb.contains("credentials"),
+        "{eb}"
+    );
     drop(hosts);
     assert_no_leftovers(&id);
 }
