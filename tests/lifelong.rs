@@ -67,15 +67,8 @@ fn a_lifelong_run_keeps_dealing_goals_until_its_last_tick_and_its_paths_check_ou
 }
 
 /// Writes a lifelong problem into `dir`: `map` (MovingAI rows), the start and task cell ids,
-/// `team` and the strategy; returns the problem file.
-fn problem_in(
-    dir: &Path,
-    rows: &[&str],
-    starts: &[u32],
-    tasks: &[u32],
-    team: usize,
-    strategy: &str,
-) -> PathBuf {
+/// the strategy, a team of 2; returns the problem file.
+fn problem_in(dir: &Path, rows: &[&str], starts: &[u32], tasks: &[u32], strategy: &str) -> PathBuf {
     let cells = |ids: &[u32]| {
         let mut s = format!("{}\n", ids.len());
         for id in ids {
@@ -94,7 +87,7 @@ fn problem_in(
     std::fs::write(dir.join("t.tasks"), cells(tasks)).unwrap();
     let p = dir.join("p.json");
     let spec = serde_json::json!({
-        "mapFile": "m.map", "agentFile": "a.agents", "teamSize": team, "taskFile": "t.tasks",
+        "mapFile": "m.map", "agentFile": "a.agents", "teamSize": 2, "taskFile": "t.tasks",
         "numTasksReveal": 1, "taskAssignmentStrategy": strategy,
     });
     std::fs::write(&p, spec.to_string()).unwrap();
@@ -105,48 +98,22 @@ fn problem_in(
 fn a_bad_lifelong_problem_is_refused_with_exit_2_before_anything_starts() {
     // 6 x 4; (3,1) = id 9 is a wall, (5,3) = id 23 is walled in by (4,3) and (5,2)
     let rows = ["......", "...@..", ".....@", "....@."];
-    type Case<'a> = (&'a str, Vec<u32>, Vec<u32>, usize, &'a str, &'a str);
-    let cases: Vec<Case> = vec![
-        (
-            "id out of range",
-            vec![0, 1],
-            vec![2, 24],
-            2,
-            "roundrobin",
-            "24",
-        ),
-        (
-            "blocked start",
-            vec![9, 1],
-            vec![2, 3],
-            2,
-            "roundrobin",
-            "9",
-        ),
-        ("blocked task", vec![0, 1], vec![2, 9], 2, "roundrobin", "9"),
-        ("shared start", vec![0, 0], vec![2, 3], 2, "roundrobin", "0"),
-        ("few starts", vec![0], vec![2, 3], 2, "roundrobin", "team"),
-        ("no tasks", vec![0, 1], vec![], 2, "roundrobin", "task"),
-        (
-            "unknown strategy",
-            vec![0, 1],
-            vec![2, 3],
-            2,
-            "greedy",
-            "greedy",
-        ),
-        (
-            "unreachable goal",
-            vec![0, 1],
-            vec![2, 23],
-            2,
-            "roundrobin",
-            "never reach",
-        ),
+    // (what is wrong, starts, tasks, strategy, what the error names); the team is 2
+    type Case<'a> = (&'a str, &'a [u32], &'a [u32], &'a str, &'a str);
+    let rr = "roundrobin";
+    let cases: [Case; 8] = [
+        ("id out of range", &[0, 1], &[2, 24], rr, "24"),
+        ("blocked start", &[9, 1], &[2, 3], rr, "9"),
+        ("blocked task", &[0, 1], &[2, 9], rr, "9"),
+        ("shared start", &[0, 0], &[2, 3], rr, "0"),
+        ("few starts", &[0], &[2, 3], rr, "team"),
+        ("no tasks", &[0, 1], &[], rr, "task"),
+        ("unknown strategy", &[0, 1], &[2, 3], "greedy", "greedy"),
+        ("unreachable goal", &[0, 1], &[2, 23], rr, "never reach"),
     ];
-    for (name, starts, tasks, team, strategy, needle) in cases {
+    for (name, starts, tasks, strategy, needle) in cases {
         let dir = scratch("lifelong-bad");
-        let p = problem_in(&dir, &rows, &starts, &tasks, team, strategy);
+        let p = problem_in(&dir, &rows, starts, tasks, strategy);
         let id = run_id("lifelong-bad");
         let o = lifelong_run(&id, &p, 10, &dir.join("out"));
         assert_eq!(o.status.code(), Some(2), "{name}: {}", describe(&o));
@@ -161,7 +128,7 @@ fn a_bad_lifelong_problem_is_refused_with_exit_2_before_anything_starts() {
     let o = lifelong_run(&id, &dir.join("nowhere.json"), 10, &dir.join("out"));
     assert_eq!(o.status.code(), Some(2), "{}", describe(&o));
     assert!(String::from_utf8_lossy(&o.stderr).contains("nowhere.json"));
-    let p = problem_in(&dir, &rows, &[0, 1], &[2, 3], 2, "roundrobin");
+    let p = problem_in(&dir, &rows, &[0, 1], &[2, 3], "roundrobin");
     std::fs::remove_file(dir.join("m.map")).unwrap();
     let o = lifelong_run(&id, &p, 10, &dir.join("out"));
     assert_eq!(o.status.code(), Some(2), "{}", describe(&o));
