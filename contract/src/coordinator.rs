@@ -220,6 +220,8 @@ mod tests {
         a.world.max_ticks = Some(9);
         a.world.tick_ms = 5;
         a.world.intent_horizon = 3;
+        a.world.lorr = Some("p.json".into());
+        a.world.ticks = 7;
         a.progress = true;
         a.plan = Some("plan.json".into());
         let words: Vec<String> = a
