@@ -2,6 +2,7 @@
 //! dealt as they are reached; and (ignored, `--nocapture`) its throughput on the lifelong
 //! instances of `../shared/data/lifelong/`.
 
+mod common;
 use mapf::lifelong::{Lifelong, LifelongConfig, Part, Problem, Spec, parse_cells};
 use planner::map::{load_map, parse_ascii};
 use planner::{Cell, Grid};
@@ -219,9 +220,9 @@ pub fn load(path: &std::path::Path) -> Problem {
 fn throughput_on_the_shared_lifelong_instances() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/lifelong");
     let Ok(rd) = std::fs::read_dir(&dir) else {
-        println!(
-            "SKIPPED: throughput_on_the_shared_lifelong_instances: no {}",
-            dir.display()
+        common::skip(
+            "throughput_on_the_shared_lifelong_instances",
+            &format!("no {}", dir.display()),
         );
         return;
     };
