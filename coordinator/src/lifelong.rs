@@ -11,8 +11,9 @@
 //!
 //! The robots learn meanwhile (the learning traffic is served between ticks, at most every
 //! [`SERVE_EVERY`], with the liveness listing): a robot whose process dies leaves the grid at the
-//! next tick. A robot's move is ranked by map distance to its goal until values for that goal
-//! reach the coordinator; the result counts both kinds of robot-ticks.
+//! next tick. Every move is ranked by map distance to the robot's goal: the robots learn their
+//! first goal, but their values are not read here yet (the result counts the robot-ticks ranked
+//! each way, so a run says which it used).
 //!
 //! At the end the executed paths are checked again by [`mapf::check`](mod@mapf::check) (code that
 //! shares nothing with the resolver) and written as `paths.txt` (mapf-visualizer format) and
