@@ -31,10 +31,10 @@ pub struct LifelongResult {
     /// Vertex and swap conflicts `mapf::check`'s independent checker finds in the executed paths:
     /// 0 unless something is broken.
     pub conflicts: u64,
-    /// Robot-ticks whose move was ranked by a robot's learned values for its goal.
+    /// Robot-ticks whose move was ranked by a robot's learned values for its goal (0 today).
     pub ticks_by_values: u64,
-    /// Robot-ticks ranked by map distance, because no values for the robot's goal at its cell
-    /// had arrived yet (a tick never waits for a learning robot).
+    /// Robot-ticks ranked by map distance to the robot's goal (today every robot-tick: the
+    /// lifelong resolver does not read learned values yet; a tick never waits for a robot).
     pub ticks_by_distance: u64,
     /// Seconds from the first tick to the last.
     pub exec_s: f64,
