@@ -40,11 +40,17 @@ struct Entry {
 }
 
 /// The merged Q-table of one goal, plus the merged batch being filled for the robots.
+///
+/// Its memory is taken at the first merge: a lifelong run keeps a table for every goal cell its
+/// tasks name, most of which no robot may learn before the run ends.
 pub struct FleetTable {
     rule: MergeRule,
+    cells: usize,
+    /// Per (cell·4 + action); empty until the first merge.
     entries: Vec<Entry>,
     out: Box<MergedHintBatch>,
-    /// Per (cell·4 + action): position + 1 in `out`, 0 = not queued.
+    /// Per (cell·4 + action): position + 1 in `out`, 0 = not queued; empty until the first
+    /// merge.
     slot: Vec<u16>,
     /// Entries changed by a merge, over the run.
     pub changes: u64,
@@ -55,23 +61,22 @@ impl FleetTable {
     pub fn new(cells: usize, rule: MergeRule) -> Self {
         FleetTable {
             rule,
-            entries: vec![
-                Entry {
-                    q: 0.0,
-                    visits: 0,
-                    owner: NO_OWNER,
-                };
-                cells * 4
-            ],
+            cells,
+            entries: Vec::new(),
             out: Box::new(MergedHintBatch::ZEROED),
-            slot: vec![0; cells * 4],
+            slot: Vec::new(),
             changes: 0,
         }
     }
 
     /// Number of cells covered.
     pub fn cells(&self) -> usize {
-        self.entries.len() / 4
+        self.cells
+    }
+
+    /// Whether any robot reported a value for this goal yet.
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
     }
 
     /// The fleet value of (cell, action), if any robot reported it.
@@ -86,6 +91,18 @@ impl FleetTable {
     /// Returns true when the pending merged batch is full and must be sent before the next call.
     pub fn merge(&mut self, robot: u32, h: &QHint, origin_ns: u64) -> bool {
         let idx = h.cell as usize * 4 + h.action as usize;
+        if idx >= self.cells * 4 {
+            return false;
+        }
+        if self.entries.is_empty() {
+            let none = Entry {
+                q: 0.0,
+                visits: 0,
+                owner: NO_OWNER,
+            };
+            self.entries = vec![none; self.cells * 4];
+            self.slot = vec![0; self.cells * 4];
+        }
         let Some(e) = self.entries.get_mut(idx) else {
             return false;
         };
@@ -156,6 +173,16 @@ impl FleetTable {
         out.count += 1;
         self.slot[idx] = out.count as u16;
         out.count as usize >= HINT_BATCH_CAP
+    }
+
+    /// Empties the pending merged batch without sending it: the table keeps every value, the
+    /// robots get them later as a whole ([`resend_all`](Self::resend_all)).
+    pub fn drop_pending(&mut self) {
+        let n = self.out.count as usize;
+        for e in &self.out.entries[..n] {
+            self.slot[e.cell as usize * 4 + e.action as usize] = 0;
+        }
+        self.out.count = 0;
     }
 
     /// Entries waiting in the pending merged batch.
@@ -238,6 +265,7 @@ mod tests {
             (0.45, 10, 0)
         );
         assert_eq!(m.oldest_origin_ns, 10);
+        assert!(!t.is_empty());
         assert_eq!(t.pending(), 0);
         // no change, nothing queued; out-of-range entries are ignored
         t.merge(0, &h(1, 2, 0.1, 1), 50);
@@ -331,5 +359,38 @@ mod tests {
                 .iter()
                 .all(|r| *r == ROBOT_ID_ALL)
         }));
+    }
+
+    #[test]
+    fn a_table_no_robot_reported_to_holds_nothing_and_resends_nothing() {
+        let mut t = FleetTable::new(1 << 12, MergeRule::Min);
+        assert!(t.is_empty());
+        assert_eq!(t.cells(), 1 << 12);
+        assert_eq!(t.resend_all(|_| panic!("nothing to send")), 0);
+        // a hint off the table is dropped and takes no memory either
+        assert!(!t.merge(0, &h(1 << 12, 0, 0.5, 1), 1));
+        assert!(t.is_empty());
+        t.merge(0, &h(7, 1, 0.5, 1), 1);
+        assert_eq!((t.get(7, 1), t.get(7, 0)), (Some(0.5), None));
+    }
+
+    #[test]
+    fn a_dropped_pending_batch_is_not_sent_but_its_values_stay_and_are_resent() {
+        let mut t = FleetTable::new(300, MergeRule::Min);
+        for cell in 0..300 {
+            if t.merge(0, &h(cell, 0, 0.5, 1), 1) {
+                t.drop_pending();
+            }
+        }
+        assert_eq!(t.pending(), 300 - HINT_BATCH_CAP);
+        t.drop_pending();
+        assert_eq!(t.pending(), 0);
+        assert_eq!(t.get(299, 0), Some(0.5));
+        let mut sent = 0;
+        assert_eq!(
+            t.resend_all(|t| sent += t.take_into(&mut MergedHintBatch::ZEROED)),
+            300
+        );
+        assert_eq!(sent, 300);
     }
 }
