@@ -55,6 +55,11 @@ pub struct AgentArgs {
     /// nobody.
     #[arg(long)]
     pub shared_grid: bool,
+    /// Each phase is learned from the goal of the phase before it (the first from the map's
+    /// start): a lifelong robot walks from goal to goal, so it learns each goal from where it
+    /// will stand when the goal is dealt.
+    #[arg(long)]
+    pub chain_goals: bool,
 }
 
 /// The robot-agent's command line as clap reads it.
@@ -89,6 +94,7 @@ impl AgentArgs {
             stop_at_optimum: false,
             pace: None,
             shared_grid: false,
+            chain_goals: false,
         }
     }
 
@@ -106,6 +112,7 @@ impl AgentArgs {
             .maybe("--schema-version-override", self.schema_version_override)
             .flag("--stop-at-optimum", self.stop_at_optimum)
             .flag("--shared-grid", self.shared_grid)
+            .flag("--chain-goals", self.chain_goals)
             .extend(qfleet_args::pace_cli(self.pace));
         if let Some(out) = &self.out {
             w.path("--out", out);
@@ -177,6 +184,7 @@ mod tests {
         a.stop_at_optimum = true;
         a.pace = Some(5.0);
         a.shared_grid = true;
+        a.chain_goals = true;
         let words: Vec<String> = a
             .to_args()
             .iter()
@@ -260,6 +268,7 @@ mod tests {
                     a.timeout = timeout;
                     a.stop_at_optimum = stop;
                     a.shared_grid = !stop;
+                    a.chain_goals = stop;
                     a.pace = pace;
                     a
                 },

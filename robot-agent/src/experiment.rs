@@ -178,6 +178,12 @@ impl Plan {
         Some(a)
     }
 
+    /// Whether a phase is assigned and started but not taken yet: what arrives for its goal
+    /// now (its fleet table, a warm start) waits for it.
+    pub fn pending(&self) -> bool {
+        self.go && self.assigned.is_some() && !self.stopped
+    }
+
     /// The horizon of the `Execute` that came since the last call (and no `Stop`); clears it.
     pub fn take_execute(&mut self) -> Option<u8> {
         self.execute.take().filter(|_| !self.stopped)
@@ -248,6 +254,22 @@ mod tests {
             b.report_at_end,
             "a phase of an experiment reports at its end"
         );
+    }
+
+    #[test]
+    fn a_phase_is_pending_from_its_start_until_it_is_taken() {
+        let mut p = Plan::default();
+        p.on(&assign(3, 1, 0, 9));
+        assert!(!p.pending(), "assigned, not started");
+        p.on(&ctl(Command::Start));
+        assert!(p.pending());
+        p.take_next().unwrap();
+        assert!(!p.pending());
+        p.on(&assign(4, 2, 1, 9));
+        p.on(&go(Command::Phase, 1));
+        assert!(p.pending());
+        p.on(&ctl(Command::Stop));
+        assert!(!p.pending(), "Stop wins");
     }
 
     #[test]

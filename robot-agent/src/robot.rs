@@ -146,6 +146,7 @@ pub fn run(args: &AgentArgs, stop: Arc<AtomicBool>) -> Result<RobotResult, Agent
             ..Counters::default()
         },
         tables: BTreeMap::new(),
+        last_goal: None,
         relayed: BTreeMap::new(),
         state_seq: 0,
         hint_seq: 0,
@@ -181,6 +182,8 @@ struct Robot<'a> {
     c: Counters,
     /// The robot's Q-table of every goal it has learned.
     tables: BTreeMap<u32, QTable>,
+    /// The goal of the last phase opened: where a `--chain-goals` robot learns the next from.
+    last_goal: Option<planner::Cell>,
     /// Other robots' discoveries (cell, value) per goal.
     relayed: BTreeMap<u32, Vec<(u32, f32)>>,
     state_seq: u64,
@@ -353,16 +356,23 @@ impl Robot<'_> {
 
     /// A learner for assignment `a`, resuming the robot's table of that goal.
     fn open_phase(&mut self, a: Assignment) -> Result<Phase, AgentError> {
-        let task = match a.goal {
-            None => self.base.clone(),
-            Some(cell) if cell == self.base.goal => self.base.clone(),
-            Some(cell) => {
+        // `--chain-goals`: learned from where the robot will stand, the last phase's goal
+        let from = self.last_goal.filter(|_| self.args.chain_goals);
+        let task = match (a.goal, from) {
+            (None, None) => self.base.clone(),
+            (Some(cell), None) if cell == self.base.goal => self.base.clone(),
+            (goal, _) => {
+                let cell = goal.unwrap_or(self.base.goal);
                 let mut m = self.args.map.clone();
                 m.goal = Some(cell);
+                if from.is_some() {
+                    m.start = from;
+                }
                 m.task()
                     .map_err(|source| AgentError::Goal { cell, source })?
             }
         };
+        self.last_goal = Some(task.goal);
         let mut cfg = self.cfg;
         if let Some(n) = a.episodes {
             cfg.episodes = n;
@@ -415,7 +425,10 @@ impl Robot<'_> {
             at_start: self.counters(),
             relays_at_start: relays,
             reported: false,
-            shared_model: min_sharing && cfg.extras.needs_model(),
+            // a lifelong robot (`--chain-goals`) learns one known map among robots that all
+            // learn other goals: their moves teach it nothing, and reading them would cost it
+            // every other goal's warm start
+            shared_model: min_sharing && cfg.extras.needs_model() && !self.args.chain_goals,
             prepared: None,
             executed: false,
         })

@@ -41,9 +41,11 @@ impl Robot<'_> {
     pub(super) fn poll(&mut self, mut phase: Option<&mut Phase>) -> Result<(), AgentError> {
         self.link.tick(&self.bus)?;
         let share = self.args.share.share.hints();
-        // merged hints: applied in place, straight from shared memory; before the first phase
-        // they stay buffered for it (the warm start from the fleet table)
+        // merged hints: applied in place, straight from shared memory; before the first phase,
+        // and while the next one waits to be opened, they stay buffered for it (the warm start
+        // from the fleet table of its goal)
         while phase.is_some()
+            && !self.plan.pending()
             && let Some(sample) = self.bus.merged.receive_sample()?
         {
             let m = sample.payload();
