@@ -61,9 +61,65 @@ fn a_lifelong_run_keeps_dealing_goals_until_its_last_tick_and_its_paths_check_ou
         12 * 300,
         "every robot-tick is ranked one way or the other: {l}"
     );
+    // the robots learn ahead while they walk: goals are learned, and some robot-ticks walk
+    // towards a goal whose learning came in; every robot-tick is one or the other
+    let g = &l["learning"];
+    let n = |k: &str| g[k].as_u64().unwrap_or_else(|| panic!("{k} in {g}"));
+    assert!(n("goals_learned") >= 12, "{g}");
+    assert!(n("env_steps") > 0, "{g}");
+    assert!(n("ticks_goal_learned") > 0, "{g}");
+    assert_eq!(
+        n("ticks_goal_learned") + n("ticks_goal_unlearned"),
+        12 * 300,
+        "{g}"
+    );
+    assert!(n("warm_started") <= n("goals_learned"), "{g}");
     assert_eq!(l["paths_file"], "paths.txt");
     assert_eq!(l["lorr_file"], "lorr-output.json");
     assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+}
+
+#[test]
+fn a_goal_cell_learned_before_warm_starts_the_robot_sent_there_again_unless_sharing_is_off() {
+    // 8 x 6, open: robot 0 is dealt cells 0 and 47 in turn, robot 1 cells 7 and 40, so each
+    // robot is sent again and again to a cell whose fleet table it filled itself
+    let rows = ["........"; 6];
+    for (share, warm) in [("hints", true), ("none", false)] {
+        let dir = scratch("lifelong-warm");
+        let out = dir.join("out");
+        let p = problem_in(&dir, &rows, &[9, 14], &[0, 7, 47, 40], "roundrobin");
+        let id = run_id("lifelong-warm");
+        let o = run_bounded(
+            Command::new(bin("qfleet"))
+                .args([
+                    "run", "--json", "--run-id", &id, "--world", "shared", "--lorr",
+                ])
+                .arg(&p)
+                .args([
+                    "--ticks",
+                    "300",
+                    "--tick-ms",
+                    "5",
+                    "--share",
+                    share,
+                    "--out",
+                ])
+                .arg(&out),
+        );
+        assert!(o.status.success(), "--share {share}: {}", describe(&o));
+        let r: Value = serde_json::from_slice(&o.stdout).unwrap();
+        let l = &r["lifelong"];
+        validate_lifelong(&out, &p, l);
+        let g = &l["learning"];
+        let n = |k: &str| g[k].as_u64().unwrap_or_else(|| panic!("{k} in {g}"));
+        assert!(n("goals_learned") >= 4, "--share {share}: {g}");
+        if warm {
+            assert!(n("warm_started") > 0, "--share {share}: {g}");
+        } else {
+            assert_eq!(n("warm_started"), 0, "--share {share}: {g}");
+        }
+        assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
+    }
 }
 
 /// Writes a lifelong problem into `dir`: `map` (MovingAI rows), the start and task cell ids,

@@ -129,6 +129,11 @@ pub(crate) struct Engine {
     out: PathBuf,
     began: SystemTime,
     cleaner: Option<JoinHandle<()>>,
+    /// Merged values go out as they change (true), or only as whole tables when the driver
+    /// resends one (a lifelong run: every robot learns another goal, so a change of one goal's
+    /// values is news to nobody, and 128 robots' changes broadcast to all would drown the
+    /// whole-table warm starts in the robots' latest-wins buffers).
+    pub(crate) live_merges: bool,
     /// Why the run must end now, if it must: a segment of the run whose pages `/dev/shm` could
     /// not reserve ([`bus::Listing::shm`]); the serving loops end as if interrupted.
     pub(crate) halt: Option<String>,
@@ -229,6 +234,7 @@ impl Engine {
             out,
             began: SystemTime::now(),
             cleaner: None,
+            live_merges: true,
             halt: None,
         }
     }
@@ -602,8 +608,10 @@ impl Engine {
         self.send_acks(bus)?;
         self.send_relays(bus)?;
         n += take(&bus.hints, DRAIN_MAX, |b, from| self.on_hints(bus, b, from))?;
-        for g in 0..self.tables.len() {
-            self.flush(bus, g as u32)?;
+        if self.live_merges {
+            for g in 0..self.tables.len() {
+                self.flush(bus, g as u32)?;
+            }
         }
         n += take(&bus.report, DRAIN_MAX, |r, from| {
             self.on_report(r, from);
@@ -724,7 +732,11 @@ impl Engine {
             self.q_merged += 1;
             self.touched[g as usize] = true;
             if self.tables[g as usize].merge(b.robot_id, h, b.oldest_update_ns) {
-                self.flush(bus, g)?;
+                if self.live_merges {
+                    self.flush(bus, g)?;
+                } else {
+                    self.tables[g as usize].drop_pending();
+                }
             }
         }
         Ok(())

@@ -7,11 +7,12 @@
 //! acks, relays), [`validate`] (every message field), [`liveness`] (lost, hung, restarted),
 //! [`sharing::merge`] (the fleet table), [`checkpoint`] (an experiment's progress across coordinator
 //! restarts), [`grid`] (a shared grid's intents and rounds; the resolver is the `mapf`
-//! crate's). One engine (`engine`) carries them out on the bus; [`run`](mod@run) and [`experiment`]
+//! crate's), [`ahead`] (which goal each robot of a lifelong run learns next). One engine (`engine`) carries them out on the bus; [`run`](mod@run) and [`experiment`]
 //! are two small drivers over it; an experiment's driver reads its plan (`contract::plan`); a run with
 //! `--world shared` ends with [`grid`]'s execution.
 
 pub mod admission;
+pub mod ahead;
 mod assemble;
 pub mod checkpoint;
 pub mod cpwriter;

@@ -44,6 +44,7 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         .world
         .lifelong()?
         .map(|l| crate::lifelong::LifelongPlan {
+            ids: crate::ahead::GoalIds::new(l.problem.grid(), l.problem.tasks()),
             lifelong: l,
             ticks: args.world.ticks,
             tick_min: Duration::from_millis(args.world.tick_ms),
@@ -96,16 +97,9 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         timeout,
     );
     // one goal for the whole fleet, or one per robot on a shared grid (its own fleet table); a
-    // lifelong robot's first goal is the first it is dealt that is not its start
+    // lifelong run's phases come from its learning streams (`lifelong::Learners`)
     let plan: Vec<Assignment> = match (&grid, &lifelong) {
-        (None, Some(l)) => (0..args.robots)
-            .map(|i| Assignment {
-                goal: i,
-                cell: lifelong_task(l, i).1,
-                phase: 0,
-                episodes: 0,
-            })
-            .collect(),
+        (None, Some(_)) => Vec::new(),
         (None, None) => vec![
             Assignment {
                 goal: 0,
@@ -126,10 +120,10 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
     };
     let mut engine = Engine::new(
         expected,
-        if grid.is_some() || lifelong.is_some() {
-            args.robots
-        } else {
-            1
+        match (&grid, &lifelong) {
+            (_, Some(l)) => l.ids.len() as u32,
+            (Some(_), None) => args.robots,
+            (None, None) => 1,
         },
         args.merge,
         life,
@@ -144,15 +138,8 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
     // every robot learns its task on this map: its reports must agree with it (one task for
     // the fleet, or on a shared grid robot i's own, as its goal i)
     engine.optimum = match (&grid, &lifelong) {
-        (None, Some(l)) => (0..args.robots)
-            .map(|i| {
-                let mut per_goal = vec![0; args.robots as usize];
-                let (start, goal) = lifelong_task(l, i);
-                let d = planner::path::bfs_distances(&task.grid, goal);
-                per_goal[i as usize] = d[task.grid.index(start)];
-                per_goal
-            })
-            .collect(),
+        // set as each goal is sent to be learned, from where it is learned
+        (None, Some(l)) => vec![vec![0; l.ids.len()]; args.robots as usize],
         (None, None) => vec![vec![task.optimal_len]; args.robots as usize],
         (Some(g), _) => (0..g.instance.agents())
             .map(|i| {
@@ -196,14 +183,6 @@ pub fn run(args: CoordArgs, stop: Arc<AtomicBool>) -> Result<RunResult, CoordErr
         report::log_line!("qfleet-coordinator: warning: cleanup: {e}");
     }
     result
-}
-
-/// Robot `i`'s first task of a lifelong run: its start and the goal it learns first.
-fn lifelong_task(l: &crate::lifelong::LifelongPlan, i: u32) -> (planner::Cell, planner::Cell) {
-    let p = &l.lifelong.problem;
-    let m = l.lifelong.map_args(i as usize);
-    let start = p.starts()[i as usize];
-    (start, m.goal.unwrap_or(start))
 }
 
 /// Seconds from CLOCK_MONOTONIC time `t_ns` (another process's, too) until now.
@@ -339,13 +318,22 @@ fn drive(
 ) -> Result<(f64, bool, Option<GridResult>, Option<LifelongResult>), CoordError> {
     engine.admit_fleet(bus, stop, timeout)?;
     let lister = start_lister(bus)?;
+    // a lifelong run's first phase: every robot's first goal to learn
+    let (learners, plan) = match lifelong {
+        Some(l) => {
+            let (learners, first) = crate::lifelong::Learners::first_phase(l, engine);
+            (Some(learners), first)
+        }
+        None => (None, plan),
+    };
     engine.start_phase(bus, plan, Command::Start)?;
     // a coordinator that took over keeps the run's first Start as the throughput's time base
     let started_ns = *engine.started_ns.get_or_insert_with(monotonic_ns);
     cp.write(engine, false);
     // a lifelong grid moves at once, while the robots learn: no tick waits for a robot
-    if let Some(l) = lifelong {
-        let r = crate::lifelong::execute(engine, bus, &lister, l, stop, &OutDir::new(&args.out))?;
+    if let (Some(l), Some(learners)) = (lifelong, learners) {
+        let out = OutDir::new(&args.out);
+        let r = crate::lifelong::execute(engine, bus, &lister, l, learners, stop, &out)?;
         let interrupted = r.ended == "stopped" || engine.halted();
         tolerate(bus.stop(ROBOT_ID_ALL))?;
         collect_reports(engine, bus, &lister, timeout)?;

@@ -44,7 +44,7 @@ pub use checkpoint::{CoordinatorCheckpoint, NotResumed, RobotCheckpoint};
 pub use grid::{GridEnd, GridResult, GridRobot};
 pub use hist::{HistError, LatencyStats};
 pub use hosts::{HostEntry, HostLink, HostState, LinkPercentiles};
-pub use lifelong::LifelongResult;
+pub use lifelong::{LifelongLearning, LifelongResult};
 pub use outdir::{LatencyPath, OutDir, OutFile, ReadError, RobotHist};
 pub use robot::{ApplyCounters, Counters, EndStatus, LinkCounters, PhaseDetail, RobotResult};
 pub use run::{

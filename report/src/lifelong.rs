@@ -46,4 +46,34 @@ pub struct LifelongResult {
     pub paths_file: Option<String>,
     /// The competition's output file (for its visualiser, PlanViz), if written.
     pub lorr_file: Option<String>,
+    /// What the robots learned while the fleet moved, and what it cost.
+    pub learning: LifelongLearning,
+}
+
+/// Learning ahead in a lifelong run: each robot learns its next goals while it walks (each a
+/// phase of its own, reported at its end), every goal cell with one fleet table that
+/// warm-starts the robots sent there later.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LifelongLearning {
+    /// Goals a robot may learn beyond the one it walks to (the problem's `numTasksReveal`, at
+    /// least 1).
+    pub ahead: u64,
+    /// Goals learned (their report came in before the end).
+    pub goals_learned: u64,
+    /// Of them, goals whose fleet table already held values when the robot was sent.
+    pub warm_started: u64,
+    /// Environment steps spent learning, over all goals learned.
+    pub env_steps: u64,
+    /// `env_steps / goals_learned` (0 when none was).
+    pub env_steps_per_goal: f64,
+    /// Mean environment steps of a warm-started goal (0 when none was).
+    pub env_steps_per_warm_goal: f64,
+    /// Mean environment steps of a goal learned from scratch (0 when none was).
+    pub env_steps_per_cold_goal: f64,
+    /// Mean seconds a robot spent learning a goal.
+    pub learn_s_per_goal: f64,
+    /// Robot-ticks walked towards a goal whose learning had come in.
+    pub ticks_goal_learned: u64,
+    /// Robot-ticks walked towards a goal whose learning had not (yet) come in.
+    pub ticks_goal_unlearned: u64,
 }

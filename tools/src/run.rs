@@ -405,8 +405,11 @@ impl RunCmd {
                 self.share.clone(),
             );
             if let Some(l) = &self.lifelong {
-                // a lifelong robot starts on its start and learns the goals it is dealt
+                // a lifelong robot starts on its start and learns the goals it is dealt, each
+                // from the one before, until its greedy path is optimal
                 a.map = l.map_args(id as usize);
+                a.chain_goals = true;
+                a.stop_at_optimum = true;
             } else if self.world.shared() {
                 // robot i learns line i of the scenario: its own start and goal
                 a.map.scen_index = Some(id as usize);
@@ -661,11 +664,22 @@ fn print_lifelong(l: &report::LifelongResult) -> Result<()> {
         l.robots_lost.len(),
         l.conflicts
     )?;
+    let g = &l.learning;
     out!(
-        "  moves ranked by    learned values {} robot-ticks, map distance {} (a tick never \
-         waits for a learning robot)",
-        l.ticks_by_values,
-        l.ticks_by_distance
+        "  learning ahead     {} goals learned ({} warm-started from the fleet table of their \
+         cell), {:.0} env steps per goal ({:.0} warm, {:.0} cold), {:.3} s each",
+        g.goals_learned,
+        g.warm_started,
+        g.env_steps_per_goal,
+        g.env_steps_per_warm_goal,
+        g.env_steps_per_cold_goal,
+        g.learn_s_per_goal
+    )?;
+    out!(
+        "  robot-ticks        {} towards a goal already learned, {} towards one not yet (every \
+         move ranked by map distance; a tick never waits for a learning robot)",
+        g.ticks_goal_learned,
+        g.ticks_goal_unlearned
     )?;
     out!(
         "  speed              {} ticks in {:.3} s ({:.0} ticks/s)",
