@@ -28,6 +28,7 @@
 
 #![deny(missing_docs)]
 
+pub mod admit;
 pub mod door;
 pub mod end;
 pub mod health;
