@@ -127,6 +127,10 @@ pub struct DoorReport {
     pub refused_credentials_by_source: Vec<SourceRefusals>,
     /// Refused credentials of sources past those.
     pub refused_credentials_other_sources: u64,
+    /// The hub's direct listener ([`crate::admit`]), empty when it has none.
+    pub direct: String,
+    /// Sources that proved the join secret and were let through to the direct listener.
+    pub direct_sources: u64,
 }
 
 impl DoorReport {

@@ -34,6 +34,7 @@ use zenoh::pubsub::Subscriber;
 use zenoh::query::{Query, Queryable};
 use zenoh::sample::Sample;
 
+use crate::admit::AdmitList;
 use crate::door::{DoorReport, Limits as DoorLimits};
 use crate::end::{Got, LinkEnd, Meta, Put};
 use crate::health::{ClockSync, LinkEvent, LinkState};
@@ -74,6 +75,29 @@ pub struct HubOptions {
     pub plain: bool,
     /// The front door's per-source limits on connections to `listen`.
     pub door: DoorLimits,
+    /// How joining hosts reach the hub's Zenoh session ([`DoorMode::default`]: the door).
+    pub door_mode: DoorMode,
+}
+
+/// How joining hosts reach the hub's Zenoh session.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DoorMode {
+    /// The front door owns `listen`; a host that proves the join secret to it
+    /// ([`crate::probe`]) is let through to the session's direct listener, a port of its own
+    /// on the same address that drops every other source ([`crate::admit`]), and opens its
+    /// session there; anything else that speaks Zenoh to `listen` is relayed as in
+    /// [`Relay`](Self::Relay). If the direct listener cannot be closed to strangers (no
+    /// `/proc`, no socket filters), the hub says so and runs as [`Relay`](Self::Relay).
+    #[default]
+    Direct,
+    /// The front door owns `listen` and relays every admitted connection, byte for byte, to
+    /// the session's loopback listener ([`FrontDoor`]): a second TCP hop and two more thread
+    /// wake-ups per message (issue 36 item 7).
+    Relay,
+    /// No front door: the session listens on `listen` itself. No per-source limits, no probe
+    /// answers; only for measuring what the door costs (`qfleet bench --cross-host`).
+    Off,
 }
 
 /// What the hub saw, for the run's result.
@@ -145,9 +169,48 @@ impl Hub {
     /// relays what it admits to the hub's session on a loopback port, and starts the hub thread.
     pub fn start(opts: HubOptions) -> Result<Hub, BridgeError> {
         let at = link::listen_address(&opts.listen)?;
-        let (session, upstream) =
-            link::listen_loopback(opts.tuning, &link::SessionAuth::of(&opts.secret))?;
-        let door = FrontDoor::open(at, upstream, opts.door, opts.secret.clone())?;
+        let auth = link::SessionAuth::of(&opts.secret);
+        let (session, door) = match opts.door_mode {
+            DoorMode::Direct => {
+                let (session, upstream, direct) =
+                    link::listen_behind_door(opts.tuning, &auth, Some(at.ip()))?;
+                // nobody knows the direct port yet: it is closed before the door tells anyone
+                match direct.map(AdmitList::on) {
+                    Some(Ok(list)) => {
+                        let door = FrontDoor::open(
+                            at,
+                            upstream,
+                            opts.door,
+                            opts.secret.clone(),
+                            Some(list),
+                        )?;
+                        (session, Some(door))
+                    }
+                    failed => {
+                        // never leave a listener open that the door cannot close: start again
+                        // with the relay only
+                        let why = match failed {
+                            Some(Err(e)) => e.to_string(),
+                            _ => "no direct listener".into(),
+                        };
+                        report::log_line!(
+                            "qfleet: the hub's direct listener could not be closed to strangers ({why}): joining hosts go through the front door's relay (slower)"
+                        );
+                        let _ = session.close().wait();
+                        let (session, upstream) = link::listen_loopback(opts.tuning, &auth)?;
+                        let door =
+                            FrontDoor::open(at, upstream, opts.door, opts.secret.clone(), None)?;
+                        (session, Some(door))
+                    }
+                }
+            }
+            DoorMode::Relay => {
+                let (session, upstream) = link::listen_loopback(opts.tuning, &auth)?;
+                let door = FrontDoor::open(at, upstream, opts.door, opts.secret.clone(), None)?;
+                (session, Some(door))
+            }
+            DoorMode::Off => (link::listen(&opts.listen, opts.tuning, &auth)?, None),
+        };
         let stop = Arc::new(AtomicBool::new(false));
         let flag = Arc::clone(&stop);
         let (waker, wakes) = wake_pair()?;
@@ -164,7 +227,7 @@ impl Hub {
             stop,
             waker,
             thread: Some(thread),
-            door: Some(door),
+            door,
         })
     }
 

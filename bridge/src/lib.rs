@@ -50,7 +50,7 @@ use std::time::Duration;
 pub use door::{DoorReport, Limits as DoorLimits};
 pub use end::{Got, LinkEnd, Meta, Sink};
 pub use health::{ClockSync, LinkState, LinkWatch};
-pub use hub::{Hub, HubOptions, HubReport};
+pub use hub::{DoorMode, Hub, HubOptions, HubReport};
 pub use join::{JoinPlan, JoinReply, JoinRequest, PlanError, RemotePlan};
 pub use link::{RUNTIME_THREADS, SPIN_AFTER, Tuning, prefer_runtime_threads};
 pub use remote::{Ending, Joined, Joiner, request};

@@ -1,13 +1,16 @@
 //! The Zenoh session and the settings that decide the link's latency floor.
 //!
 //! One peer-to-peer session per host: on the coordinator's host the session listens on an
-//! ephemeral loopback port ([`listen_loopback`]) behind the front door, which owns the
-//! `--listen` address ([`listen_address`], [`crate::relay::FrontDoor`]) and relays the
-//! connections it admits; a joining host connects to `--listen`. Multicast scouting and gossip are off, so a bridge
+//! ephemeral loopback port behind the front door, which owns the `--listen` address
+//! ([`listen_address`], [`crate::relay::FrontDoor`]) and relays the connections it admits,
+//! and on an ephemeral direct port of the `--listen` address that only hosts the door
+//! admitted can reach ([`listen_behind_door`], [`crate::admit`]); a joining host probes
+//! `--listen` and connects to the direct port it is told, or to `--listen`. Multicast scouting and gossip are off, so a bridge
 //! talks only to the endpoint it was given (never to whatever else is on the network), and a
 //! joining host does not listen at all. Zenoh's own reliability (TCP) carries frames while a
 //! session lasts; what a broken session loses, [`crate::reliable`] resends.
 
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{Receiver, sync_channel};
 use std::time::{Duration, Instant};
@@ -235,17 +238,37 @@ pub fn listen_loopback(
     tuning: Tuning,
     auth: &SessionAuth,
 ) -> Result<(zenoh::Session, std::net::SocketAddr), BridgeError> {
+    listen_behind_door(tuning, auth, None).map(|(s, relay, _)| (s, relay))
+}
+
+/// A free TCP port on `ip` (bound and let go at once).
+fn free_port(ip: std::net::IpAddr) -> Result<std::net::SocketAddr, BridgeError> {
+    std::net::TcpListener::bind((ip, 0))
+        .and_then(|l| l.local_addr())
+        .map_err(|e| BridgeError::Door {
+            what: format!("finding a free port on {ip} for the hub's session"),
+            source: e,
+        })
+}
+
+/// [`listen_loopback`], and with `direct` also on a free port of that address: the direct
+/// listener, which the caller closes to everyone at once ([`crate::admit::AdmitList::on`])
+/// and opens to the hosts that prove the join secret to the front door. Returns the session,
+/// the loopback address the door relays to, and the direct listener's address.
+pub fn listen_behind_door(
+    tuning: Tuning,
+    auth: &SessionAuth,
+    direct: Option<std::net::IpAddr>,
+) -> Result<(zenoh::Session, SocketAddr, Option<SocketAddr>), BridgeError> {
     const TRIES: usize = 8;
     let mut last = None;
     for _ in 0..TRIES {
-        let free = std::net::TcpListener::bind(("127.0.0.1", 0))
-            .and_then(|l| l.local_addr())
-            .map_err(|e| BridgeError::Door {
-                what: "finding a free loopback port for the hub's session".into(),
-                source: e,
-            })?;
-        match listen(&format!("tcp/{free}"), tuning, auth) {
-            Ok(session) => return Ok((session, free)),
+        let relay = free_port(std::net::Ipv4Addr::LOCALHOST.into())?;
+        let direct = direct.map(free_port).transpose()?;
+        let mut endpoints = vec![format!("tcp/{relay}")];
+        endpoints.extend(direct.map(|d| format!("tcp/{d}")));
+        match listen_on(&endpoints, tuning, auth) {
+            Ok(session) => return Ok((session, relay, direct)),
             Err(e) => last = Some(e),
         }
     }
@@ -253,26 +276,54 @@ pub fn listen_loopback(
 }
 
 /// A session listening on `endpoint` that admits only peers holding `auth`; fails at once if
-/// it cannot bind. The hub listens through [`listen_loopback`], behind its front door.
+/// it cannot bind. The hub listens through [`listen_behind_door`], behind its front door.
 pub fn listen(
     endpoint: &str,
     tuning: Tuning,
     auth: &SessionAuth,
 ) -> Result<zenoh::Session, BridgeError> {
-    check_endpoint(endpoint)?;
+    listen_on(&[endpoint.to_string()], tuning, auth)
+}
+
+fn listen_on(
+    endpoints: &[String],
+    tuning: Tuning,
+    auth: &SessionAuth,
+) -> Result<zenoh::Session, BridgeError> {
+    for e in endpoints {
+        check_endpoint(e)?;
+    }
+    let named = endpoints.join(", ");
     let mut c = base_config(tuning)?;
     let dictionary = Dictionary::write(auth)?;
     auth.apply(&mut c, Some(&dictionary.0))?;
-    let list = serde_json::to_string(&[endpoint]).unwrap_or_default();
+    let list = serde_json::to_string(endpoints).unwrap_or_default();
     c.insert_json5("listen/endpoints", &list)
         .map_err(|e| BridgeError::Endpoint {
-            endpoint: endpoint.to_string(),
+            endpoint: named.clone(),
             detail: crate::zenoh_text(&e),
         })?;
     zenoh::open(c).wait().map_err(|e| BridgeError::Zenoh {
-        what: format!("listening on {endpoint}"),
+        what: format!("listening on {named}"),
         detail: crate::zenoh_text(&e),
     })
+}
+
+/// The endpoint of the hub's direct listener for a host that joins `endpoint` (`tcp/HOST:PORT`
+/// without options): the same host, `port`. `None` for anything else (then the relay).
+pub fn direct_endpoint(endpoint: &str, port: u16) -> Option<String> {
+    let ep = endpoint.parse::<zenoh::config::EndPoint>().ok()?;
+    if ep.protocol().as_str() != "tcp"
+        || !ep.metadata().as_str().is_empty()
+        || !ep.config().as_str().is_empty()
+    {
+        return None;
+    }
+    let (host, _) = ep.address().as_str().rsplit_once(':')?;
+    if host.is_empty() {
+        return None;
+    }
+    Some(format!("tcp/{host}:{port}"))
 }
 
 /// A session connected to `endpoint` (a joining host) presenting `auth`, giving up after
@@ -493,6 +544,29 @@ pub fn tighten_timer_slack() {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_direct_endpoint_is_the_joined_host_on_the_direct_port() {
+        assert_eq!(
+            direct_endpoint("tcp/10.77.0.1:7447", 40001).as_deref(),
+            Some("tcp/10.77.0.1:40001")
+        );
+        assert_eq!(
+            direct_endpoint("tcp/hub.example:7447", 40001).as_deref(),
+            Some("tcp/hub.example:40001")
+        );
+        assert_eq!(
+            direct_endpoint("tcp/[fd00::1]:7447", 40001).as_deref(),
+            Some("tcp/[fd00::1]:40001")
+        );
+        // options the direct endpoint could not honour the same way: the relay
+        assert_eq!(
+            direct_endpoint("tcp/10.77.0.1:7447#bind=10.77.0.2:0", 1),
+            None
+        );
+        assert_eq!(direct_endpoint("udp/10.77.0.1:7447", 1), None);
+        assert_eq!(direct_endpoint("nonsense", 1), None);
+    }
 
     #[test]
     fn an_idle_loop_spins_then_naps_for_an_expected_answer_then_blocks() {

@@ -11,6 +11,12 @@
 //! dozen bytes), so the door tells a probe from a session by its first bytes. A door that does
 //! not know probes relays it to Zenoh, which closes it: that is [`Probe::NoAnswer`], and the
 //! join goes on as before.
+//!
+//! After [`ACCEPTED`] the door may add two bytes, big-endian: the port of the hub's **direct**
+//! listener on the same address, which the door has just opened to this host's source
+//! ([`crate::admit`]). The joining host then opens its Zenoh session there, without the door's
+//! relay hop. A door without a direct listener (or an older one) sends the verdict alone, and
+//! an older joining host reads the verdict alone: both go through the relay, as before.
 
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpStream};
@@ -85,7 +91,22 @@ pub fn opening(first: &[u8]) -> Opening {
 /// Probes the door at `door` with `secret`, giving up after `within` per step; never fails:
 /// whatever goes wrong is [`Probe::NoAnswer`].
 pub fn knock(door: SocketAddr, secret: &Secret, within: Duration) -> Probe {
-    let answer = || -> std::io::Result<u8> {
+    knock_direct(door, secret, within).0
+}
+
+/// The door's answer after [`ACCEPTED`]: the direct listener's port, if it sent one.
+pub fn direct_port(after_verdict: &[u8]) -> Option<u16> {
+    match after_verdict {
+        [hi, lo, ..] => Some(u16::from_be_bytes([*hi, *lo])).filter(|p| *p != 0),
+        _ => None,
+    }
+}
+
+/// [`knock`], and the port of the hub's direct listener when the door accepted the proof and
+/// opened it to this host.
+pub fn knock_direct(door: SocketAddr, secret: &Secret, within: Duration) -> (Probe, Option<u16>) {
+    let mut port = None;
+    let mut answer = || -> std::io::Result<u8> {
         let mut s = TcpStream::connect_timeout(&door, within)?;
         s.set_read_timeout(Some(within))?;
         s.set_write_timeout(Some(within))?;
@@ -96,9 +117,17 @@ pub fn knock(door: SocketAddr, secret: &Secret, within: Duration) -> Probe {
         s.write_all(&secret.door_proof(&nonce))?;
         let mut verdict = [0u8; 1];
         s.read_exact(&mut verdict)?;
+        if verdict[0] == ACCEPTED {
+            // an older door closes after the verdict: no port, the relay as before
+            let mut more = [0u8; 2];
+            if s.read_exact(&mut more).is_ok() {
+                port = direct_port(&more);
+            }
+        }
         Ok(verdict[0])
     };
-    Probe::of_answer(answer().ok())
+    let probe = Probe::of_answer(answer().ok());
+    (probe, port.filter(|_| probe == Probe::Accepted))
 }
 
 #[cfg(test)]
@@ -111,6 +140,14 @@ mod tests {
         assert_eq!(Probe::of_answer(Some(REFUSED)), Probe::Refused);
         assert_eq!(Probe::of_answer(Some(0)), Probe::NoAnswer);
         assert_eq!(Probe::of_answer(None), Probe::NoAnswer);
+    }
+
+    #[test]
+    fn a_direct_port_is_two_bytes_after_the_verdict_and_never_zero() {
+        assert_eq!(direct_port(&[0x1c, 0xe8]), Some(7400));
+        assert_eq!(direct_port(&[0, 0]), None);
+        assert_eq!(direct_port(&[0x1c]), None);
+        assert_eq!(direct_port(&[]), None);
     }
 
     #[test]

@@ -14,6 +14,11 @@
 //! door answers it itself ([`crate::probe`]) and never relays it. A refused proof, and a relayed
 //! connection that Zenoh ended during its handshake ([`door::handshake_refused`]), count as
 //! refused credentials per source, with one log line per source.
+//!
+//! With a direct listener ([`AdmitList`]), an accepted probe also opens it to the prober's
+//! source, and the answer names its port ([`probe::direct_port`]): that host's session then
+//! bypasses the relay. The relay stays for whatever comes to `--listen` as a Zenoh session
+//! (a host whose direct connection failed, an older `qfleet join`, a bare Zenoh peer).
 
 use std::net::{IpAddr, SocketAddr};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -26,6 +31,7 @@ use tokio::sync::Notify;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
 use crate::BridgeError;
+use crate::admit::AdmitList;
 use crate::door::{self, DoorReport, Gate, Limits, Verdict};
 use crate::probe::{self, Opening};
 use crate::seal::{self, Secret};
@@ -43,12 +49,13 @@ const ACCEPT_BACKOFF: Duration = Duration::from_millis(20);
 pub struct FrontDoor {
     listen: SocketAddr,
     gate: Arc<Mutex<Gate>>,
+    direct: Option<Arc<Mutex<AdmitList>>>,
     stop: Arc<Notify>,
     thread: Option<JoinHandle<()>>,
 }
 
-fn lock(gate: &Mutex<Gate>) -> MutexGuard<'_, Gate> {
-    gate.lock().unwrap_or_else(|e| e.into_inner())
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 fn io_error(what: String) -> impl FnOnce(std::io::Error) -> BridgeError {
@@ -57,12 +64,14 @@ fn io_error(what: String) -> impl FnOnce(std::io::Error) -> BridgeError {
 
 impl FrontDoor {
     /// Binds `listen` (an error at once if it cannot) and relays what `limits` admit to
-    /// `upstream`; probes are checked against `secret`, the run's.
+    /// `upstream`; probes are checked against `secret`, the run's, and an accepted one opens
+    /// `direct` (when given) to its source.
     pub fn open(
         listen: SocketAddr,
         upstream: SocketAddr,
         limits: Limits,
         secret: Secret,
+        direct: Option<AdmitList>,
     ) -> Result<FrontDoor, BridgeError> {
         let std_listener = std::net::TcpListener::bind(listen)
             .map_err(io_error(format!("listening on {listen}")))?;
@@ -83,15 +92,21 @@ impl FrontDoor {
                 .map_err(io_error(format!("listening on {listen}")))?
         };
         let gate = Arc::new(Mutex::new(Gate::new(limits)));
+        let direct = direct.map(|d| Arc::new(Mutex::new(d)));
         let stop = Arc::new(Notify::new());
         let (g, s) = (Arc::clone(&gate), Arc::clone(&stop));
+        let probes = Probes {
+            secret,
+            direct: direct.clone(),
+        };
         let thread = std::thread::Builder::new()
             .name("qfleet-door".into())
-            .spawn(move || rt.block_on(accept(listener, upstream, g, s, Arc::new(secret))))
+            .spawn(move || rt.block_on(accept(listener, upstream, g, s, Arc::new(probes))))
             .map_err(|e| BridgeError::Thread(e.to_string()))?;
         Ok(FrontDoor {
             listen: bound,
             gate,
+            direct,
             stop,
             thread: Some(thread),
         })
@@ -104,7 +119,13 @@ impl FrontDoor {
 
     /// What it did so far.
     pub fn report(&self) -> DoorReport {
-        lock(&self.gate).report(&self.listen.to_string())
+        let mut r = lock(&self.gate).report(&self.listen.to_string());
+        if let Some(d) = &self.direct {
+            let d = lock(d);
+            r.direct = d.address().to_string();
+            r.direct_sources = d.admitted() as u64;
+        }
+        r
     }
 
     /// Stops accepting, closes every connection it relays and returns its report.
@@ -134,7 +155,7 @@ async fn accept(
     upstream: SocketAddr,
     gate: Arc<Mutex<Gate>>,
     stop: Arc<Notify>,
-    secret: Arc<Secret>,
+    probes: Arc<Probes>,
 ) {
     let first_byte = lock(&gate).limits().first_byte_within;
     let mut tasks = tokio::task::JoinSet::new();
@@ -149,7 +170,7 @@ async fn accept(
                     let verdict = lock(&gate).admit(src, Instant::now());
                     if verdict == Verdict::Admit {
                         let open = Open { gate: Arc::clone(&gate), src };
-                        tasks.spawn(relay(stream, open, upstream, first_byte, Arc::clone(&secret)));
+                        tasks.spawn(relay(stream, open, upstream, first_byte, Arc::clone(&probes)));
                     } else {
                         // a reset, not a FIN: nothing of it lingers on this host
                         let _ = stream.set_zero_linger();
@@ -160,6 +181,12 @@ async fn accept(
         }
     }
     tasks.shutdown().await;
+}
+
+/// What the door answers probes with: the run's secret, and the direct listener it opens.
+struct Probes {
+    secret: Secret,
+    direct: Option<Arc<Mutex<AdmitList>>>,
 }
 
 /// An admitted connection, counted open at the gate until dropped.
@@ -200,9 +227,10 @@ async fn opening(inbound: &TcpStream) -> Option<Opening> {
     }
 }
 
-/// Answers a probe: a nonce, then the verdict on the proof of the secret; `None`: the
-/// connection failed or no randomness.
-async fn answer_probe(inbound: &mut TcpStream, secret: &Secret) -> Option<bool> {
+/// Answers a probe: a nonce, then the verdict on the proof of the secret, and after an
+/// accepted one the direct listener's port once it is open to `src`; `None`: the connection
+/// failed or no randomness.
+async fn answer_probe(inbound: &mut TcpStream, probes: &Probes, src: IpAddr) -> Option<bool> {
     let mut magic = [0u8; probe::MAGIC.len()];
     inbound.read_exact(&mut magic).await.ok()?;
     let mut nonce = [0u8; probe::NONCE_BYTES];
@@ -210,9 +238,16 @@ async fn answer_probe(inbound: &mut TcpStream, secret: &Secret) -> Option<bool> 
     inbound.write_all(&nonce).await.ok()?;
     let mut proof = [0u8; probe::PROOF_BYTES];
     inbound.read_exact(&mut proof).await.ok()?;
-    let ok = secret.check_door_proof(&nonce, &proof);
-    let verdict = if ok { probe::ACCEPTED } else { probe::REFUSED };
-    inbound.write_all(&[verdict]).await.ok()?;
+    let ok = probes.secret.check_door_proof(&nonce, &proof);
+    let mut answer = vec![if ok { probe::ACCEPTED } else { probe::REFUSED }];
+    if ok && let Some(direct) = &probes.direct {
+        // opened before the answer leaves, so the host's first SYN already gets through
+        let mut d = lock(direct);
+        if d.admit(src) {
+            answer.extend_from_slice(&d.address().port().to_be_bytes());
+        }
+    }
+    inbound.write_all(&answer).await.ok()?;
     Some(ok)
 }
 
@@ -223,12 +258,13 @@ async fn relay(
     open: Open,
     upstream: SocketAddr,
     first_byte: Duration,
-    secret: Arc<Secret>,
+    probes: Arc<Probes>,
 ) {
     let _ = inbound.set_nodelay(true);
     match tokio::time::timeout(first_byte, opening(&inbound)).await {
         Ok(Some(Opening::Probe)) => {
-            let answered = tokio::time::timeout(first_byte, answer_probe(&mut inbound, &secret));
+            let answered =
+                tokio::time::timeout(first_byte, answer_probe(&mut inbound, &probes, open.src));
             if let Ok(Some(false)) = answered.await {
                 open.refused_credentials("sent a probe with a wrong join secret");
             }
@@ -304,6 +340,7 @@ mod tests {
             echo(),
             Limits::default(),
             run_secret(),
+            None,
         )
         .unwrap();
         let at = door.local_addr();
@@ -339,8 +376,14 @@ mod tests {
             first_byte_within: Duration::from_millis(200),
             ..Limits::default()
         };
-        let door =
-            FrontDoor::open("127.0.0.1:0".parse().unwrap(), echo(), limits, run_secret()).unwrap();
+        let door = FrontDoor::open(
+            "127.0.0.1:0".parse().unwrap(),
+            echo(),
+            limits,
+            run_secret(),
+            None,
+        )
+        .unwrap();
         let at = door.local_addr();
         // a client that speaks gets its bytes back through the relay
         let mut a = StdStream::connect(at).unwrap();
@@ -376,7 +419,48 @@ mod tests {
             echo(),
             Limits::default(),
             run_secret(),
+            None,
         );
         assert!(matches!(e, Err(BridgeError::Door { .. })), "{e:?}");
+    }
+
+    #[test]
+    fn an_accepted_probe_opens_the_direct_listener_to_its_source_and_names_its_port() {
+        let direct = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let direct_at = direct.local_addr().unwrap();
+        let list = AdmitList::on(direct_at).unwrap();
+        let door = FrontDoor::open(
+            "127.0.0.1:0".parse().unwrap(),
+            echo(),
+            Limits::default(),
+            run_secret(),
+            Some(list),
+        )
+        .unwrap();
+        let at = door.local_addr();
+        let within = Duration::from_secs(5);
+        let reaches = || {
+            let s = StdStream::connect_timeout(&direct_at, Duration::from_millis(300));
+            if s.is_ok() {
+                let _ = direct.accept();
+            }
+            s.is_ok()
+        };
+        // a wrong secret opens nothing and is told no port
+        let wrong = Secret::new("door-test", [8; 32]);
+        assert_eq!(
+            probe::knock_direct(at, &wrong, within),
+            (probe::Probe::Refused, None)
+        );
+        assert!(!reaches(), "the direct listener is closed to a stranger");
+        // the run's secret: the port, and the listener answers this source from then on
+        assert_eq!(
+            probe::knock_direct(at, &run_secret(), within),
+            (probe::Probe::Accepted, Some(direct_at.port()))
+        );
+        assert!(reaches());
+        let r = door.finish();
+        assert_eq!(r.direct, direct_at.to_string(), "{r:?}");
+        assert_eq!((r.direct_sources, r.refused_credentials), (1, 1), "{r:?}");
     }
 }

@@ -46,6 +46,9 @@ const LIST_EVERY: Duration = Duration::from_millis(200);
 pub struct Joined {
     /// The session to the coordinator's host.
     pub session: zenoh::Session,
+    /// The endpoint the session connected to: the hub's direct listener, or `endpoint` (its
+    /// front door, which relays).
+    pub via: String,
     /// The plan, opened and checked to be for the run the secret names.
     pub plan: JoinPlan,
     /// The clock offset seeded by the exchange.
@@ -56,9 +59,16 @@ pub struct Joined {
 
 impl std::fmt::Debug for Joined {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Joined").field("plan", &self.plan).finish()
+        f.debug_struct("Joined")
+            .field("via", &self.via)
+            .field("plan", &self.plan)
+            .finish()
     }
 }
+
+/// How long a joining host tries the hub's direct listener before it goes through the door:
+/// the hub is a probe's round trip away, and the door has just opened it to this host.
+pub const DIRECT_WITHIN: Duration = Duration::from_secs(2);
 
 /// One query on the join key: the answer, or None when nobody answered (yet).
 fn ask(
@@ -103,15 +113,41 @@ pub fn request(
     tuning: Tuning,
 ) -> Result<Joined, BridgeError> {
     // a wrong secret is said in seconds; a door that does not answer leaves it to Zenoh
+    let mut direct = None;
     if let Ok(door) = link::listen_address(endpoint) {
         let within = crate::probe::PROBE_WITHIN.min(timeout);
-        if crate::probe::knock(door, secret, within) == crate::probe::Probe::Refused {
-            return Err(BridgeError::Credentials {
-                endpoint: endpoint.to_string(),
-            });
+        match crate::probe::knock_direct(door, secret, within) {
+            (crate::probe::Probe::Refused, _) => {
+                return Err(BridgeError::Credentials {
+                    endpoint: endpoint.to_string(),
+                });
+            }
+            (_, port) => direct = port.and_then(|p| link::direct_endpoint(endpoint, p)),
         }
     }
-    let session = link::connect(endpoint, timeout, tuning, &link::SessionAuth::of(secret))?;
+    let auth = link::SessionAuth::of(secret);
+    // the door opened its direct listener to this host: the session goes there, without the
+    // relay hop; if it cannot be reached (a firewall that lets only `endpoint` through), the
+    // relay, as before
+    let direct_session = direct.as_ref().and_then(|d| {
+        match link::connect(d, DIRECT_WITHIN.min(timeout), tuning, &auth) {
+            Ok(s) => Some(s),
+            Err(e) => {
+                report::log_line!(
+                    "qfleet: the hub's direct port {d} did not answer ({e}); joining through its front door {endpoint} instead (a relay hop more per message)"
+                );
+                None
+            }
+        }
+    });
+    let via = match (&direct, &direct_session) {
+        (Some(d), Some(_)) => d.clone(),
+        _ => endpoint.to_string(),
+    };
+    let session = match direct_session {
+        Some(s) => s,
+        None => link::connect(endpoint, timeout, tuning, &auth)?,
+    };
     let deadline = Instant::now() + timeout;
     let knocker = Knocker::new(secret.clone())?;
     loop {
@@ -138,6 +174,7 @@ pub fn request(
                     clock.seed(req.t_ns, plan.t_ns, got);
                     return Ok(Joined {
                         session,
+                        via,
                         plan,
                         clock,
                         keys,
@@ -202,6 +239,7 @@ impl Joiner {
     pub fn new(joined: Joined, host: &str, tuning: Tuning) -> Result<Self, BridgeError> {
         let Joined {
             session,
+            via: _,
             plan,
             clock,
             keys,

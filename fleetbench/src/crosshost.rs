@@ -9,7 +9,12 @@
 //! - `xhost-loop`: the real update loop with robots on one host and the coordinator on the
 //!   other: robot 0's Q update → bridge → coordinator merge → bridge → applied at robot 1, timed
 //!   on the robots' host (one clock); the hosts join with the run's secret and every frame is
-//!   sealed, as `qfleet run --listen` does by default;
+//!   sealed, and host B's session goes to the hub's direct listener once the front door
+//!   admitted it, as `qfleet run --listen` does by default;
+//! - `xhost-loop-relay`: the same through the front door's relay (its mode before the direct
+//!   listener: a second TCP hop per message);
+//! - `xhost-loop-nodoor`: the same, sealed, without the hub's front door (its session listens
+//!   on the endpoint itself: no per-source limits, no probe answers): what the door costs;
 //! - `xhost-loop-plain`: the same with frames unsealed (`--insecure-plain`): what sealing costs.
 //!
 //! With two CPUs or more, every row runs its measuring thread (host B's ping or robot, which
@@ -33,12 +38,14 @@ use crate::report::{ProcessCpu, Row};
 use crate::spec::RoleSpec;
 
 /// The cross-host rows, in the order they run.
-pub const XHOST_LABELS: [&str; 6] = [
+pub const XHOST_LABELS: [&str; 8] = [
     "xhost-tcp",
     "xhost-zenoh",
     "xhost-zenoh-batched",
     "xhost-zenoh-lowlatency",
     "xhost-loop",
+    "xhost-loop-relay",
+    "xhost-loop-nodoor",
     "xhost-loop-plain",
 ];
 
@@ -187,6 +194,11 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
     // the run's join secret, in a file only root reads (never on a command line)
     let secret_file = dir.join("join.secret");
     let plain = label == "xhost-loop-plain";
+    let door = match label {
+        "xhost-loop-relay" => bridge::DoorMode::Relay,
+        "xhost-loop-nodoor" => bridge::DoorMode::Off,
+        _ => bridge::DoorMode::default(),
+    };
     {
         use std::io::Write;
         use std::os::unix::fs::OpenOptionsExt;
@@ -223,7 +235,7 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
             ["tcp ping (host B)", "tcp echo (host A)"],
             crate::roles::xhost::PING_BYTES,
         ),
-        "xhost-loop" | "xhost-loop-plain" => (
+        "xhost-loop" | "xhost-loop-relay" | "xhost-loop-nodoor" | "xhost-loop-plain" => (
             RoleSpec::BridgedCoordinator {
                 inner: Box::new(RoleSpec::Coordinator {
                     run_id: bus::unique_run_id("bench-xhost"),
@@ -240,6 +252,7 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
                 bridge_spin_us,
                 secret_file: secret_file.clone(),
                 plain,
+                door,
             },
             ["robots + bridge (host B)", "coordinator + bridge (host A)"],
             size_of::<QHintBatch>(),

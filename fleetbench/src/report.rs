@@ -367,6 +367,34 @@ impl Report {
                 met: Some(p999 <= 3.0),
             });
         }
+        // issue 36 item 7: what the hub's front door costs the loop, door on (its direct
+        // listener; its relay) against door off in the same run, all sealed; informational,
+        // the goals above judge the loop itself
+        if let Some(off) = self.row("xhost-loop-nodoor") {
+            let floor = self.row("xhost-zenoh");
+            for (label, how) in [("xhost-loop", "direct"), ("xhost-loop-relay", "relay")] {
+                let Some(on) = self.row(label) else { continue };
+                let side = |v: u64, f: Option<u64>| match f {
+                    Some(f) => format!("{} ({:.2}× floor)", us(v), ratio(v, f)),
+                    None => us(v),
+                };
+                for (what, a, b, f) in [
+                    ("p50", on.p50_ns, off.p50_ns, floor.map(|z| z.p50_ns)),
+                    ("p99.9", on.p999_ns, off.p999_ns, floor.map(|z| z.p999_ns)),
+                ] {
+                    g.push(Goal {
+                        goal: format!("across hosts: door on ({how}) / off, loop {what}"),
+                        measured: format!(
+                            "{} / {} µs = {:.2}×",
+                            side(a, f),
+                            side(b, f),
+                            ratio(a, b)
+                        ),
+                        met: None,
+                    });
+                }
+            }
+        }
         match (self.row("loop-hybrid"), self.row("uds-loop-blocking")) {
             (Some(h), Some(u)) => g.push(Goal {
                 goal: "hybrid: loop p50 below the blocking Unix-socket loop".into(),
@@ -570,7 +598,7 @@ impl Report {
             let v = match g.met {
                 Some(true) => "met",
                 Some(false) => "**missed**",
-                None => "not run",
+                None => "n/a",
             };
             let _ = writeln!(s, "| {} | {} | {v} |", g.goal, g.measured);
         }

@@ -191,6 +191,8 @@ pub enum RoleSpec {
         secret_file: PathBuf,
         /// Frames unsealed (`--insecure-plain`).
         plain: bool,
+        /// How the robots' host reaches the hub's session (the front door, or none).
+        door: bridge::DoorMode,
     },
     /// Cross-host loop: the loop robots plus a joining bridge (measures).
     BridgedRobots {
@@ -393,6 +395,7 @@ mod tests {
                 bridge_spin_us: 0,
                 secret_file: p.clone(),
                 plain: false,
+                door: bridge::DoorMode::default(),
             },
             RoleSpec::BridgedRobots {
                 inner: Box::new(robots),

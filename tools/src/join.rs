@@ -231,6 +231,7 @@ impl RemoteArgs {
             secret,
             plain: self.insecure_plain,
             door: bridge::DoorLimits::default(),
+            door_mode: bridge::DoorMode::default(),
         })
         .with_context(|| format!("listening for other hosts on {listen}"))?;
         Ok(Some(hub))
@@ -490,10 +491,11 @@ impl JoinCmd {
             .context(Exit::BadInput)?;
         let ids = plan.robot_ids.clone();
         report::log_line!(
-            "qfleet join: joined run {} as host {} with robots {:?}",
+            "qfleet join: joined run {} as host {} with robots {:?} (session via {})",
             plan.run_id,
             plan.host_index,
-            ids
+            ids,
+            joined.via
         );
         let prefix = bus::bus_schema::names::iceoryx_prefix(&plan.run_id);
         if let Ok(r) = bus::clean_stale(&prefix)

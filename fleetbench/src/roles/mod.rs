@@ -109,6 +109,7 @@ pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
             bridge_spin_us,
             secret_file,
             plain,
+            door,
         } => xhost::bridged_coordinator(
             &inner,
             &listen,
@@ -118,6 +119,7 @@ pub fn role_main(spec_json: &str) -> Result<(), BenchError> {
                 spin: Duration::from_micros(bridge_spin_us),
             },
             &xhost::Auth::read(&secret_file, plain)?,
+            door,
         )?,
         RoleSpec::BridgedRobots {
             inner,

@@ -245,6 +245,7 @@ pub fn bridged_coordinator(
     listen: &str,
     tuning: Tuning,
     auth: &Auth,
+    door_mode: bridge::DoorMode,
 ) -> Result<ChildReport, BenchError> {
     let RoleSpec::Coordinator { run_id, robots, .. } = inner else {
         return Err(BenchError::Spec("not a coordinator spec".into()));
@@ -270,6 +271,7 @@ pub fn bridged_coordinator(
         secret: auth.secret.clone(),
         plain: auth.plain,
         door: bridge::DoorLimits::default(),
+        door_mode,
     })
     .map_err(|e| BenchError::Input(e.to_string()))?;
     let r = super::fleet::coordinator(inner);
@@ -292,6 +294,8 @@ pub fn bridged_robots(
     let req = JoinRequest::new("bench-robots".into(), 2, 0);
     let joined = bridge::request(endpoint, &req, &auth.secret, timeout, tuning)
         .map_err(|e| BenchError::Input(e.to_string()))?;
+    // which way the session went: the hub's direct listener, or its front door's relay
+    report::log_line!("fleetbench: the robots' host joined via {}", joined.via);
     if joined.plan.plain != auth.plain {
         return Err(BenchError::Input(
             "the hub's link is not sealed as asked".into(),
