@@ -49,9 +49,12 @@ pub enum Probe {
     Accepted,
     /// The door checked the proof: this host's secret is not the run's.
     Refused,
-    /// No answer (nothing listens, the host is unreachable, or its door knows no probes): the
-    /// Zenoh connection says what it can, as before probes.
+    /// No answer (the host is unreachable, or its door knows no probes): the Zenoh connection
+    /// says what it can, as before probes.
     NoAnswer,
+    /// The host refused the connection: nothing listens there, or not yet (a `qfleet join`
+    /// started before the run's hub is up). Worth asking again while the join may wait.
+    NotListening,
 }
 
 impl Probe {
@@ -126,7 +129,11 @@ pub fn knock_direct(door: SocketAddr, secret: &Secret, within: Duration) -> (Pro
         }
         Ok(verdict[0])
     };
-    let probe = Probe::of_answer(answer().ok());
+    let probe = match answer() {
+        Ok(verdict) => Probe::of_answer(Some(verdict)),
+        Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => Probe::NotListening,
+        Err(_) => Probe::NoAnswer,
+    };
     (probe, port.filter(|_| probe == Probe::Accepted))
 }
 
@@ -174,11 +181,11 @@ mod tests {
     }
 
     #[test]
-    fn nothing_listening_is_no_answer_not_an_error() {
+    fn nothing_listening_is_said_not_an_error() {
         let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
         let at = l.local_addr().unwrap();
         drop(l);
         let s = Secret::new("run-a", [7; 32]);
-        assert_eq!(knock(at, &s, Duration::from_secs(1)), Probe::NoAnswer);
+        assert_eq!(knock(at, &s, Duration::from_secs(1)), Probe::NotListening);
     }
 }

@@ -70,6 +70,9 @@ impl std::fmt::Debug for Joined {
 /// the hub is a probe's round trip away, and the door has just opened it to this host.
 pub const DIRECT_WITHIN: Duration = Duration::from_secs(2);
 
+/// How long a joining host waits before it probes a door that refused the connection again.
+const PROBE_AGAIN: Duration = Duration::from_millis(200);
+
 /// One query on the join key: the answer, or None when nobody answered (yet).
 fn ask(
     session: &zenoh::Session,
@@ -114,17 +117,34 @@ pub fn request(
 ) -> Result<Joined, BridgeError> {
     // a wrong secret is said in seconds; a door that does not answer leaves it to Zenoh
     let mut direct = None;
+    let started = Instant::now();
     if let Ok(door) = link::listen_address(endpoint) {
         let within = crate::probe::PROBE_WITHIN.min(timeout);
-        match crate::probe::knock_direct(door, secret, within) {
-            (crate::probe::Probe::Refused, _) => {
-                return Err(BridgeError::Credentials {
-                    endpoint: endpoint.to_string(),
-                });
+        loop {
+            match crate::probe::knock_direct(door, secret, within) {
+                (crate::probe::Probe::Refused, _) => {
+                    return Err(BridgeError::Credentials {
+                        endpoint: endpoint.to_string(),
+                    });
+                }
+                // the run's hub is not up yet (both started at once): ask again while the join
+                // may wait, so this host gets the direct port instead of the relay; Zenoh keeps
+                // a second of the timeout to say what it finds
+                (crate::probe::Probe::NotListening, _)
+                    if started.elapsed() + PROBE_AGAIN + Duration::from_secs(1) < timeout =>
+                {
+                    std::thread::sleep(PROBE_AGAIN);
+                }
+                (_, port) => {
+                    direct = port.and_then(|p| link::direct_endpoint(endpoint, p));
+                    break;
+                }
             }
-            (_, port) => direct = port.and_then(|p| link::direct_endpoint(endpoint, p)),
         }
     }
+    let timeout = timeout
+        .saturating_sub(started.elapsed())
+        .max(Duration::from_secs(1));
     let auth = link::SessionAuth::of(secret);
     // the door opened its direct listener to this host: the session goes there, without the
     // relay hop; if it cannot be reached (a firewall that lets only `endpoint` through), the
