@@ -8,6 +8,7 @@
 
 use crate::env::{CellKind, Env, Rewards, Transition};
 use crate::grid::{Action, Cell};
+use crate::known::{KnownReturns, PathPublisher, path_return};
 use crate::metrics::{EpisodeRecord, Outcome, Summary};
 use crate::policy::{EpsilonReading, Policy, PolicyConfig};
 use crate::pseudo::PseudoConfig;
@@ -252,6 +253,19 @@ impl LearnerConfig {
         Ok(())
     }
 
+    /// Whether this learner's values are upper bounds of Q* (an optimistic start at least the
+    /// goal reward, moves and collisions costing nothing or less, no pseudo targets: the
+    /// planning learner), so that it publishes goal-path discoveries and ends an episode where
+    /// another robot's discovered return shows its value exact (see [`crate::known`]). The same
+    /// test as `qfleet_args::ValueBound::of`.
+    pub fn path_discoveries(&self) -> bool {
+        let r = self.rewards;
+        self.extras.optimistic.is_some_and(|v| v >= r.goal.max(0.0))
+            && r.step <= 0.0
+            && r.collision <= 0.0
+            && self.pseudo.is_none()
+    }
+
     /// A short human-readable name of the policy, e.g. for tables.
     pub fn policy_label(&self) -> String {
         let base = self.policy_base_label();
@@ -310,6 +324,12 @@ pub struct StepInfo {
 /// Rounds of sweeps [`Learner::settle`] runs at most (each round is up to `sweeps` sweeps).
 pub const SETTLE_SWEEPS: u32 = 64;
 
+/// The largest return a path of `cfg`'s task can have: the goal reward when moves cost
+/// nothing or less (what [`KnownReturns`] refuses anything above).
+fn return_ceiling(cfg: &LearnerConfig) -> f32 {
+    cfg.rewards.goal.max(0.0)
+}
+
 /// A Q-learner on one task, with its table, policy, random source and episode counters.
 #[derive(Debug, Clone)]
 pub struct Learner {
@@ -348,6 +368,16 @@ pub struct Learner {
     monotone: bool,
     // Moves of other robots joined the model since the last `settle_grid_moves`.
     grid_moves_pending: bool,
+    // Goal-path discoveries (planning learner, see `crate::known`): what this learner
+    // publishes of its own found paths, the returns others found, and the scratch of the path
+    // walk (reused: no allocation once grown).
+    path_pub: Option<PathPublisher>,
+    known: Option<KnownReturns>,
+    path_cells: Vec<u32>,
+    path_returns: Vec<f32>,
+    pred_at: Vec<u32>,
+    pred: Vec<u32>,
+    dist: Vec<u32>,
 }
 
 impl Learner {
@@ -392,6 +422,15 @@ impl Learner {
             swept_within: false,
             monotone: false,
             grid_moves_pending: false,
+            path_pub: cfg.path_discoveries().then(|| PathPublisher::new(n)),
+            known: cfg
+                .path_discoveries()
+                .then(|| KnownReturns::new(n, return_ceiling(&cfg))),
+            path_cells: Vec::new(),
+            path_returns: Vec::new(),
+            pred_at: Vec::new(),
+            pred: Vec::new(),
+            dist: Vec::new(),
             optimal_len: task.optimal_len,
             max_steps,
             episode: 0,
@@ -570,7 +609,9 @@ impl Learner {
         }
     }
 
-    /// Pseudo targets this learner discovered itself since the last call, to share with others.
+    /// Discoveries this learner made itself since the last call, to share with others: pseudo
+    /// targets (the paper's improved learner) or cells of a found goal path with their return
+    /// along it (the planning learner, [`crate::known`]).
     pub fn take_new_pseudo_targets(&mut self) -> Vec<(u32, f32)> {
         std::mem::take(&mut self.new_targets)
     }
@@ -592,6 +633,179 @@ impl Learner {
         } else {
             false
         }
+    }
+
+    /// Takes another robot's discovery of cell `cell` worth `value`, as this learner uses one:
+    /// a pseudo target of its own (the paper's improved learner, [`add_pseudo_target`](Self::add_pseudo_target)),
+    /// or a known return of a goal path (the planning learner, [`crate::known`]). False if
+    /// this learner uses neither, or the discovery adds nothing.
+    pub fn add_discovery(&mut self, cell: u32, value: f32) -> bool {
+        match self.known.as_mut() {
+            Some(k) => {
+                let grid = self.env.grid();
+                (cell as usize) < grid.len()
+                    && grid.free_flags()[cell as usize]
+                    && cell != self.env.goal()
+                    && k.offer(cell, value)
+            }
+            None => self.add_pseudo_target(cell, value),
+        }
+    }
+
+    /// The goal-path returns other robots discovered (planning learner; `None` for the paper's).
+    pub fn known_returns(&self) -> Option<&KnownReturns> {
+        self.known.as_ref()
+    }
+
+    /// Whether entering `next` ends the episode by a known return (see [`crate::known`]):
+    /// the cheap test on every step, the walk on only where it passes.
+    #[inline(always)]
+    fn ends_at_known(&self, next: u32) -> bool {
+        match &self.known {
+            Some(k) if !k.is_empty() && k.exact_at(next, max4(self.q.row(next as usize))) => {
+                k.certifies(next, self.known_walk_return(next))
+            }
+            _ => false,
+        }
+    }
+
+    /// The return of the greedy walk from `from` to the goal when every move of it is in the
+    /// model (tried here or made known from outside); `None` when it takes an untried action,
+    /// collides or loops. Kept out of line: it runs only where a value is exact.
+    #[inline(never)]
+    fn known_walk_return(&self, from: u32) -> Option<f32> {
+        if self.tried.is_empty() {
+            return None;
+        }
+        let goal = self.env.goal();
+        let mut s = from;
+        let mut moves = 0u32;
+        while s != goal {
+            let a = self.q.argmax(s as usize);
+            if self.tried[s as usize] & (1 << a) == 0 || moves as usize >= self.tried.len() {
+                return None;
+            }
+            s = self.env.peek(s, a)?;
+            moves += 1;
+        }
+        let r = self.cfg.rewards;
+        (moves > 0).then(|| path_return(moves, r.goal, r.step, self.cfg.gamma))
+    }
+
+    /// After an episode that reached the goal (planning learner): when the shortest path from
+    /// the start over the moves this learner knows ([`known_path`](Self::known_path)) is the
+    /// first or shorter than any published, hands some of its cells with their returns along
+    /// it to [`take_new_pseudo_targets`](Self::take_new_pseudo_targets) (see
+    /// [`crate::known`]). Stops once the published path is optimal. The path, its returns and
+    /// the search use scratch vectors reused from episode to episode.
+    fn discover_goal_path(&mut self) {
+        if !self
+            .path_pub
+            .as_ref()
+            .is_some_and(|p| p.published() < PathPublisher::CAP && p.wants(self.optimal_len.max(1)))
+        {
+            return;
+        }
+        let Some(moves) = self.known_path() else {
+            return;
+        };
+        if !self.path_pub.as_ref().is_some_and(|p| p.wants(moves)) {
+            return;
+        }
+        // returns from the goal back, with the learner's own backup arithmetic (`path_return`)
+        let r = self.cfg.rewards;
+        let moves = moves as usize;
+        self.path_returns.clear();
+        self.path_returns.resize(moves, 0.0);
+        let mut v = r.goal;
+        for i in (0..moves).rev() {
+            if i + 1 < moves {
+                v = r.step + self.cfg.gamma * v;
+            }
+            self.path_returns[i] = v;
+        }
+        if let Some(p) = self.path_pub.as_mut() {
+            p.publish(&self.path_cells, &self.path_returns, &mut self.new_targets);
+        }
+    }
+
+    /// The shortest path from the start to the goal over the moves in this learner's model
+    /// (its own and those made known from outside; collisions are no moves), into
+    /// `path_cells` (start first, goal last); its moves, or `None` if the model holds no such
+    /// path. A breadth-first search back from the goal over the model's moves reversed.
+    fn known_path(&mut self) -> Option<u32> {
+        let n = self.tried.len();
+        if n == 0 {
+            return None;
+        }
+        let (start, goal) = (self.env.start() as usize, self.env.goal() as usize);
+        // predecessors of every cell over the known moves, compressed rows in `pred_at`/`pred`
+        let at = &mut self.pred_at;
+        at.clear();
+        at.resize(n + 1, 0);
+        for &sa in &self.seen {
+            if let Some(t) = self.env.peek(sa >> 2, (sa & 3) as usize)
+                && t != sa >> 2
+            {
+                at[t as usize + 1] += 1;
+            }
+        }
+        for i in 0..n {
+            at[i + 1] += at[i];
+        }
+        let pred = &mut self.pred;
+        pred.clear();
+        pred.resize(at[n] as usize, 0);
+        // the next free place of every row (the distances' scratch until the search)
+        let dist = &mut self.dist;
+        dist.clear();
+        dist.extend_from_slice(&at[..n]);
+        for &sa in &self.seen {
+            let s = sa >> 2;
+            if let Some(t) = self.env.peek(s, (sa & 3) as usize)
+                && t != s
+            {
+                let k = &mut dist[t as usize];
+                pred[*k as usize] = s;
+                *k += 1;
+            }
+        }
+        // distances to the goal over them
+        dist.fill(u32::MAX);
+        let queue = &mut self.path_cells;
+        queue.clear();
+        dist[goal] = 0;
+        queue.push(goal as u32);
+        let mut head = 0;
+        while head < queue.len() && dist[start] == u32::MAX {
+            let c = queue[head] as usize;
+            head += 1;
+            for &p in &pred[at[c] as usize..at[c + 1] as usize] {
+                if dist[p as usize] == u32::MAX {
+                    dist[p as usize] = dist[c] + 1;
+                    queue.push(p);
+                }
+            }
+        }
+        let moves = dist[start];
+        if moves == u32::MAX {
+            return None;
+        }
+        // and the path down them from the start, by known moves only
+        let path = &mut self.path_cells;
+        path.clear();
+        let mut s = start;
+        path.push(s as u32);
+        while s != goal {
+            let next = (0..4).find_map(|a| {
+                let t = self.env.peek(s as u32, a)? as usize;
+                (self.tried[s] & (1 << a) != 0 && dist[t] < dist[s] && dist[t] + 1 == dist[s])
+                    .then_some(t)
+            })?;
+            s = next;
+            path.push(s as u32);
+        }
+        Some(moves)
     }
 
     /// Resets the episode state and applies the schedule for the coming episode.
@@ -644,13 +858,16 @@ impl Learner {
                 self.sweep_within();
             }
         }
+        // another robot's goal-path discovery shows the value here exact: the walk on follows
+        // exact values and tells nothing new, the episode ends (as at a pseudo target)
+        let cut = !terminal && self.ends_at_known(next);
         StepInfo {
             state: s,
             action: a as u8,
             next,
             q,
-            transition: t,
-            done: terminal || self.steps >= self.max_steps,
+            transition: if cut { Transition::Pseudo } else { t },
+            done: terminal || cut || self.steps >= self.max_steps,
         }
     }
 
@@ -666,6 +883,9 @@ impl Learner {
             self.discover_pseudo_targets();
         }
         self.plan();
+        if outcome != Outcome::Cap {
+            self.discover_goal_path();
+        }
         let rec = EpisodeRecord {
             episode: self.episode,
             steps: self.steps,

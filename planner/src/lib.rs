@@ -11,6 +11,7 @@
 pub mod env;
 pub mod fastmath;
 pub mod grid;
+pub mod known;
 pub mod learner;
 pub mod map;
 pub mod metrics;

@@ -320,3 +320,217 @@ fn a_learner_handed_the_grid_by_another_goals_robot_plans_its_optimal_path_befor
         );
     }
 }
+
+/// Runs `l` until it hands out discoveries (or its episodes run out); returns them.
+fn first_discoveries(l: &mut Learner) -> Vec<(u32, f32)> {
+    while !l.finished() {
+        l.run_episode();
+        let found = l.take_new_pseudo_targets();
+        if !found.is_empty() {
+            return found;
+        }
+    }
+    Vec::new()
+}
+
+#[test]
+fn a_planning_learner_publishes_cells_of_its_goal_path_with_returns_no_robot_can_beat() {
+    for family in Family::GENERATED {
+        let t = generate(family, 20, 2, 5).expect("map");
+        let task = &t.task;
+        let mut l = Learner::new(task, LearnerConfig::planning(300, 2)).expect("config");
+        let found = first_discoveries(&mut l);
+        assert!(!found.is_empty(), "{}: a path was found", t.id);
+        assert!(found.len() <= planner::known::PathPublisher::PER_PATH);
+        let dist = planner::path::bfs_distances(&task.grid, task.goal);
+        let goal = task.grid.index(task.goal) as u32;
+        for &(c, v) in &found {
+            assert_ne!(c, goal, "{}: never the goal itself", t.id);
+            // the return of a real path from c: at most that of the shortest one, γ^(d−1)
+            let best = 0.99f32.powi(dist[c as usize] as i32 - 1);
+            assert!(
+                v > 0.0 && v <= best * (1.0 + 1e-6),
+                "{}: {v} > {best}",
+                t.id
+            );
+        }
+        // the start is the first cell of the path, published with the path's whole return
+        let start = task.grid.index(task.start) as u32;
+        assert_eq!(found[0].0, start, "{}", t.id);
+        // later (shorter) paths publish cells not published before, within the cap
+        let mut all = found.clone();
+        while !l.finished() {
+            l.run_episode();
+            all.extend(l.take_new_pseudo_targets());
+        }
+        let mut cells: Vec<u32> = all.iter().map(|x| x.0).collect();
+        cells.sort_unstable();
+        cells.dedup();
+        assert_eq!(cells.len(), all.len(), "{}: a cell published twice", t.id);
+        assert!(all.len() <= planner::known::PathPublisher::CAP as usize);
+        for &(c, v) in &all {
+            let best = 0.99f32.powi(dist[c as usize] as i32 - 1);
+            assert!(
+                v > 0.0 && v <= best * (1.0 + 1e-5),
+                "{}: {v} > {best}",
+                t.id
+            );
+        }
+        // the paper's learners publish no goal path
+        let mut trad = Learner::new(task, LearnerConfig::traditional(50, 2)).expect("config");
+        trad.run(|_| {});
+        assert!(trad.take_new_pseudo_targets().is_empty());
+    }
+}
+
+#[test]
+fn a_converged_learner_holds_exactly_the_returns_it_published() {
+    // what makes a discovery usable by another robot: once a learner's values along a path are
+    // exact they equal the published returns to the last bit (the same backups)
+    let t = generate(Family::Rooms, 20, 3, 5).expect("map");
+    let mut l = Learner::new(&t.task, LearnerConfig::planning(300, 1)).expect("config");
+    let mut published = Vec::new();
+    while !l.finished() {
+        l.run_episode();
+        published.extend(l.take_new_pseudo_targets());
+    }
+    assert_eq!(l.greedy_path_len(), Some(t.task.optimal_len));
+    // the last path published is the optimal one: its cells' values are the returns
+    let start = t.task.grid.index(t.task.start) as u32;
+    let last = published.iter().rposition(|x| x.0 == start);
+    let exact = |(c, v): (u32, f32)| l.q().max(c as usize) == v;
+    match last {
+        Some(i) => assert!(exact(published[i]), "{:?}", published[i]),
+        None => panic!("the start is published with every first path"),
+    }
+    assert!(
+        published.iter().copied().filter(|&x| exact(x)).count() >= 4,
+        "{published:?}"
+    );
+}
+
+#[test]
+fn a_known_return_ends_an_episode_only_where_the_value_has_come_down_to_it() {
+    // S . . G: the only way is right; no random moves
+    let task = Task {
+        map_name: "corridor".into(),
+        grid: Grid::new(4, 1, vec![true; 4]).expect("grid"),
+        start: Cell::new(0, 0),
+        goal: Cell::new(3, 0),
+        optimal_len: 3,
+    };
+    let cfg = LearnerConfig {
+        policy: planner::PolicyConfig::EpsilonGreedy {
+            epsilon: 0.0,
+            reading: planner::EpsilonReading::Random,
+        },
+        ..LearnerConfig::planning(10, 1)
+    };
+    let episode = |cell1: Option<[f32; 4]>, known: bool| {
+        let mut l = Learner::new(&task, cfg).expect("config");
+        // the way on from (1,0) is known: right, right
+        l.add_known_move(1, 1);
+        l.add_known_move(2, 1);
+        // right is the best move of the start and of (2,0)
+        *l.q_mut().row_mut(0) = [-1.0, 1.0, -1.0, -1.0];
+        *l.q_mut().row_mut(2) = [-1.0, 1.0, -1.0, -1.0];
+        if let Some(row) = cell1 {
+            *l.q_mut().row_mut(1) = row;
+        }
+        if known {
+            // from (1,0) two moves to the goal: 0 + γ·1
+            assert!(l.add_discovery(1, 0.99));
+            assert!(!l.add_discovery(1, 0.5), "a lower return adds nothing");
+        }
+        l.run_episode()
+    };
+    let exact = [-1.0, 0.99, -1.0, -1.0];
+    let r = episode(Some(exact), true);
+    assert_eq!((r.outcome, r.steps), (planner::Outcome::Pseudo, 1));
+    // untried (optimistic) there: the walk on may find something, it goes on
+    let r = episode(None, true);
+    assert_eq!(r.outcome, planner::Outcome::Goal);
+    // nothing known: as before
+    let r = episode(Some(exact), false);
+    assert_eq!((r.outcome, r.steps), (planner::Outcome::Goal, 3));
+    // exact there, but the way on is not known (a tie with an untried action looks the same)
+    let mut l = Learner::new(&task, cfg).expect("config");
+    *l.q_mut().row_mut(0) = [-1.0, 1.0, -1.0, -1.0];
+    *l.q_mut().row_mut(1) = exact;
+    *l.q_mut().row_mut(2) = [-1.0, 1.0, -1.0, -1.0];
+    l.add_discovery(1, 0.99);
+    assert_eq!(l.run_episode().outcome, planner::Outcome::Goal);
+    // a cut is no terminal: the move into the cell is backed up from its value, not set
+    let mut l = Learner::new(&task, cfg).expect("config");
+    l.add_known_move(1, 1);
+    l.add_known_move(2, 1);
+    *l.q_mut().row_mut(2) = [-1.0, 1.0, -1.0, -1.0];
+    *l.q_mut().row_mut(0) = [-1.0, 1.0, -1.0, -1.0];
+    *l.q_mut().row_mut(1) = exact;
+    l.add_discovery(1, 0.99);
+    l.run_episode();
+    assert_eq!(l.q().row(0)[1], 0.99 * 0.99);
+    // what a discovery cannot name: the goal, a wall, a cell off the grid, no number
+    assert!(!l.add_discovery(3, 0.5));
+    assert!(!l.add_discovery(4, 0.5));
+    assert!(!l.add_discovery(2, f32::NAN));
+    assert!(!l.add_discovery(2, 2.0), "above the goal reward");
+}
+
+#[test]
+fn another_robots_discoveries_save_a_robot_that_shares_its_values_env_steps_to_the_optimum() {
+    // robot A learns alone for a few episodes; robot B starts from A's values and moves (what
+    // merged hints carry) and, with A's discoveries, skips the walks along A's path that tell
+    // it nothing. Summed over maps and seeds: single runs differ by their random moves.
+    let (mut with_total, mut without_total) = (0u64, 0u64);
+    for family in Family::GENERATED {
+        for i in 0..3 {
+            let t = generate(family, 32, i, 5).expect("map");
+            let task = &t.task;
+            for seed in 0..4u64 {
+                let mut a =
+                    Learner::new(task, LearnerConfig::planning(300, 100 + seed)).expect("config");
+                let mut found = Vec::new();
+                for _ in 0..2 {
+                    a.run_episode();
+                    found.extend(a.take_new_pseudo_targets());
+                }
+                let steps_to_optimum = |with: bool| {
+                    let mut b =
+                        Learner::new(task, LearnerConfig::planning(1000, seed)).expect("config");
+                    b.keep_values_falling();
+                    for (row, from_a) in b.q_mut().rows_mut().iter_mut().zip(a.q().rows()) {
+                        for (q, h) in row.iter_mut().zip(from_a) {
+                            *q = q.min(*h);
+                        }
+                    }
+                    for &sa in a.tried_pairs() {
+                        b.add_known_move(sa >> 2, (sa & 3) as usize);
+                    }
+                    b.table_changed();
+                    if with {
+                        for &(c, v) in &found {
+                            b.add_discovery(c, v);
+                        }
+                    }
+                    let mut steps = 0u64;
+                    while !b.finished() {
+                        steps += u64::from(b.run_episode().steps);
+                        if b.greedy_path_len() == Some(task.optimal_len) {
+                            return steps;
+                        }
+                    }
+                    panic!("{}: B never optimal (with discoveries: {with})", t.id);
+                };
+                let (w, wo) = (steps_to_optimum(true), steps_to_optimum(false));
+                with_total += w;
+                without_total += wo;
+            }
+        }
+    }
+    eprintln!("total with {with_total} without {without_total}");
+    assert!(
+        with_total < without_total,
+        "{with_total} >= {without_total}"
+    );
+}
