@@ -396,7 +396,7 @@ impl Robot<'_> {
         }
         let mut relays = 0;
         for &(c, v) in self.relayed.get(&a.goal_id).map_or(&[][..], |v| &v[..]) {
-            relays += u64::from(learner.add_pseudo_target(c, v));
+            relays += u64::from(learner.add_discovery(c, v));
         }
         self.applier.set_goal(a.goal_id);
         Ok(Phase {

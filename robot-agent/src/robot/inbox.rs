@@ -112,7 +112,7 @@ impl Robot<'_> {
                 .push((cell, r.value));
             if let Some(p) = phase.as_deref_mut()
                 && p.a.goal_id == r.goal_id
-                && p.learner.add_pseudo_target(cell, r.value)
+                && p.learner.add_discovery(cell, r.value)
             {
                 self.c.relays_applied += 1;
             }
