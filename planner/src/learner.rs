@@ -378,6 +378,8 @@ pub struct Learner {
     pred_at: Vec<u32>,
     pred: Vec<u32>,
     dist: Vec<u32>,
+    // Model size at the last search for a known path (none: 0).
+    path_searched_at: usize,
 }
 
 impl Learner {
@@ -431,6 +433,7 @@ impl Learner {
             pred_at: Vec::new(),
             pred: Vec::new(),
             dist: Vec::new(),
+            path_searched_at: 0,
             optimal_len: task.optimal_len,
             max_steps,
             episode: 0,
@@ -706,6 +709,11 @@ impl Learner {
         {
             return;
         }
+        // the search's answer changes only with the model
+        if self.seen.len() == self.path_searched_at {
+            return;
+        }
+        self.path_searched_at = self.seen.len();
         let Some(moves) = self.known_path() else {
             return;
         };
