@@ -139,12 +139,14 @@ pub struct DiscoveryAck {
     pub time_ns: u64,
 }
 
-/// A pseudo-target discovery relayed by the coordinator to every robot (lossless, broadcast).
+/// A discovery relayed by the coordinator to every robot (lossless, broadcast).
 ///
 /// The coordinator relays each distinct (goal, cell) once, the first time any robot reports it;
-/// a robot learning goal `goal_id` that is not `origin_robot` may make the cell a pseudo target
-/// of its own (the planner's `Learner::add_pseudo_target`). `relay_seq` numbers relays 0, 1, …
-/// over the run, so a gap is a bug.
+/// a robot learning goal `goal_id` that is not `origin_robot` uses it as its learner does (the
+/// planner's `Learner::add_discovery`): the improved learner makes the cell a pseudo target of
+/// its own, the planning learner keeps the value as a known return of the cell and ends an
+/// episode there once its own value shows it exact. `relay_seq` numbers relays 0, 1, … over
+/// the run, so a gap is a bug.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
 #[type_name("qfleet::v1::DiscoveryRelay")]
@@ -159,7 +161,7 @@ pub struct DiscoveryRelay {
     pub cell_x: u16,
     /// Cell row.
     pub cell_y: u16,
-    /// Value of the pseudo target, as the discovering robot set it.
+    /// The discovery's value, as the discovering robot sent it (`PseudoTargetDiscovery.value`).
     pub value: f32,
     /// The discovering robot's `seq` of this discovery.
     pub origin_seq: u64,

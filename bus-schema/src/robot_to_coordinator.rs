@@ -116,7 +116,10 @@ pub struct RobotState {
     pub send_time_ns: u64,
 }
 
-/// A robot found a pseudo-target: a cell whose value is worth sharing (lossless).
+/// A robot found a cell whose value is worth sharing (lossless): a pseudo target near the goal
+/// (the paper's improved learner), or a cell of a path to the goal it found, with that path's
+/// return from the cell (the planning learner: a lower bound of the cell's value for every robot
+/// on the map, see the planner's `known` module).
 ///
 /// Discoveries are sent with a per-robot `seq` starting at 0 and increasing by one; the
 /// coordinator acknowledges them cumulatively with `DiscoveryAck`.
@@ -132,7 +135,8 @@ pub struct PseudoTargetDiscovery {
     pub cell_x: u16,
     /// Cell row.
     pub cell_y: u16,
-    /// Value of the cell (state value, max over actions) when it was discovered.
+    /// Value of the cell: a pseudo target's value (improved learner), or the discounted return
+    /// of the found goal path from the cell (planning learner).
     pub value: f32,
     /// Per-robot discovery sequence number: 0, 1, 2, … without gaps.
     pub seq: u64,

@@ -78,7 +78,7 @@ impl std::fmt::Display for ApplyRule {
 /// Sharing options of a robot; `qfleet run` takes the same ones and forwards them.
 #[derive(Debug, Clone, PartialEq, Args)]
 pub struct ShareArgs {
-    /// Share Q-values with the fleet (`hints`), use other robots' pseudo-target discoveries
+    /// Share Q-values with the fleet (`hints`), use other robots' discoveries
     /// (`discoveries`), both (`both`), or learn alone (`none`).
     #[arg(long, value_parser = qfleet_args::choice::<ShareMode>(), default_value_t = ShareMode::Hints)]
     pub share: ShareMode,

@@ -40,7 +40,8 @@ macro_rules! display_word {
 pub enum ShareMode {
     /// Learn alone: no hints sent or applied (states, discoveries and the report still flow).
     None,
-    /// Take other robots' relayed pseudo-target discoveries as own pseudo targets; no hints.
+    /// Use other robots' relayed discoveries (the improved learner: as pseudo targets; the
+    /// planning learner: as known returns of goal paths); no hints.
     Discoveries,
     /// Send Q-hint batches and apply the fleet's merged hints.
     Hints,
@@ -62,7 +63,8 @@ impl ShareMode {
         matches!(self, ShareMode::Hints | ShareMode::Both)
     }
 
-    /// Whether relayed discoveries of other robots become pseudo targets of this one.
+    /// Whether relayed discoveries of other robots are used (pseudo targets of the improved
+    /// learner, known returns of the planning learner).
     pub fn discoveries(self) -> bool {
         matches!(self, ShareMode::Discoveries | ShareMode::Both)
     }
@@ -96,7 +98,7 @@ impl Word for ShareMode {
                 "Learn alone: no hints sent or applied (states, discoveries and the report still flow)"
             }
             ShareMode::Discoveries => {
-                "Take other robots' relayed pseudo-target discoveries as own pseudo targets; no hints"
+                "Use other robots' relayed discoveries (improved: as pseudo targets, planning: as known goal-path returns); no hints"
             }
             ShareMode::Hints => "Send Q-hint batches and apply the fleet's merged hints",
             ShareMode::Both => "Both: hints and relayed discoveries",
