@@ -89,8 +89,8 @@ fn four_robots_sharing_on_paper_20_all_end_optimal() {
 }
 
 /// `qfleet run` with no learner or rule options: the planning learner, the `min/min` rules that
-/// fit its upper bounds (named in the result), every robot optimal; no pseudo targets, so no
-/// discoveries, and that is no failure.
+/// fit its upper bounds (named in the result), every robot optimal; its goal-path discoveries
+/// (issue 36) are published, acknowledged and received like the improved learner's.
 #[test]
 fn the_default_run_is_planning_with_min_rules_and_every_robot_ends_optimal() {
     let id = run_id("fleetdef");
@@ -113,8 +113,14 @@ fn the_default_run_is_planning_with_min_rules_and_every_robot_ends_optimal() {
     let applied: u64 = robots.iter().map(|x| u(x, "hints_applied")).sum();
     assert!(applied > 0, "nothing shared: {r}");
     assert_eq!(r["all_optimal"], true, "{r}");
-    assert_eq!(u(&r, "discoveries_sent"), 0);
-    assert_eq!(u(&r, "discoveries_received"), 0);
+    for x in robots {
+        assert!(
+            u(x, "discoveries_sent") > 0,
+            "found a path, published none: {x}"
+        );
+        assert_eq!(x["discoveries_acked"], x["discoveries_sent"], "{x}");
+    }
+    assert_eq!(u(&r, "discoveries_received"), u(&r, "discoveries_sent"));
     assert!(leftovers(&id).is_empty(), "{:?}", leftovers(&id));
 }
 

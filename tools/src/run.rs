@@ -255,7 +255,7 @@ impl RunCmd {
         match &result {
             Some(r) if self.json => out!("{}", serde_json::to_string(r)?)?,
             Some(r) => {
-                print_human(r, &out, out_dir.is_temp())?;
+                print_human(r, &out, out_dir.is_temp(), self.share.share.discoveries())?;
                 crate::join::print_hosts(&hosts, self.robots)?;
             }
             None => {}
@@ -517,7 +517,7 @@ fn fmt_us(ns: u64) -> String {
     format!("{:.1} µs", ns as f64 / 1e3)
 }
 
-fn print_human(r: &RunResult, out: &Path, temp_out: bool) -> Result<()> {
+fn print_human(r: &RunResult, out: &Path, temp_out: bool, discoveries_used: bool) -> Result<()> {
     // one task for the fleet, or on a shared grid a start and goal per robot (its grid line)
     let task = match &r.grid {
         None => format!("{} → {}", r.start, r.goal),
@@ -549,10 +549,11 @@ fn print_human(r: &RunResult, out: &Path, temp_out: bool) -> Result<()> {
         )?;
     }
     out!(
-        "  all robots optimal: {}   discoveries sent {} / received {}",
+        "  all robots optimal: {}   discoveries sent {} / received {}{}",
         r.all_optimal,
         r.discoveries_sent,
-        r.discoveries_received
+        r.discoveries_received,
+        discoveries_note(r.discoveries_sent, discoveries_used)
     )?;
     if !r.without_path.is_empty() {
         let ids: Vec<String> = r.without_path.iter().map(u32::to_string).collect();
@@ -589,6 +590,19 @@ fn print_human(r: &RunResult, out: &Path, temp_out: bool) -> Result<()> {
         )?;
     }
     Ok(())
+}
+
+/// Why the discovery counts are what they are, after them on the summary line: relayed but not
+/// used by `--share hints` (the default: on the held-out maps they did not lower the env steps
+/// to the optimum beyond the spread of runs, docs/fleet.md), or none made at all.
+fn discoveries_note(sent: u64, used: bool) -> &'static str {
+    match (sent, used) {
+        (0, _) => {
+            " (none: the traditional learner makes none, the others once a robot reaches the goal)"
+        }
+        (_, false) => " (relayed, unused: --share hints; --share both uses them)",
+        (_, true) => "",
+    }
 }
 
 /// The shared grid's figures, as a MAPF user reads them.
