@@ -386,11 +386,8 @@ mod tests {
         t.drop_pending();
         assert_eq!(t.pending(), 0);
         assert_eq!(t.get(299, 0), Some(0.5));
-        let mut sent = 0;
-        assert_eq!(
-            t.resend_all(|t| sent += t.take_into(&mut MergedHintBatch::ZEROED)),
-            300
-        );
+        let (mut sent, mut sink) = (0, MergedHintBatch::ZEROED);
+        assert_eq!(t.resend_all(|t| sent += t.take_into(&mut sink)), 300);
         assert_eq!(sent, 300);
     }
 }
