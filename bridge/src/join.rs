@@ -377,6 +377,26 @@ pub fn placeholder(arg: &str) -> Option<&str> {
 }
 
 impl JoinPlan {
+    /// Whether the joining host takes this plan as its options say: unsealed frames only with
+    /// `insecure_plain` (`qfleet join --insecure-plain`), and only the run `asked` (`--run`),
+    /// if any. The refusal is the line the joining host prints.
+    pub fn accept(&self, asked: Option<&str>, insecure_plain: bool) -> Result<(), String> {
+        if self.plain && !insecure_plain {
+            return Err(
+                "the coordinator's host sends frames unencrypted (--insecure-plain \
+                        there): join with --insecure-plain to accept that"
+                    .into(),
+            );
+        }
+        match asked {
+            Some(run) if run != self.run_id => Err(format!(
+                "the coordinator's host runs {:?}, not the run {run:?} asked for",
+                self.run_id
+            )),
+            _ => Ok(()),
+        }
+    }
+
     /// Checks everything the joining host will use before it uses any of it: the run id, the
     /// robot count against `offered` (`--robots`), ids and fleet size, buffer sizes and
     /// deadlines, every shipped file name, and each robot's options (no `--out`, `--run-id`
@@ -701,6 +721,28 @@ impl RefusedLog {
     }
 }
 
+/// Refuses a join secret that names another run than the one `asked` for (`qfleet join
+/// --run`), before anything connects.
+pub fn secret_for(secret: &crate::seal::Secret, asked: Option<&str>) -> Result<(), String> {
+    match asked {
+        Some(run) if run != secret.run_id() => Err(format!(
+            "the join secret is for run {:?}, not the run {run:?} asked for",
+            secret.run_id()
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// This host's name as a joining host reports it by default: the kernel's hostname, or
+/// `remote` when it cannot be read.
+pub fn hostname() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|s| s.trim().to_string())
+        .ok()
+        .filter(|s| !s.is_empty())
+        .unwrap_or_else(|| "remote".into())
+}
+
 /// The host part of a Zenoh endpoint `proto/host:port` (brackets of an IPv6 address kept).
 pub fn endpoint_host(endpoint: &str) -> &str {
     let addr = endpoint.split_once('/').map_or(endpoint, |(_, a)| a);
@@ -727,6 +769,44 @@ pub fn join_hint(endpoint: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_joining_host_takes_only_the_run_and_sealing_it_asked_for() {
+        let plan = |plain: bool| JoinPlan {
+            run_id: "r1".into(),
+            host_index: 0,
+            robots_total: 2,
+            robot_ids: vec![1],
+            robot_args: vec![vec![]],
+            files: BTreeMap::new(),
+            hint_buffer: 64,
+            merged_buffer: 64,
+            down_after_ms: 500,
+            deadline_ms: 10_000,
+            t_ns: 0,
+            plain,
+        };
+        assert_eq!(plan(false).accept(None, false), Ok(()));
+        assert_eq!(plan(false).accept(Some("r1"), false), Ok(()));
+        let e = plan(false).accept(Some("r2"), false).unwrap_err();
+        assert!(e.contains("runs \"r1\", not the run \"r2\""), "{e}");
+        assert!(
+            plan(true)
+                .accept(None, false)
+                .unwrap_err()
+                .contains("--insecure-plain")
+        );
+        assert_eq!(plan(true).accept(None, true), Ok(()));
+        let s = crate::seal::Secret::generate("r1").unwrap();
+        assert_eq!(secret_for(&s, None), Ok(()));
+        assert_eq!(secret_for(&s, Some("r1")), Ok(()));
+        assert!(
+            secret_for(&s, Some("r2"))
+                .unwrap_err()
+                .contains("is for run \"r1\"")
+        );
+        assert!(!hostname().is_empty());
+    }
 
     fn req(robots: u32) -> JoinRequest {
         JoinRequest::new("b".into(), robots, 1)

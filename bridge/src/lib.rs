@@ -21,7 +21,9 @@
 //!
 //! Every host proves it holds the run's join secret before it gets a slot, and every frame after
 //! the join is sealed with keys of that host and direction ([`seal`]); the frame handling,
-//! ordering and figures both sides share are one [`end::LinkEnd`].
+//! ordering and figures both sides share are one [`end::LinkEnd`]. What the listening run
+//! decides around its hub (fleet total, hang deadline, the plan's shipped files, the secret
+//! file, the hub report's lines) is [`listen`].
 //!
 //! Not here: a transport (Zenoh is the transport), process spawning (the `qfleet` CLI), the
 //! coordinator's or the robots' logic.
@@ -35,6 +37,7 @@ pub mod health;
 pub mod hub;
 pub mod join;
 pub mod link;
+pub mod listen;
 pub mod probe;
 pub mod relay;
 pub mod reliable;

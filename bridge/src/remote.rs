@@ -254,6 +254,23 @@ pub enum Ending {
     Lost,
 }
 
+impl Ending {
+    /// How the joining host's run ended for its exit (`qfleet join`): an error line when the
+    /// coordinator's host at `endpoint` was lost, when it was stopped, or when robots `failed`.
+    pub fn verdict(&self, endpoint: &str, failed: &[u32]) -> Result<(), String> {
+        match self {
+            Ending::Lost => Err(format!(
+                "lost the coordinator's host {endpoint} (silent past the deadline); robots stopped"
+            )),
+            Ending::Stopped => Err("interrupted".into()),
+            Ending::Done | Ending::RunOver if !failed.is_empty() => Err(format!(
+                "robots {failed:?} exited with an error (see their logs)"
+            )),
+            Ending::Done | Ending::RunOver => Ok(()),
+        }
+    }
+}
+
 impl Joiner {
     /// Creates this host's services for the plan (before any robot starts).
     pub fn new(joined: Joined, host: &str, tuning: Tuning) -> Result<Self, BridgeError> {

@@ -34,6 +34,19 @@ pub struct HostReport {
 }
 
 impl HostReport {
+    /// The line a joining host logs at its end: the link to the coordinator's host at
+    /// `endpoint`, its reconnects, time down, round trip and clock offset.
+    pub fn link_line(&self, endpoint: &str) -> String {
+        format!(
+            "qfleet join: link to {endpoint}: {} reconnect(s), {} ms down, round trip p50 {:.1} µs, clock offset {} ns (±{} ns)",
+            self.link.reconnects,
+            self.link.down_ms,
+            self.link.rtt_ns.p50 as f64 / 1e3,
+            self.link.clock_offset_ns,
+            self.link.best_rtt_ns / 2
+        )
+    }
+
     /// This host as an entry of a result's `hosts`.
     pub fn entry(&self) -> HostEntry {
         HostEntry {
