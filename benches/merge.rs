@@ -7,7 +7,6 @@
 use std::hint::black_box;
 
 use bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHint, QHintBatch};
-use contract::ApplyRule;
 use contract::coordinator::MergeRule;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use planner::{Grid, QTable};
@@ -102,13 +101,7 @@ fn bench(c: &mut Criterion) {
     // a full batch: merge_batch hands it over when the 256th entry is queued
     merge_batch(&mut t, &batches[1], &mut merged);
     assert_eq!(merged.count as usize, HINT_BATCH_CAP);
-    let ctx = ApplyCtx {
-        robot_id: 1,
-        robots: 2,
-        goal_id: 0,
-        rule: ApplyRule::Max,
-    };
-    let mut applier = MergedApplier::new(ctx);
+    let mut applier = MergedApplier::new(ApplyCtx::second_of_two());
     g.bench_function("apply-merged-256", |bch| {
         bch.iter(|| {
             applier.apply(&merged, &mut q, &visits, 1_000);

@@ -34,7 +34,7 @@ use contract::coordinator::WaitStrategy;
 
 use crate::BenchError;
 use crate::harness::{Launcher, Options, row_timeout, spawn_on};
-use crate::report::{ProcessCpu, Row};
+use crate::report::Row;
 use crate::spec::RoleSpec;
 
 /// The cross-host rows, in the order they run.
@@ -164,18 +164,7 @@ pub fn rows(opts: &Options, launcher: &Launcher, tmp: &Path) -> Result<Vec<Row>,
         if !opts.only.is_empty() && !opts.only.iter().any(|o| o == label) {
             continue;
         }
-        if opts.progress {
-            report::log_line!("qfleet bench: {label} …");
-        }
-        let row = row(label, n, opts, launcher, tmp)?;
-        if opts.progress {
-            report::log_line!(
-                "qfleet bench: {label}: p50 {:.2} µs, p99.9 {:.2} µs, n = {}",
-                row.p50_ns as f64 / 1e3,
-                row.p999_ns as f64 / 1e3,
-                row.count
-            );
-        }
+        let row = crate::harness::progress(label, opts, || row(label, n, opts, launcher, tmp))?;
         rows.push(row);
     }
     Ok(rows)
@@ -185,12 +174,7 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
     let pair = Pair::new(n)?;
     let (la, lb) = (pair.launcher(0, l), pair.launcher(1, l));
     let plan = opts.plan();
-    let dir = tmp.join(label);
-    std::fs::create_dir_all(&dir).map_err(|source| BenchError::Io {
-        what: format!("create {}", dir.display()),
-        source,
-    })?;
-    let hist_path = dir.join("latency.bin");
+    let (dir, hist_path) = crate::harness::row_dir(tmp, label)?;
     // the run's join secret, in a file only root reads (never on a command line)
     let secret_file = dir.join("join.secret");
     let plain = label == "xhost-loop-plain";
@@ -199,23 +183,15 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
         "xhost-loop-nodoor" => bridge::DoorMode::Off,
         _ => bridge::DoorMode::default(),
     };
-    {
-        use std::io::Write;
-        use std::os::unix::fs::OpenOptionsExt;
-        let secret = bridge::Secret::generate("bench-xhost")
-            .map_err(|e| BenchError::Input(e.to_string()))?;
-        let _ = std::fs::remove_file(&secret_file);
-        std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .mode(0o600)
-            .open(&secret_file)
-            .and_then(|mut f| f.write_all(secret.text().as_bytes()))
-            .map_err(|source| BenchError::Io {
-                what: format!("write {}", secret_file.display()),
-                source,
-            })?;
-    }
+    let secret =
+        bridge::Secret::generate("bench-xhost").map_err(|e| BenchError::Input(e.to_string()))?;
+    bridge::listen::write_secret(&dir, &secret).map_err(|e| match e {
+        bridge::listen::ListenError::Write { source, .. } => BenchError::Io {
+            what: format!("write {}", secret_file.display()),
+            source,
+        },
+        e => BenchError::Input(e.to_string()),
+    })?;
     let quiet_ms = plan.timeout_ms + plan.idle_ms + 5_000;
     let endpoint = format!("tcp/{A_ADDR}:7447");
     let bridge_spin_us = opts
@@ -320,15 +296,5 @@ fn row(label: &str, n: usize, opts: &Options, l: &Launcher, tmp: &Path) -> Resul
     p?;
     drop(pair);
     let hist = ::report::hist::read_binary(&hist_path)?;
-    let mut processes = vec![ProcessCpu {
-        name: names[0].to_string(),
-        cpu_pct: crate::cpu::pct(m.self_cpu_ns, m.wall_ns),
-    }];
-    if let Some(peer_ns) = m.peer_cpu_ns {
-        processes.push(ProcessCpu {
-            name: names[1].to_string(),
-            cpu_pct: crate::cpu::pct(peer_ns, m.wall_ns),
-        });
-    }
-    Ok(Row::new(label, bytes, hist, &m, processes))
+    Ok(Row::of_pair(label, bytes, hist, &m, names))
 }

@@ -12,7 +12,7 @@ use bus::bus_schema::names::iceoryx_prefix;
 use contract::coordinator::WaitStrategy;
 use hdrhistogram::Histogram;
 
-use crate::report::{ProcessCpu, Report, Row, ScaleRow};
+use crate::report::{Report, Row, ScaleRow};
 use crate::spec::{ChildReport, Plan, REPORT_PREFIX, RoleSpec};
 use crate::{BenchError, Machine};
 
@@ -133,6 +133,30 @@ impl Options {
         }
     }
 
+    /// The sections `qfleet bench` measures: `--quick` or the full set, then `scale` (only the
+    /// scale section), `no_scale`, `only` (those rows, and no scale section unless `scale`),
+    /// `cross_host` (only the cross-host rows).
+    pub fn chosen(
+        quick: bool,
+        scale: bool,
+        no_scale: bool,
+        only: Vec<String>,
+        cross_host: bool,
+    ) -> Self {
+        let mut opts = if quick { Self::quick() } else { Self::full() };
+        if scale {
+            (opts.rows, opts.scale) = (false, true);
+        }
+        if no_scale || (!only.is_empty() && !scale) {
+            opts.scale = false;
+        }
+        opts.only = only;
+        if cross_host {
+            (opts.cross_host, opts.rows, opts.scale) = (true, false, false);
+        }
+        opts
+    }
+
     pub(crate) fn plan(&self) -> Plan {
         Plan {
             warmup: self.warmup,
@@ -192,18 +216,7 @@ fn run_in(opts: &Options, launcher: &Launcher, tmp: &Path) -> Result<Report, Ben
     }
     if opts.rows {
         for label in ROW_LABELS.iter().filter(|l| opts.wants(l)) {
-            if opts.progress {
-                report::log_line!("qfleet bench: {label} …");
-            }
-            let row = run_row(label, opts, launcher, tmp)?;
-            if opts.progress {
-                report::log_line!(
-                    "qfleet bench: {label}: p50 {:.2} µs, p99.9 {:.2} µs, n = {}",
-                    row.p50_ns as f64 / 1e3,
-                    row.p999_ns as f64 / 1e3,
-                    row.count
-                );
-            }
+            let row = progress(label, opts, || run_row(label, opts, launcher, tmp))?;
             report.rows.push(row);
         }
     }
@@ -414,6 +427,39 @@ pub(crate) fn row_timeout(plan: &Plan) -> Duration {
     Duration::from_millis(60_000 + plan.idle_ms + (plan.warmup + plan.samples) / 5)
 }
 
+/// The directory of row `label` under `tmp`, created, and its histogram file's path.
+pub(crate) fn row_dir(tmp: &Path, label: &str) -> Result<(PathBuf, PathBuf), BenchError> {
+    let dir = tmp.join(label);
+    std::fs::create_dir_all(&dir).map_err(|source| BenchError::Io {
+        what: format!("create {}", dir.display()),
+        source,
+    })?;
+    let hist_path = dir.join("latency.bin");
+    Ok((dir, hist_path))
+}
+
+/// Measures one row with `measure`, saying on stderr (with `opts.progress`) which row starts
+/// and what it measured: the rows of one host and the cross-host rows alike.
+pub(crate) fn progress(
+    label: &str,
+    opts: &Options,
+    measure: impl FnOnce() -> Result<Row, BenchError>,
+) -> Result<Row, BenchError> {
+    if opts.progress {
+        report::log_line!("qfleet bench: {label} …");
+    }
+    let row = measure()?;
+    if opts.progress {
+        report::log_line!(
+            "qfleet bench: {label}: p50 {:.2} µs, p99.9 {:.2} µs, n = {}",
+            row.p50_ns as f64 / 1e3,
+            row.p999_ns as f64 / 1e3,
+            row.count
+        );
+    }
+    Ok(row)
+}
+
 fn run_row(label: &str, opts: &Options, l: &Launcher, tmp: &Path) -> Result<Row, BenchError> {
     let plan = opts.plan();
     // crossbeam's process pins its two threads itself: main to the first, pong to the second
@@ -423,12 +469,7 @@ fn run_row(label: &str, opts: &Options, l: &Launcher, tmp: &Path) -> Result<Row,
         (true, _) => (Some("0"), Some("1")),
     };
     let run_id = bus::unique_run_id(&format!("bench-{}", label.replace("-loop", "")));
-    let dir = tmp.join(label);
-    std::fs::create_dir_all(&dir).map_err(|source| BenchError::Io {
-        what: format!("create {}", dir.display()),
-        source,
-    })?;
-    let hist_path = dir.join("latency.bin");
+    let (dir, hist_path) = row_dir(tmp, label)?;
     let timeout = row_timeout(&plan);
     let quiet_ms = plan.timeout_ms + plan.idle_ms + 5_000;
     let cells = crate::roles::fleet::task(&opts.map)?.grid.len() as u32;
@@ -546,17 +587,7 @@ fn run_row(label: &str, opts: &Options, l: &Launcher, tmp: &Path) -> Result<Row,
     }
     clean?;
     let hist = read_binary(&hist_path)?;
-    let mut processes = vec![ProcessCpu {
-        name: names[0].to_string(),
-        cpu_pct: crate::cpu::pct(m.self_cpu_ns, m.wall_ns),
-    }];
-    if let Some(peer_ns) = m.peer_cpu_ns {
-        processes.push(ProcessCpu {
-            name: names[1].to_string(),
-            cpu_pct: crate::cpu::pct(peer_ns, m.wall_ns),
-        });
-    }
-    Ok(Row::new(label, bytes, hist, &m, processes))
+    Ok(Row::of_pair(label, bytes, hist, &m, names))
 }
 
 fn scale_point(n: u32, batch: u32, opts: &Options, l: &Launcher, tmp: &Path) -> ScaleRow {
@@ -668,4 +699,24 @@ fn scale_point_inner(
     row.cpu_coordinator_pct = crate::cpu::pct(coord_cpu, c.wall_ns.max(wall_ns));
     row.cpu_pct = row.cpu_robots_pct + row.cpu_coordinator_pct;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_command_line_chooses_the_sections() {
+        let o = Options::chosen(true, false, false, vec![], false);
+        assert!(o.rows && !o.scale && !o.cross_host && o.samples == 5_000);
+        let o = Options::chosen(false, false, false, vec![], false);
+        assert!(o.rows && o.scale);
+        let o = Options::chosen(false, true, false, vec![], false);
+        assert!(!o.rows && o.scale);
+        let o = Options::chosen(false, false, false, vec!["uds-loop".into()], false);
+        assert!(o.rows && !o.scale && o.only == ["uds-loop"]);
+        assert!(!Options::chosen(false, false, true, vec![], false).scale);
+        let o = Options::chosen(false, false, false, vec![], true);
+        assert!(o.cross_host && !o.rows && !o.scale);
+    }
 }

@@ -60,6 +60,28 @@ pub struct Row {
 }
 
 impl Row {
+    /// Builds a row of a two-process measurement: the measuring child (`names[0]`) and, when
+    /// it measured one, its peer (`names[1]`), each with its share of a core.
+    pub fn of_pair(
+        label: &str,
+        bytes: usize,
+        hist: Histogram<u64>,
+        m: &ChildReport,
+        names: [&str; 2],
+    ) -> Self {
+        let mut processes = vec![ProcessCpu {
+            name: names[0].to_string(),
+            cpu_pct: crate::cpu::pct(m.self_cpu_ns, m.wall_ns),
+        }];
+        if let Some(peer_ns) = m.peer_cpu_ns {
+            processes.push(ProcessCpu {
+                name: names[1].to_string(),
+                cpu_pct: crate::cpu::pct(peer_ns, m.wall_ns),
+            });
+        }
+        Row::new(label, bytes, hist, m, processes)
+    }
+
     /// Builds a row from the measuring child's report and histogram.
     pub fn new(
         label: &str,

@@ -221,6 +221,20 @@ pub struct ApplyCtx {
     pub rule: ApplyRule,
 }
 
+impl ApplyCtx {
+    /// Robot 1 of a fleet of two, learning goal 0 and applying by `max`: the robot whose side
+    /// the latency benchmarks measure (`fleetbench`'s update-loop rows, `benches/merge.rs`), one
+    /// context so they all measure the same applier.
+    pub fn second_of_two() -> Self {
+        ApplyCtx {
+            robot_id: 1,
+            robots: 2,
+            goal_id: 0,
+            rule: ApplyRule::Max,
+        }
+    }
+}
+
 /// Applies merged batches to a robot's Q-table by the documented rule (module docs): owns who
 /// the robot is ([`ApplyCtx`]), the gap tracking of `coordinator_seq`, the counters and the
 /// end-to-end loop-latency histogram.

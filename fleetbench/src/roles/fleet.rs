@@ -232,13 +232,7 @@ pub fn loop_robots(spec: &RoleSpec) -> Result<ChildReport, BenchError> {
     let mut batcher = HintBatcher::new(cells as usize, 1, 1e-3);
     let mut q1 = QTable::new(&task.grid);
     let visits1 = vec![0u16; cells as usize * 4];
-    let ctx = ApplyCtx {
-        robot_id: 1,
-        robots: 2,
-        goal_id: 0,
-        rule: ApplyRule::Max,
-    };
-    let mut applier = MergedApplier::new(ctx);
+    let mut applier = MergedApplier::new(ApplyCtx::second_of_two());
     let updates = Updates::new(cells, 64, 0);
     // no answer at all for `timeout` (every retry included) ends the row with an error
     let mut deadline = Deadline::new(timeout, "the coordinator's merged hint", Some(*peer_pid));

@@ -283,6 +283,27 @@ pub(crate) fn record_since(h: &mut Histogram<u64>, t0_ns: u64, measuring: bool) 
 }
 
 /// Writes the histogram for the parent.
+/// A measuring child's report once its loop ended: the sample count, the window's CPU figures,
+/// the peer's CPU while idle (measured over `idle_ms`), and the histogram saved to `hist_path`.
+pub(crate) fn finish(
+    h: &Histogram<u64>,
+    window: Option<&Window>,
+    peer_pid: u32,
+    idle_ms: u64,
+    hist_path: &Path,
+) -> Result<ChildReport, BenchError> {
+    let mut r = ChildReport {
+        samples: h.len(),
+        ..ChildReport::default()
+    };
+    if let Some(w) = window {
+        w.finish(&mut r);
+    }
+    r.peer_idle_cpu_pct = idle_peer_cpu(peer_pid, idle_ms);
+    save(h, hist_path)?;
+    Ok(r)
+}
+
 pub(crate) fn save(h: &Histogram<u64>, path: &Path) -> Result<(), BenchError> {
     Ok(hist::write_binary(h, path)?)
 }

@@ -17,7 +17,7 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 
-use super::{Deadline, Window, idle_peer_cpu, record_since, save, window_ns};
+use super::{Deadline, Window, record_since, window_ns};
 use crate::BenchError;
 use crate::spec::{ChildReport, Plan};
 
@@ -315,16 +315,8 @@ pub fn ping(
         ports.wait_for(ws.as_ref(), &mut deadline, |m| m.coordinator_seq == seq)?;
         record_since(&mut h, t0, measuring);
     }
-    let mut r = ChildReport {
-        samples: h.len(),
-        ..ChildReport::default()
-    };
-    if let Some(w) = &window {
-        w.finish(&mut r);
-    }
-    r.peer_idle_cpu_pct = idle_peer_cpu(peer_pid, plan.idle_ms);
+    let r = super::finish(&h, window.as_ref(), peer_pid, plan.idle_ms, hist_path)?;
     msg.seq = STOP;
     ports.send(&msg)?;
-    save(&h, hist_path)?;
     Ok(r)
 }

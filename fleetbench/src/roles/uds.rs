@@ -10,7 +10,6 @@ use std::time::Duration;
 
 use bus::bus_schema::{HINT_BATCH_CAP, MergedHintBatch, QHintBatch};
 use bus::monotonic_ns;
-use contract::ApplyRule;
 use contract::coordinator::MergeRule;
 use planner::{Grid, QTable};
 use sharing::FleetTable;
@@ -226,13 +225,7 @@ pub fn client(
     let mut batcher = HintBatcher::new(cells as usize, 1, 1e-3);
     let mut q1 = QTable::new(&grid);
     let visits1 = vec![0u16; cells as usize * 4];
-    let ctx = ApplyCtx {
-        robot_id: 1,
-        robots: 2,
-        goal_id: 0,
-        rule: ApplyRule::Max,
-    };
-    let mut applier = MergedApplier::new(ctx);
+    let mut applier = MergedApplier::new(ApplyCtx::second_of_two());
     let updates = Updates::new(cells, 64, 0);
     let mut batch = Box::new(QHintBatch::ZEROED);
     let mut merged = Box::new(MergedHintBatch::ZEROED);

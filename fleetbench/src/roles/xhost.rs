@@ -15,7 +15,7 @@ use bus::monotonic_ns;
 use zenoh::Wait;
 use zenoh::handlers::FifoChannel;
 
-use super::{Deadline, Window, idle_peer_cpu, record_since, save, window_ns};
+use super::{Deadline, Window, record_since, window_ns};
 use crate::BenchError;
 use crate::spec::{ChildReport, Plan, RoleSpec};
 
@@ -93,26 +93,7 @@ pub fn tcp_ping(
         record_since(&mut h, t0, i >= plan.warmup);
         i += 1;
     }
-    finish(h, window, peer_pid, plan, hist_path)
-}
-
-fn finish(
-    h: hdrhistogram::Histogram<u64>,
-    window: Option<Window>,
-    peer_pid: u32,
-    plan: &Plan,
-    hist_path: &Path,
-) -> Result<ChildReport, BenchError> {
-    let mut r = ChildReport {
-        samples: h.len(),
-        ..ChildReport::default()
-    };
-    if let Some(w) = &window {
-        w.finish(&mut r);
-    }
-    r.peer_idle_cpu_pct = idle_peer_cpu(peer_pid, plan.idle_ms);
-    save(&h, hist_path)?;
-    Ok(r)
+    super::finish(&h, window.as_ref(), peer_pid, plan.idle_ms, hist_path)
 }
 
 const PING_KEY: &str = "qfleet/bench/ping";
@@ -216,7 +197,7 @@ pub fn zenoh_ping(
         i += 1;
     }
     let _ = publisher.put(Vec::<u8>::new()).wait();
-    let r = finish(h, window, peer_pid, plan, hist_path);
+    let r = super::finish(&h, window.as_ref(), peer_pid, plan.idle_ms, hist_path);
     let _ = session.close().wait();
     r
 }
