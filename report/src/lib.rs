@@ -14,6 +14,8 @@
 //! - [`hosts`]: which host each robot ran on and the link to each joined host ([`HostEntry`],
 //!   [`HostLink`]), the `hosts` of a result across machines;
 //! - [`checkpoint`]: what a restarted coordinator resumes from ([`CoordinatorCheckpoint`]);
+//! - [`summary`]: the human summaries of a run and of an experiment's seed, as text; [`table`]:
+//!   the column-aligned [`TextTable`] they are made of;
 //! - [`text`]: text from outside escaped before it reaches a terminal ([`escape`]);
 //! - [`log`]: the processes' log lines ([`log_line!`]: `eprintln!` that never panics on a
 //!   full disk);
@@ -33,6 +35,8 @@ pub mod log;
 pub mod outdir;
 pub mod robot;
 pub mod run;
+pub mod summary;
+pub mod table;
 pub mod text;
 pub mod words;
 
@@ -51,5 +55,6 @@ pub use run::{
     ExperimentResult, GoalPhase, LivenessEvent, LivenessKind, LivenessReport, MergeRule,
     PhaseResult, RobotEntry, RobotOutcome, RobotPhase, RunResult, Throughput, WaitStrategy,
 };
+pub use table::TextTable;
 pub use text::escape;
 pub use words::{ShareMode, Word};

@@ -346,6 +346,19 @@ pub struct RunResult {
     pub lifelong: Option<crate::lifelong::LifelongResult>,
 }
 
+impl RunResult {
+    /// The result of a run whose out directory is `out`: its `result.json`, else the JSON the
+    /// coordinator `sent` on its stdout because it could not write the file (a full disk); with
+    /// whether it came from `sent`. None when neither reads as a result.
+    pub fn recover(out: &std::path::Path, sent: Option<&str>) -> Option<(RunResult, bool)> {
+        let written = std::fs::read_to_string(out.join(crate::OutFile::Result.name()));
+        if let Some(r) = written.ok().and_then(|t| serde_json::from_str(&t).ok()) {
+            return Some((r, false));
+        }
+        serde_json::from_str(sent?).ok().map(|r| (r, true))
+    }
+}
+
 /// One robot's result in one phase.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct RobotPhase {
@@ -495,6 +508,36 @@ pub struct ExperimentResult {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn run_json(run_id: &str) -> String {
+        serde_json::json!({
+            "run_id": run_id, "map": "paper-10", "start": "(0,0)", "goal": "(9,9)",
+            "wait": "hybrid", "merge": "max", "robots": [], "all_optimal": true,
+            "discoveries_sent": 0, "discoveries_received": 0, "discovery_duplicates": 0,
+            "pseudo_targets": 0, "latency_ns": {},
+            "throughput": {"messages_per_s": 0.0, "q_updates_merged_per_s": 0.0, "messages": 0,
+                "q_updates_merged": 0, "fleet_changes": 0, "merged_batches_sent": 0,
+                "active_s": 0.0},
+            "liveness": {"checks": 0, "lost": [], "alive_at_end": []},
+            "rejected": 0, "interrupted": false, "elapsed_s": 1.0
+        })
+        .to_string()
+    }
+
+    #[test]
+    fn a_result_is_recovered_from_its_file_or_else_from_what_was_sent() {
+        let dir = std::env::temp_dir().join(format!("report-recover-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let _ = std::fs::remove_file(dir.join("result.json"));
+        assert!(RunResult::recover(&dir, None).is_none());
+        assert!(RunResult::recover(&dir, Some("not json")).is_none());
+        let (r, sent) = RunResult::recover(&dir, Some(&run_json("sent"))).unwrap();
+        assert_eq!((r.run_id.as_str(), sent), ("sent", true));
+        std::fs::write(dir.join("result.json"), run_json("file")).unwrap();
+        let (r, sent) = RunResult::recover(&dir, Some(&run_json("sent"))).unwrap();
+        assert_eq!((r.run_id.as_str(), sent), ("file", false));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn outcomes_and_event_kinds_are_written_as_their_words() {
