@@ -14,7 +14,7 @@ pub mod world;
 pub use manifest::{Manifest, ManifestError, Plan, load_manifest, parse_manifest};
 pub use pace::{pace_cli, parse_pace};
 pub use share_mode::{ShareMode, ValueBound};
-pub use world::{Lifelong, LifelongFileError, World, WorldArgs, load_lorr};
+pub use world::{Lifelong, LifelongFileError, World, WorldArgs, load_lorr, local_robots};
 
 use clap::Args;
 use planner::map::{self, MapError};
@@ -37,6 +37,9 @@ pub enum ArgsError {
     /// `--scen-index` without `--scen`, or a scenario with `--start`/`--goal`.
     #[error("{0}")]
     Conflict(&'static str),
+    /// `--robots`, `--agents` and `--remote-robots` do not make one fleet.
+    #[error("{0}")]
+    Fleet(String),
     /// A learner parameter is out of range.
     #[error("invalid learner option: {0}")]
     Learner(#[from] ConfigError),
@@ -80,6 +83,13 @@ pub enum ArgsError {
 
 fn cell(s: &str) -> Result<Cell, String> {
     task::parse_cell(s).map_err(|e| e.to_string())
+}
+
+/// A duration option given in seconds (`--grace`, `--time-limit`, `topic --wait`): `flag`
+/// names it in the refusal of a negative or non-finite value.
+pub fn seconds(flag: &str, v: f64) -> Result<std::time::Duration, String> {
+    std::time::Duration::try_from_secs_f64(v)
+        .map_err(|_| format!("{flag} must be a number of seconds >= 0, got {v}"))
 }
 
 /// The value parser of a setting written as one word (`--wait hybrid`, `--merge max`,
@@ -349,6 +359,14 @@ impl LearnerArgs {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn seconds_are_finite_and_not_negative() {
+        assert_eq!(seconds("--grace", 0.25).unwrap().as_millis(), 250);
+        let e = seconds("--time-limit", -2.0).unwrap_err();
+        assert_eq!(e, "--time-limit must be a number of seconds >= 0, got -2");
+        assert!(seconds("--wait", f64::INFINITY).is_err());
+    }
     use clap::Parser;
 
     #[derive(Parser)]

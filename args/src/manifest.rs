@@ -872,6 +872,32 @@ fn separate_optima(
 }
 
 impl Plan {
+    /// Loads the manifest `file` and resolves it relative to its directory (`qfleet
+    /// experiment`, each manifest of `qfleet sweep`).
+    pub fn load(file: &Path) -> Result<Plan, ManifestError> {
+        let base = file.parent().unwrap_or(Path::new("."));
+        load_manifest(file)?.resolve(base)
+    }
+
+    /// A task for the live view of an experiment: its map, the first robot's start and the
+    /// first goal (the robots' own starts and goals arrive on the bus).
+    pub fn view_task(&self) -> Task {
+        let start = self.starts.first().copied().unwrap_or(Cell::new(0, 0));
+        let goal = self.goal_cells.first().copied().unwrap_or(start);
+        Task {
+            map_name: self.map.name.clone(),
+            grid: self.map.grid.clone(),
+            start,
+            goal,
+            optimal_len: self
+                .optimal
+                .first()
+                .and_then(|o| o.first())
+                .copied()
+                .unwrap_or(1),
+        }
+    }
+
     /// Map options for robot `r` with goal `g` (what a robot-agent is started with).
     pub fn map_args(&self, r: usize, g: usize) -> MapArgs {
         MapArgs {

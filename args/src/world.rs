@@ -285,9 +285,52 @@ impl MapArgs {
     }
 }
 
+/// The robots of this host (`qfleet run`): `robots` (`--robots`), or `agents` (`--agents`)
+/// less `remote` (`--remote-robots`, the agents other hosts run), or 4; both given, they must
+/// agree, one robot per agent.
+pub fn local_robots(
+    robots: Option<u32>,
+    agents: Option<u32>,
+    remote: u32,
+) -> Result<u32, ArgsError> {
+    let all = |r: u32| u64::from(r) + u64::from(remote);
+    match (robots, agents) {
+        (Some(r), Some(a)) if r != a && remote == 0 => Err(ArgsError::Fleet(format!(
+            "--robots {r} and --agents {a} disagree: one robot per agent (give one of them)"
+        ))),
+        (Some(r), Some(a)) if all(r) != u64::from(a) => Err(ArgsError::Fleet(format!(
+            "--robots {r} on this host and --remote-robots {remote} make {} robots, but \
+                 --agents is {a}: one robot per agent",
+            all(r)
+        ))),
+        (Some(n), _) => Ok(n),
+        (None, Some(a)) => a.checked_sub(remote).filter(|&n| n > 0).ok_or_else(|| {
+            ArgsError::Fleet(format!(
+                "--agents {a} with --remote-robots {remote} leaves no robot on this host (at \
+                 least one runs here, beside the coordinator)"
+            ))
+        }),
+        (None, None) => Ok(4),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_robots_of_this_host_come_from_robots_or_agents() {
+        assert_eq!(local_robots(None, None, 0).unwrap(), 4);
+        assert_eq!(local_robots(Some(3), None, 2).unwrap(), 3);
+        assert_eq!(local_robots(None, Some(8), 2).unwrap(), 6);
+        assert_eq!(local_robots(Some(6), Some(8), 2).unwrap(), 6);
+        let e = local_robots(Some(3), Some(4), 0).unwrap_err().to_string();
+        assert!(e.contains("disagree"), "{e}");
+        let e = local_robots(Some(3), Some(8), 2).unwrap_err().to_string();
+        assert!(e.contains("make 5 robots"), "{e}");
+        let e = local_robots(None, Some(2), 2).unwrap_err().to_string();
+        assert!(e.contains("leaves no robot"), "{e}");
+    }
 
     fn map_args(scen: Option<&str>) -> MapArgs {
         MapArgs {

@@ -25,6 +25,10 @@ pub use report::run::{MergeRule, WaitStrategy};
 
 use crate::Words;
 
+/// The coordinator's `--hang-ms` default: ms of silence after which a running robot is hung
+/// (raised for robots on other hosts, see `bridge::listen::hang_ms`).
+pub const DEFAULT_HANG_MS: u64 = 2000;
+
 /// Hybrid wait: µs the coordinator spins after the last message when all robots are local
 /// (a local loop is answered at spin latency, ~2 µs, instead of an event wakeup).
 pub const DEFAULT_SPIN_US: u64 = 200;
@@ -95,7 +99,7 @@ pub struct CoordArgs {
     #[arg(long, default_value_t = 0)]
     pub merged_buffer: usize,
     /// Heartbeat deadline: a running robot silent this long (ms) is reported hung.
-    #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, default_value_t = DEFAULT_HANG_MS, value_parser = clap::value_parser!(u64).range(1..))]
     pub hang_ms: u64,
     /// Restarts per robot the launcher may make: the end of the run waits (up to `--timeout`)
     /// for a lost robot to come back while it has restarts left.
@@ -142,7 +146,7 @@ impl CoordArgs {
             progress: false,
             hint_buffer: 64,
             merged_buffer: 0,
-            hang_ms: 2000,
+            hang_ms: DEFAULT_HANG_MS,
             restarts: 0,
             plan: None,
         }

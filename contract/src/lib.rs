@@ -21,7 +21,7 @@ pub mod share;
 
 pub use coordinator::{BRIDGED_SPIN_US, CoordArgs, DEFAULT_SPIN_US, spin_us_for};
 pub use robot::AgentArgs;
-pub use share::{ApplyRule, ShareArgs, ShareOptionError};
+pub use share::{ApplyRule, Resolved, Rules, ShareArgs, ShareOptionError};
 
 use std::ffi::OsString;
 

@@ -130,6 +130,33 @@ impl AgentArgs {
         crate::parse::<AgentLine, _, _>(words).map(|c| c.args)
     }
 
+    /// The options of robot `robot_id` of run `run_id` as another host sent them (`words`,
+    /// `qfleet join`): read as the process reads them, refused when an option is unknown, a
+    /// value wrong, or they name another run or robot than the slot's; they write into `out`,
+    /// whatever the other host asked. The refusal is text from outside, escaped.
+    pub fn for_slot(
+        words: &[String],
+        run_id: &str,
+        robot_id: u32,
+        out: &std::path::Path,
+    ) -> Result<Self, String> {
+        let mut a = Self::try_parse_args(words).map_err(|e| {
+            format!(
+                "host A sent options robot {robot_id} does not take: {}",
+                report::escape(e.to_string().lines().next().unwrap_or_default())
+            )
+        })?;
+        if a.run_id != run_id || a.robot_id != robot_id {
+            return Err(format!(
+                "host A's options for robot {robot_id} name run {} robot {}",
+                report::escape(&a.run_id),
+                a.robot_id
+            ));
+        }
+        a.out = Some(out.to_path_buf());
+        Ok(a)
+    }
+
     /// The clap command of these options (for help texts and the contract's tests).
     pub fn command() -> clap::Command {
         <AgentLine as clap::CommandFactory>::command()
@@ -281,5 +308,25 @@ mod tests {
             let back = AgentArgs::try_parse_args(a.to_args());
             prop_assert_eq!(back.map_err(|e| e.to_string()), Ok(a));
         }
+    }
+
+    #[test]
+    fn a_joined_slot_takes_only_its_own_run_and_robot() {
+        let words = |run: &str, id: u32| -> Vec<String> {
+            let id = id.to_string();
+            ["--run-id", run, "--robot-id", &id]
+                .map(String::from)
+                .to_vec()
+        };
+        let out = std::path::Path::new("/tmp/joined");
+        let a = AgentArgs::for_slot(&words("r1", 2), "r1", 2, out).unwrap();
+        assert_eq!((a.robot_id, a.out.as_deref()), (2, Some(out)));
+        let e = AgentArgs::for_slot(&words("r2", 2), "r1", 2, out).unwrap_err();
+        assert!(e.contains("name run r2 robot 2"), "{e}");
+        assert!(AgentArgs::for_slot(&words("r1", 3), "r1", 2, out).is_err());
+        let mut bad = words("r1", 2);
+        bad.push("--no-such-option\u{1b}".into());
+        let e = AgentArgs::for_slot(&bad, "r1", 2, out).unwrap_err();
+        assert!(e.contains("does not take") && !e.contains('\u{1b}'), "{e}");
     }
 }

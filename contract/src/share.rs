@@ -1,12 +1,14 @@
 //! What robots share and the rules that fit each learner: the sharing options of a robot
 //! (`--share`, `--apply`, the batching knobs), how it applies merged hints ([`ApplyRule`]) and
-//! how the coordinator merges them ([`MergeRule`], [`merge_rule_for`], [`merge_fits`]). Which
+//! how the coordinator merges them ([`MergeRule`], [`merge_rule_for`], [`merge_fits`]), and the
+//! pair a run uses ([`Rules`] as given on a command line, [`Resolved`] once decided). Which
 //! rule fits depends on the side of Q* a learner's values lie on ([`ValueBound`]); the rules
 //! themselves are documented with the code that applies them (robot-agent's `share` module,
 //! the coordinator's `merge` module).
 
 use bus_schema::HINT_BATCH_CAP;
 use clap::{Args, ValueEnum};
+use planner::LearnerConfig;
 pub use qfleet_args::{ShareMode, ValueBound};
 pub use report::run::MergeRule;
 use serde::Serialize;
@@ -163,13 +165,117 @@ impl ShareArgs {
     }
 }
 
+/// The two rules of Q-hint sharing: how the coordinator merges robots' values into the fleet
+/// table, and how a robot applies the fleet's values to its own table. A rule not given is the
+/// one that fits the learner ([`Rules::resolve`]): `min` for the planning learner, whose values
+/// are upper bounds of Q*, `max` for the paper's learners, whose values are lower bounds.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Args)]
+pub struct Rules {
+    /// How a robot applies merged hints (robot-agent `--apply`; default: min for planning,
+    /// max for the paper's learners).
+    #[arg(long, value_enum)]
+    pub apply: Option<ApplyRule>,
+    /// How the coordinator merges hints into the fleet table (default: min for planning, max
+    /// for the paper's learners).
+    #[arg(long, value_parser = qfleet_args::choice::<MergeRule>())]
+    pub merge: Option<MergeRule>,
+}
+
+/// Both rules, decided.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Resolved {
+    /// Robot side.
+    pub apply: ApplyRule,
+    /// Coordinator side.
+    pub merge: MergeRule,
+}
+
+impl std::fmt::Display for Resolved {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.apply, self.merge)
+    }
+}
+
+impl Rules {
+    /// The rules for a learner: those given, and for the others the one that fits the bound
+    /// its values keep.
+    pub fn resolve(self, cfg: &LearnerConfig) -> Resolved {
+        let b = ValueBound::of(cfg);
+        Resolved {
+            apply: self.apply.unwrap_or(ApplyRule::for_bound(b)),
+            merge: self.merge.unwrap_or(merge_rule_for(b)),
+        }
+    }
+
+    /// A warning when a rule given does not fit the learner (`max` with upper bounds, `min`
+    /// with lower bounds). Not an error: measuring the wrong pairing is a legitimate ablation.
+    pub fn misfit(self, cfg: &LearnerConfig) -> Option<String> {
+        let b = ValueBound::of(cfg);
+        let mut bad = Vec::new();
+        if let Some(a) = self.apply.filter(|a| !a.fits(b)) {
+            bad.push(format!("--apply {a}"));
+        }
+        if let Some(m) = self.merge.filter(|m| !merge_fits(*m, b)) {
+            bad.push(format!("--merge {m}"));
+        }
+        if bad.is_empty() {
+            return None;
+        }
+        let (kind, fit) = match b {
+            ValueBound::Upper => ("upper bounds of Q* (optimistic start)", "min/min"),
+            ValueBound::Lower => ("lower bounds of Q* (start at 0)", "max/max"),
+        };
+        let verb = if bad.len() > 1 { "do" } else { "does" };
+        Some(format!(
+            "warning: {} {verb} not fit this learner: its values are {kind}; the rules that fit are {fit} (running as asked)",
+            bad.join(" and ")
+        ))
+    }
+}
+
+impl std::fmt::Display for Rules {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let a = self.apply.map_or("auto".to_string(), |a| a.to_string());
+        let m = self.merge.map_or("auto".to_string(), |m| m.to_string());
+        write!(f, "{a}/{m}")
+    }
+}
+
+impl std::str::FromStr for Rules {
+    type Err = String;
+    /// `APPLY/MERGE`, e.g. `max/max` or `min/min`; `auto` (alone or for either side) is the
+    /// rule that fits the learner.
+    fn from_str(s: &str) -> Result<Self, String> {
+        if s == "auto" {
+            return Ok(Rules::default());
+        }
+        let (a, m) = s
+            .split_once('/')
+            .ok_or_else(|| format!("{s:?}: expected APPLY/MERGE, e.g. min/min, or auto"))?;
+        Ok(Rules {
+            apply: match a {
+                "auto" => None,
+                _ => Some(
+                    ApplyRule::from_str(a, true).map_err(|e| format!("apply rule {a:?}: {e}"))?,
+                ),
+            },
+            merge: match m {
+                "auto" => None,
+                _ => Some(
+                    <MergeRule as report::Word>::from_word(&m.to_ascii_lowercase())
+                        .ok_or_else(|| format!("merge rule {m:?}: not max, mean, latest or min"))?,
+                ),
+            },
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
     fn the_default_rule_follows_the_learners_bound_and_a_flag_wins() {
-        use planner::LearnerConfig;
         let planning = ValueBound::of(&LearnerConfig::planning(10, 1));
         let improved = ValueBound::of(&LearnerConfig::improved(10, 1));
         let s = ShareArgs::default();
@@ -194,5 +300,32 @@ mod tests {
         }
         assert!(!merge_fits(MergeRule::Max, ValueBound::Upper));
         assert!(!merge_fits(MergeRule::Min, ValueBound::Lower));
+    }
+
+    #[test]
+    fn rules_default_to_the_learners_bound_and_a_misfit_is_named() {
+        let planning = LearnerConfig::planning(10, 1);
+        let improved = LearnerConfig::improved(10, 1);
+        let auto: Rules = "auto".parse().unwrap();
+        assert_eq!(auto, Rules::default());
+        assert_eq!(auto.resolve(&planning).to_string(), "min/min");
+        assert_eq!(auto.resolve(&improved).to_string(), "max/max");
+        assert_eq!(auto.misfit(&planning), None);
+        let half: Rules = "auto/max".parse().unwrap();
+        assert_eq!(half.to_string(), "auto/max");
+        assert_eq!(half.resolve(&planning).to_string(), "min/max");
+        let w = half.misfit(&planning).unwrap();
+        assert!(w.contains("--merge max does not fit"), "{w}");
+        let both: Rules = "max/max".parse().unwrap();
+        assert!(both.misfit(&planning).unwrap().contains("do not fit"));
+        assert_eq!(both.misfit(&improved), None);
+        let min: Rules = "min/min".parse().unwrap();
+        assert!(min.misfit(&improved).unwrap().contains("max/max"));
+        assert_eq!(
+            "latest/mean".parse::<Rules>().unwrap().misfit(&planning),
+            None
+        );
+        assert!("min".parse::<Rules>().is_err());
+        assert!("min/most".parse::<Rules>().is_err());
     }
 }

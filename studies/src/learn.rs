@@ -152,6 +152,57 @@ pub fn learn(opts: &LearnOptions) -> Result<LearnResult, LearnError> {
 }
 
 impl LearnResult {
+    /// `qfleet learn`'s human summary: the map, learner and seed, the path found against the
+    /// BFS optimum, steps, collisions, the first optimal episode, speed, and (with `out`) the
+    /// files written there.
+    pub fn summary(&self, out: Option<&std::path::Path>) -> String {
+        use std::fmt::Write as _;
+        let fmt_opt = |v: Option<u32>| v.map_or("none (loops)".to_string(), |x| x.to_string());
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "map {}  learner {} [{}]  episodes {}  seed {}",
+            self.map, self.learner, self.policy, self.episodes, self.seed
+        );
+        let _ = writeln!(
+            s,
+            "  optimal path      {} moves (BFS)",
+            self.optimal_path_len
+        );
+        let _ = writeln!(s, "  final path        {}", fmt_opt(self.final_path_len));
+        let _ = writeln!(
+            s,
+            "  avg / max steps   {:.2} / {}",
+            self.avg_steps, self.max_steps
+        );
+        let _ = writeln!(
+            s,
+            "  collisions        {:.2} per episode ({} in all)",
+            self.collisions_per_episode, self.collisions
+        );
+        let first = self.first_optimal_episode;
+        let _ = writeln!(
+            s,
+            "  first optimal     episode {}",
+            first.map_or("never".into(), |e| e.to_string())
+        );
+        let _ = writeln!(
+            s,
+            "  env steps         {} in {:.3} s ({:.1} M steps/s)",
+            self.env_steps,
+            self.elapsed_s,
+            self.env_steps_per_s / 1e6
+        );
+        if let Some(dir) = out {
+            let _ = writeln!(
+                s,
+                "  wrote             {}/{{episodes.csv,summary.json,steps.svg,path.svg}}",
+                dir.display()
+            );
+        }
+        s
+    }
+
     /// Builds the result of a finished run.
     pub fn new(
         map: &str,
@@ -233,6 +284,13 @@ mod tests {
         let text = std::fs::read_to_string(dir.join("summary.json")).unwrap();
         let back: LearnResult = serde_json::from_str(&text).unwrap();
         assert_eq!(back.env_steps, r.env_steps);
+        let s = r.summary(Some(&dir));
+        assert!(s.starts_with("map paper-10  learner planning ["), "{s}");
+        assert!(
+            s.contains("moves (BFS)") && s.contains("/{episodes.csv,"),
+            "{s}"
+        );
+        assert!(!r.summary(None).contains("wrote"));
         let _ = std::fs::remove_dir_all(&dir);
     }
 

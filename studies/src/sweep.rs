@@ -32,6 +32,17 @@ pub trait ShareRules: Copy + Default {
     fn misfit(&self, learner: &LearnerConfig) -> Option<String>;
 }
 
+impl ShareRules for contract::Rules {
+    fn resolve(&self, learner: &LearnerConfig) -> (ApplyRule, MergeRule) {
+        let r = contract::Rules::resolve(*self, learner);
+        (r.apply, r.merge)
+    }
+
+    fn misfit(&self, learner: &LearnerConfig) -> Option<String> {
+        contract::Rules::misfit(*self, learner)
+    }
+}
+
 /// One fleet run a sweep asks for.
 #[derive(Debug)]
 pub struct FleetRun<'a, R> {
