@@ -148,7 +148,8 @@
 //! `qfleet clean`) additionally removes every leftover file of a prefix once no node of it is
 //! alive — a clean exit still leaves one small management file, which
 //! [`CoordinatorBus::close`]/[`RobotBus::close`] remove when the last process leaves.
-//! [`find_run_prefixes`] finds runs that left files behind.
+//! [`find_run_prefixes`] finds runs that left files behind; [`clean::clean_runs`] is `qfleet
+//! clean` over them.
 //!
 //! ## Errors
 //!
@@ -165,6 +166,7 @@
 
 #![deny(missing_docs)]
 
+pub mod clean;
 mod clock;
 mod commit;
 mod config;

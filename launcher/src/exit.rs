@@ -73,9 +73,45 @@ impl std::fmt::Display for Exit {
     }
 }
 
+/// An error and its causes (`causes`, outermost first) as the one line a command prints: each
+/// cause once (library errors often name their cause in their own message too, and `{:#}`
+/// would then print it twice), and no [`Exit`] class marker (context that only sets the code).
+pub fn one_line<I: IntoIterator<Item = String>>(causes: I) -> String {
+    let markers = [Exit::BadInput, Exit::Interrupted, Exit::Failure].map(|e| e.to_string());
+    let mut out = String::new();
+    for msg in causes {
+        if out.contains(&msg) || markers.contains(&msg) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&msg);
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
-    use super::Exit;
+    use super::{Exit, one_line};
+
+    #[test]
+    fn each_cause_is_printed_once_and_no_class_marker() {
+        let chain = [
+            "loading the task",
+            "reading map.txt: disk on fire",
+            "disk on fire",
+        ];
+        assert_eq!(
+            one_line(chain.map(String::from)),
+            "loading the task: reading map.txt: disk on fire"
+        );
+        let chain = ["checking the command line", "bad input", "--robots 0"];
+        assert_eq!(
+            one_line(chain.map(String::from)),
+            "checking the command line: --robots 0"
+        );
+    }
 
     #[test]
     fn codes_are_the_documented_ones() {

@@ -26,4 +26,4 @@ pub mod supervise;
 pub mod timeouts;
 
 pub use exit::Exit;
-pub use supervise::{Fleet, RestartPolicy, Supervised, supervise};
+pub use supervise::{Fleet, RestartPolicy, Supervised, Supervision, supervise};

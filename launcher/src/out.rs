@@ -55,6 +55,48 @@ pub struct OutDir {
     temp: Option<tempfile::TempDir>,
 }
 
+/// `--out DIR` and `--force`, as `qfleet run`, `experiment` and `join` take them; each says in
+/// its own `--out` help (`mut_arg`) what goes into the directory.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct OutArgs {
+    /// Directory for the command's files (default: a new private temporary directory). A
+    /// directory that is not empty is refused unless `--force`.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Write into a non-empty `--out` directory, replacing files of the same names.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// [`OutArgs`] and `--ignore-memory`, as `qfleet run` and `qfleet experiment` take them (each
+/// says in its own help, `mut_arg`, what goes into the directory and what the memory is for).
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct RunOutArgs {
+    /// `--out` and `--force`.
+    #[command(flatten)]
+    pub dir: OutArgs,
+    /// Start even if the estimated memory (robots and coordinator, from the map's size)
+    /// exceeds the memory available now.
+    #[arg(long)]
+    pub ignore_memory: bool,
+}
+
+impl OutArgs {
+    /// The directory these options ask for ([`OutDir::prepare`]; a temporary one named after
+    /// `tag` without `--out`).
+    pub fn prepare(&self, tag: &str) -> Result<OutDir, OutError> {
+        OutDir::prepare(self.out.as_deref(), self.force, tag)
+    }
+}
+
+impl OutError {
+    /// Whether the command line asked for something refused (exit code 2), not a system
+    /// failure: an `--out` that is not empty or not a directory.
+    pub fn is_bad_input(&self) -> bool {
+        !matches!(self, OutError::Io { .. })
+    }
+}
+
 impl OutDir {
     /// Prepares `--out` (`Some`) or a fresh temporary directory named `qfleet-<tag>-XXXXXX`.
     pub fn prepare(out: Option<&Path>, force: bool, tag: &str) -> Result<OutDir, OutError> {

@@ -101,6 +101,11 @@ pub fn generate(tag: &str) -> String {
     id
 }
 
+/// A run id for one repetition of an experiment: `<prefix or exp>-<tag>-<pid>-<time>`.
+pub fn repetition(prefix: Option<&str>, tag: &str) -> String {
+    generate(&format!("{}-{tag}", prefix.unwrap_or("exp")))
+}
+
 /// The user's private directory for lock files: `/tmp/qfleet-<uid>`, created 0700 if missing;
 /// refused if it is a symlink, not a directory, owned by someone else or open to others.
 pub fn private_dir(id: &str) -> Result<PathBuf, RunIdError> {
@@ -256,6 +261,46 @@ pub fn lock_file(id: &str) -> Result<Option<(PathBuf, Option<i32>)>, RunIdError>
     Ok(Some((path, pid)))
 }
 
+/// Run `run_id`'s launcher lock as `qfleet clean` reports it: with `dry_run`, what removing
+/// it would do, told without taking the lock by the launcher's process id written in the file
+/// (`running(pid)`: whether that process is alive; a file without one, from a launcher killed
+/// right after creating it, is removable if no launcher holds it); else removes it if its
+/// launcher is gone. The line and how many files that is (0 or 1); None when there is no lock.
+pub fn lock_note(
+    run_id: &str,
+    dry_run: bool,
+    running: &dyn Fn(i32) -> bool,
+) -> Result<Option<(String, usize)>, RunIdError> {
+    if !dry_run {
+        let gone = release_stale(run_id)?;
+        return Ok(gone.map(|path| {
+            let line = format!("removed its launcher's stale lock {}", path.display());
+            (line, 1)
+        }));
+    }
+    Ok(lock_file(run_id)?.map(|(path, pid)| match pid {
+        Some(pid) if running(pid) => (
+            format!(
+                "its lock {} is held by a live launcher (pid {pid}), left alone",
+                path.display()
+            ),
+            0,
+        ),
+        Some(_) => (
+            format!("would remove its launcher's stale lock {}", path.display()),
+            1,
+        ),
+        None => (
+            format!(
+                "would remove its launcher's lock {} unless a live launcher holds it \
+                 (no process id in it)",
+                path.display()
+            ),
+            1,
+        ),
+    }))
+}
+
 /// Run ids with a lock file in the user's private directory (live or stale), for `qfleet clean`
 /// to look at runs that never reached shared memory; unreadable entries and names that are not
 /// valid run ids are skipped.
@@ -287,6 +332,26 @@ impl Drop for RunClaim {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_lock_is_reported_by_whether_its_launcher_runs() {
+        let id = repetition(Some("locknote"), "t");
+        assert!(id.starts_with("locknote-t-"), "{id}");
+        assert_eq!(lock_note(&id, true, &|_| true).unwrap(), None);
+        let claim = RunClaim::acquire(&id).unwrap();
+        let (line, n) = lock_note(&id, true, &|_| true).unwrap().unwrap();
+        assert!(line.contains("held by a live launcher") && n == 0, "{line}");
+        let (line, n) = lock_note(&id, true, &|_| false).unwrap().unwrap();
+        assert!(
+            line.starts_with("would remove its launcher's stale lock") && n == 1,
+            "{line}"
+        );
+        // held: not removed, whatever the dry run said
+        assert_eq!(lock_note(&id, false, &|_| false).unwrap(), None);
+        // a launcher that ended removed its lock: nothing left to say
+        drop(claim);
+        assert_eq!(lock_note(&id, false, &|_| false).unwrap(), None);
+    }
 
     #[test]
     fn a_dead_launchers_lock_is_released_and_a_live_ones_is_left_alone() {

@@ -8,6 +8,7 @@
 use std::os::unix::process::CommandExt;
 use std::path::PathBuf;
 use std::process::Command;
+use std::time::{Duration, Instant};
 
 /// A sibling binary that is missing.
 #[derive(Debug, thiserror::Error)]
@@ -75,9 +76,85 @@ pub fn bind_to_launcher(cmd: &mut Command) -> &mut Command {
     }
 }
 
+/// Waits up to `grace` for the children to exit, then SIGTERMs them and, 2 s later, kills the
+/// rest; returns the ids of those that exited unsuccessfully or had to be stopped (`qfleet
+/// join`'s robots, which no supervise loop restarts).
+pub fn stop_all(children: &mut [(u32, std::process::Child)], grace: Duration) -> Vec<u32> {
+    let deadline = Instant::now() + grace;
+    let mut failed = Vec::new();
+    let mut termed = false;
+    loop {
+        let running: Vec<usize> = (0..children.len())
+            .filter(|&i| matches!(children[i].1.try_wait(), Ok(None)))
+            .collect();
+        if running.is_empty() {
+            break;
+        }
+        let now = Instant::now();
+        if now >= deadline && !termed {
+            for &i in &running {
+                // SAFETY: kill(2) on a child we started and have not reaped
+                unsafe { libc::kill(children[i].1.id() as i32, libc::SIGTERM) };
+            }
+            termed = true;
+        } else if now >= deadline + Duration::from_secs(2) {
+            for &i in &running {
+                let _ = children[i].1.kill();
+            }
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    for (id, c) in children.iter_mut() {
+        if !matches!(c.wait(), Ok(s) if s.success()) {
+            failed.push(*id);
+        }
+    }
+    failed
+}
+
+/// Whether every child has exited; `exited(id)` is told of each one that has (polled, not
+/// reaped: [`stop_all`] reaps them).
+pub fn all_exited(
+    children: &mut [(u32, std::process::Child)],
+    exited: &mut dyn FnMut(u32),
+) -> bool {
+    let mut all = true;
+    for (id, c) in children.iter_mut() {
+        if matches!(c.try_wait(), Ok(Some(_))) {
+            exited(*id);
+        } else {
+            all = false;
+        }
+    }
+    all
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn stopping_children_names_the_failed_and_the_stopped() {
+        let start = |script: &str| Command::new("sh").args(["-c", script]).spawn().unwrap();
+        let mut children = vec![
+            (0, start("exit 0")),
+            (1, start("exit 3")),
+            (2, start("sleep 30")),
+        ];
+        // the sleeper keeps running: the two that exit are named, not the rest
+        let mut seen = Vec::new();
+        let t0 = Instant::now();
+        while seen.len() < 2 && t0.elapsed() < Duration::from_secs(10) {
+            seen.clear();
+            assert!(!all_exited(&mut children, &mut |id| seen.push(id)));
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        assert_eq!(seen, [0, 1]);
+        let t0 = Instant::now();
+        let failed = stop_all(&mut children, Duration::from_millis(200));
+        assert_eq!(failed, vec![1, 2]);
+        assert!(t0.elapsed() < Duration::from_secs(10));
+    }
 
     #[test]
     fn a_bound_child_runs_in_its_own_process_group() {

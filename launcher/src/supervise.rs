@@ -51,6 +51,41 @@ pub enum RestartPolicy {
     OnFailure,
 }
 
+impl RestartPolicy {
+    /// Restarts the coordinator is told the launcher may make per process (it waits for a
+    /// lost robot meanwhile): `max_restarts` with [`RestartPolicy::OnFailure`], none otherwise.
+    pub fn restarts(self, max_restarts: u32) -> u32 {
+        match self {
+            RestartPolicy::Never => 0,
+            RestartPolicy::OnFailure => max_restarts,
+        }
+    }
+}
+
+/// How the processes of a repetition of an experiment (or a sweep's run) are supervised.
+#[derive(Debug, Clone, Copy)]
+pub struct Supervision {
+    /// Restart policy (robots and the coordinator).
+    pub policy: RestartPolicy,
+    /// Restarts allowed per process.
+    pub max_restarts: u32,
+    /// Grace period of a stopping process before it is killed.
+    pub grace: Duration,
+    /// The robots' `--pace` (steps per second), if any.
+    pub pace: Option<f64>,
+}
+
+impl Default for Supervision {
+    fn default() -> Self {
+        Supervision {
+            policy: RestartPolicy::Never,
+            max_restarts: 3,
+            grace: Duration::from_secs(5),
+            pace: None,
+        }
+    }
+}
+
 /// Backoff before the n-th restart (n from 0): 200 ms · 2^n, at most 5 s.
 pub fn backoff(n: u32) -> Duration {
     Duration::from_millis(200u64.saturating_mul(1 << n.min(5))).min(Duration::from_secs(5))
@@ -117,6 +152,34 @@ pub struct Supervised {
     /// The result the coordinator sent on stdout because it could not write `result.json`
     /// (a full disk; see `contract::lines`), as JSON.
     pub result: Option<String>,
+}
+
+impl Supervised {
+    /// The run's verdict once its observers and result are in: `quit`, whether the user
+    /// stopped it with `q` in the live view (a clean user stop is a success), or why watching
+    /// it failed; `has_result`, whether a result was read. Returns the failures to report (none:
+    /// success) and the exit class.
+    pub fn verdict(self, quit: Result<bool, String>, has_result: bool) -> (Vec<String>, Exit) {
+        let (mut failures, mut exit) = (self.failures, self.exit);
+        match quit {
+            Ok(true) => {
+                failures.retain(|f| !f.starts_with("interrupted"));
+                if failures.is_empty() {
+                    exit = Exit::Ok;
+                }
+            }
+            Ok(false) => {}
+            Err(e) => {
+                failures.push(e);
+                exit = exit.worst(Exit::Failure);
+            }
+        }
+        if !has_result {
+            failures.push("the coordinator wrote no result".into());
+            exit = exit.worst(Exit::Failure);
+        }
+        (failures, exit)
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -569,6 +632,25 @@ fn error_chain(e: &dyn std::error::Error) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_user_stop_is_a_success_and_a_missing_result_a_failure() {
+        let run = |failures: &[&str], exit| Supervised {
+            failures: failures.iter().map(|f| f.to_string()).collect(),
+            restarts: 0,
+            exit,
+            result: None,
+        };
+        let stopped = run(&["interrupted by Ctrl-C"], Exit::Interrupted);
+        assert_eq!(stopped.verdict(Ok(true), true), (vec![], Exit::Ok));
+        let (f, e) = run(&["interrupted", "robot 1 failed"], Exit::Failure).verdict(Ok(true), true);
+        assert_eq!((f, e), (vec!["robot 1 failed".to_string()], Exit::Failure));
+        let (f, e) = run(&[], Exit::Ok).verdict(Err("watching: boom".into()), false);
+        assert_eq!(f, ["watching: boom", "the coordinator wrote no result"]);
+        assert_eq!(e, Exit::Failure);
+        let (f, e) = run(&["interrupted"], Exit::Interrupted).verdict(Ok(false), true);
+        assert_eq!((f.len(), e), (1, Exit::Interrupted));
+    }
 
     #[test]
     fn backoff_doubles_and_is_capped() {
