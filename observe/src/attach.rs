@@ -34,6 +34,42 @@ use crate::ObserveError;
 use crate::decode::Msg;
 use crate::members::{self, Members, Origin, Verdict};
 
+/// `qfleet topic list`: the topics of run `run_id` (all, or `only`) with their service name,
+/// type, delivery and payload size, and whether the run is `live`: a JSON array (`json`), or
+/// a line saying the run's state and a table.
+pub fn topic_list(run_id: &str, only: Option<Topic>, live: bool, json: bool) -> String {
+    let topics = Topic::ALL
+        .into_iter()
+        .filter(|x| only.is_none_or(|o| o == *x));
+    if json {
+        let v: Vec<_> = topics
+            .map(|x| {
+                serde_json::json!({
+                    "topic": x.service_name(run_id), "type": x.type_name(),
+                    "delivery": format!("{:?}", x.delivery()), "direction": format!("{:?}", x.direction()),
+                    "payload_bytes": x.payload_size(), "live": live,
+                })
+            })
+            .collect();
+        return format!("{}\n", serde_json::Value::Array(v));
+    }
+    let mut tab = report::TextTable::new(&["topic", "type", "delivery", ">bytes"]);
+    for x in topics {
+        tab.row(vec![
+            x.service_name(run_id),
+            x.type_name().to_string(),
+            format!("{:?}", x.delivery()),
+            x.payload_size().to_string(),
+        ]);
+    }
+    let state = if live {
+        "running"
+    } else {
+        "not running (no services)"
+    };
+    format!("run {run_id}: {state}\n{}", tab.render(""))
+}
+
 /// Whether every publish-subscribe service of run `run_id` exists (a read of iceoryx2's
 /// bookkeeping; creates nothing in the run's prefix).
 pub fn run_services_exist(run_id: &str) -> Result<bool, ObserveError> {
@@ -384,4 +420,25 @@ impl Observer {
 pub fn leave(run_id: &str) -> Result<(), ObserveError> {
     bus::clean_stale(&bus_schema::names::iceoryx_prefix(run_id))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_topic_list_is_a_table_or_json() {
+        let t = Topic::ALL[0];
+        let text = topic_list("r1", Some(t), false, false);
+        assert!(
+            text.starts_with("run r1: not running (no services)\ntopic"),
+            "{text}"
+        );
+        assert_eq!(text.lines().count(), 3);
+        assert!(text.contains(&t.service_name("r1")), "{text}");
+        let all = topic_list("r1", None, true, true);
+        let v: serde_json::Value = serde_json::from_str(&all).unwrap();
+        assert_eq!(v.as_array().unwrap().len(), Topic::ALL.len());
+        assert_eq!(v[0]["live"], true);
+    }
 }

@@ -546,9 +546,35 @@ pub fn topic_by_name(name: &str) -> Option<Topic> {
         .find(|t| name == t.path() || name.ends_with(&format!("/{}", t.path())))
 }
 
+/// The topic `name` names, or the refusal listing every topic (`qfleet topic … TOPIC`).
+pub fn topic_named(name: &str) -> Result<Topic, String> {
+    topic_by_name(name).ok_or_else(|| {
+        let all: Vec<&str> = Topic::ALL.iter().map(|t| t.path()).collect();
+        format!("unknown topic {name:?}; the topics are {}", all.join(", "))
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_unknown_topic_is_refused_with_the_list() {
+        assert_eq!(
+            topic_named("robot/state"),
+            Ok(Topic::ALL[topic_index_of("robot/state")])
+        );
+        let e = topic_named("robot/nope").unwrap_err();
+        assert!(
+            e.starts_with("unknown topic \"robot/nope\"; the topics are "),
+            "{e}"
+        );
+        assert!(e.contains("robot/state"), "{e}");
+    }
+
+    fn topic_index_of(path: &str) -> usize {
+        Topic::ALL.iter().position(|t| t.path() == path).unwrap()
+    }
 
     fn check_against_schema(topic: Topic, v: &Value) {
         let schema = json_schema(topic);

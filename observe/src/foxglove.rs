@@ -102,6 +102,18 @@ pub struct ServeReport {
     pub dropped_slow: u64,
 }
 
+impl std::fmt::Display for ServeReport {
+    /// The launcher's closing line: clients, messages sent, and dropped where.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "foxglove: {} client(s), {} messages sent, {} dropped for slow clients, {} dropped by \
+             the server",
+            self.clients, self.sent, self.dropped_slow, self.dropped_input
+        )
+    }
+}
+
 /// A running Foxglove WebSocket server (see the module doc).
 pub struct Server {
     addr: SocketAddr,
@@ -411,6 +423,19 @@ impl Drop for Server {
     }
 }
 
+/// `ADDR:PORT` of `--foxglove` (a name such as `localhost:8765` is resolved to its first
+/// address).
+pub fn parse_addr(s: &str) -> Result<SocketAddr, String> {
+    use std::net::ToSocketAddrs;
+    if let Ok(a) = s.parse::<SocketAddr>() {
+        return Ok(a);
+    }
+    s.to_socket_addrs()
+        .map_err(|e| format!("{s:?} is not ADDR:PORT ({e})"))?
+        .next()
+        .ok_or_else(|| format!("{s:?} resolves to no address"))
+}
+
 /// Whether `addr` is a loopback address (anything else is reachable from other machines).
 pub fn is_loopback(addr: &SocketAddr) -> bool {
     addr.ip().is_loopback()
@@ -675,6 +700,27 @@ fn handle_client(id: u64, text: &str, shared: &Shared) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_closing_line_names_every_count() {
+        let r = ServeReport {
+            clients: 2,
+            sent: 10,
+            dropped_input: 1,
+            dropped_slow: 3,
+        };
+        assert_eq!(
+            r.to_string(),
+            "foxglove: 2 client(s), 10 messages sent, 3 dropped for slow clients, 1 dropped by the server"
+        );
+    }
+
+    #[test]
+    fn a_foxglove_address_is_addr_and_port() {
+        assert_eq!(parse_addr("127.0.0.1:8765").unwrap().port(), 8765);
+        assert!(parse_addr("localhost:9000").unwrap().ip().is_loopback());
+        assert!(parse_addr("8765").is_err());
+    }
     use bus_schema::RobotState;
     use std::io::{Read, Write};
     use std::time::Instant;

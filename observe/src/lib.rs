@@ -2,9 +2,9 @@
 //!
 //! An outside reader of a run: it attaches once the run's services exist
 //! ([`attach::Observer`]), decodes every topic to JSON with a JSON schema per type
-//! ([`decode`]), counts messages and rates ([`stats`]), records everything into an MCAP file
+//! ([`decode`]), counts messages and rates ([`stats`]; `qfleet topic echo|hz` is [`follow`]), records everything into an MCAP file
 //! that Foxglove opens ([`record`]), reads recordings back in bounded memory ([`replay`] over
-//! [`walk`]; one whose recorder was killed up to where it stopped), and keeps an IO-free model of the run ([`view::ViewModel`])
+//! [`walk`]; one whose recorder was killed up to where it stopped; [`playback`] at its recorded pace), and keeps an IO-free model of the run ([`view::ViewModel`])
 //! that the terminal live view ([`tui`]) draws. [`scene`] turns a run into Foxglove's
 //! well-known schemas (map, robots, paths, markers), which recordings carry and a Foxglove
 //! WebSocket server ([`foxglove`]) serves live. [`watch`] ties them together for `qfleet
@@ -18,8 +18,10 @@
 
 pub mod attach;
 pub mod decode;
+pub mod follow;
 pub mod foxglove;
 pub mod members;
+pub mod playback;
 pub mod record;
 pub mod replay;
 pub mod scene;
@@ -86,6 +88,9 @@ pub enum ObserveError {
         #[source]
         source: std::io::Error,
     },
+    /// Writing what a command follows to its stdout (a full disk; a closed pipe is no error).
+    #[error("writing to stdout")]
+    Stdout(#[source] std::io::Error),
     /// The terminal (raw mode, drawing, reading keys).
     #[error("terminal: {0}")]
     Terminal(#[source] std::io::Error),

@@ -224,6 +224,32 @@ pub struct Summary {
     pub others: u64,
 }
 
+impl Summary {
+    /// How many messages over how long, as `qfleet replay` says it: "no messages", "1
+    /// message", "N messages over 2.500 s" (or ms, µs, "at one instant": never "over 0.000 s").
+    pub fn span(&self) -> String {
+        match self.messages {
+            0 => "no messages".to_string(),
+            1 => "1 message".to_string(),
+            n => format!("{n} messages {}", span_text(self.duration_s)),
+        }
+    }
+}
+
+/// "over 2.500 s", "over 3.2 ms", "over 41 µs", "at one instant" (messages logged in the same
+/// nanosecond): never "over 0.000 s".
+fn span_text(s: f64) -> String {
+    if s >= 1.0 {
+        format!("over {s:.3} s")
+    } else if s >= 1e-3 {
+        format!("over {:.1} ms", s * 1e3)
+    } else if s > 0.0 {
+        format!("over {:.0} µs", (s * 1e6).max(1.0))
+    } else {
+        "at one instant".to_string()
+    }
+}
+
 impl Recording {
     /// Opens `path`: reads its metadata and map and finds where its data ends (seeking past
     /// the chunks of messages: memory stays bounded whatever the file's size). A file that is
@@ -683,6 +709,15 @@ pub fn index_of(topic: Topic) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_span_is_never_printed_as_zero_seconds() {
+        assert_eq!(span_text(2.5), "over 2.500 s");
+        assert_eq!(span_text(0.0032), "over 3.2 ms");
+        assert_eq!(span_text(0.000041), "over 41 µs");
+        assert_eq!(span_text(2e-9), "over 1 µs");
+        assert_eq!(span_text(0.0), "at one instant");
+    }
     use crate::record::{Recorder, RunInfo};
     use crate::walk::MAX_MESSAGE_BYTES;
 

@@ -169,9 +169,66 @@ impl RecentLatency {
     }
 }
 
+/// One report of `qfleet topic hz`: per topic (all, or `only`) its rate now and its total, as
+/// one JSON object or as text lines, followed by a blank line in text or a newline in JSON.
+pub fn rates_report(
+    rates: &mut [Rate],
+    counts: &TopicCounts,
+    only: Option<Topic>,
+    now_ns: u64,
+    json: bool,
+) -> String {
+    let mut v = serde_json::Map::new();
+    let mut text = String::new();
+    for x in Topic::ALL
+        .into_iter()
+        .filter(|x| only.is_none_or(|o| o == *x))
+    {
+        let rate = rates[topic_index(x)].per_s(now_ns);
+        let total = counts.get(x).count;
+        v.insert(
+            x.path().into(),
+            serde_json::json!({"per_s": rate, "total": total}),
+        );
+        text.push_str(&format!(
+            "{:18} {rate:>10.1} msg/s  {total:>9} total\n",
+            x.path()
+        ));
+    }
+    if json {
+        serde_json::Value::Object(v).to_string() + "\n"
+    } else {
+        text + "\n"
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rates_report_has_a_line_or_a_key_per_topic() {
+        let t = Topic::ALL[0];
+        let mut rates: Vec<Rate> = Topic::ALL
+            .iter()
+            .map(|_| Rate::new(1_000_000_000))
+            .collect();
+        let mut counts = TopicCounts::default();
+        for i in 0..5 {
+            counts.add(t, i * 1000);
+            rates[topic_index(t)].add(i * 1000, 1);
+        }
+        let text = rates_report(&mut rates, &counts, Some(t), 10_000, false);
+        assert_eq!(
+            text,
+            format!("{:18} {:>10.1} msg/s  {:>9} total\n\n", t.path(), 5.0, 5)
+        );
+        let all = rates_report(&mut rates, &counts, None, 10_000, false);
+        assert_eq!(all.lines().count(), Topic::ALL.len() + 1);
+        let json = rates_report(&mut rates, &counts, Some(t), 10_000, true);
+        let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(v[t.path()]["total"], 5);
+    }
 
     #[test]
     fn counts_and_mean_rate() {

@@ -66,6 +66,28 @@ pub struct WatchReport {
     pub others: Vec<u64>,
 }
 
+impl WatchReport {
+    /// The warning to give when messages from outside the run were left out (None if none
+    /// were): how many in all, and per topic.
+    pub fn others_warning(&self) -> Option<String> {
+        let others: u64 = self.others.iter().sum();
+        if others == 0 {
+            return None;
+        }
+        let topics: Vec<String> = bus_schema::names::Topic::ALL
+            .iter()
+            .zip(&self.others)
+            .filter(|(_, n)| **n > 0)
+            .map(|(t, n)| format!("{} {n}", t.path()))
+            .collect();
+        Some(format!(
+            "warning: {others} message(s) from processes outside the run (or naming a robot it \
+             does not have) were neither shown nor recorded: {}",
+            topics.join(", ")
+        ))
+    }
+}
+
 /// A running watch thread.
 pub struct Watch {
     done: Arc<AtomicBool>,
