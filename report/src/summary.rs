@@ -87,14 +87,28 @@ pub fn experiment(r: &ExperimentResult) -> String {
     out
 }
 
+/// Why the discovery counts are what they are, after them on the summary line: relayed but not
+/// used by `--share hints` (the default: on the held-out maps they did not lower the env steps
+/// to the optimum beyond the spread of runs, docs/fleet.md), or none made at all.
+fn discoveries_note(sent: u64, used: bool) -> &'static str {
+    match (sent, used) {
+        (0, _) => {
+            " (none: the traditional learner makes none, the others once a robot reaches the goal)"
+        }
+        (_, false) => " (relayed, unused: --share hints; --share both uses them)",
+        (_, true) => "",
+    }
+}
+
 fn fmt_us(ns: u64) -> String {
     format!("{:.1} µs", ns as f64 / 1e3)
 }
 
 /// `qfleet run`'s human output: the run's heading, a line per robot, discoveries, the latency
 /// table, throughput, the shared or lifelong grid's figures, and (unless the out directory
-/// `out` is a temporary one) the files written there.
-pub fn run(r: &RunResult, out: &Path, temp_out: bool) -> String {
+/// `out` is a temporary one) the files written there; `discoveries_used`: the robots took
+/// relayed discoveries (`--share discoveries|both`).
+pub fn run(r: &RunResult, out: &Path, temp_out: bool, discoveries_used: bool) -> String {
     let mut s = String::new();
     // one task for the fleet, or on a shared grid a start and goal per robot (its grid line)
     let task = match &r.grid {
@@ -130,8 +144,11 @@ pub fn run(r: &RunResult, out: &Path, temp_out: bool) -> String {
     }
     let _ = writeln!(
         s,
-        "  all robots optimal: {}   discoveries sent {} / received {}",
-        r.all_optimal, r.discoveries_sent, r.discoveries_received
+        "  all robots optimal: {}   discoveries sent {} / received {}{}",
+        r.all_optimal,
+        r.discoveries_sent,
+        r.discoveries_received,
+        discoveries_note(r.discoveries_sent, discoveries_used)
     );
     if !r.without_path.is_empty() {
         let ids: Vec<String> = r.without_path.iter().map(u32::to_string).collect();
@@ -234,11 +251,23 @@ fn lifelong(s: &mut String, l: &LifelongResult) {
         l.robots_lost.len(),
         l.conflicts
     );
+    let g = &l.learning;
     let _ = writeln!(
         s,
-        "  moves ranked by    learned values {} robot-ticks, map distance {} (a tick never \
-         waits for a learning robot)",
-        l.ticks_by_values, l.ticks_by_distance
+        "  learning ahead     {} goals learned ({} warm-started from the fleet table of their \
+         cell), {:.0} env steps per goal ({:.0} warm, {:.0} cold), {:.3} s each",
+        g.goals_learned,
+        g.warm_started,
+        g.env_steps_per_goal,
+        g.env_steps_per_warm_goal,
+        g.env_steps_per_cold_goal,
+        g.learn_s_per_goal
+    );
+    let _ = writeln!(
+        s,
+        "  robot-ticks        {} towards a goal already learned, {} towards one not yet (every \
+         move ranked by map distance; a tick never waits for a learning robot)",
+        g.ticks_goal_learned, g.ticks_goal_unlearned
     );
     let _ = writeln!(
         s,

@@ -73,25 +73,13 @@ impl BenchCmd {
         if let Some(role) = &self.role {
             return fleetbench::role_main(role).context("benchmark child process");
         }
-        let mut opts = if self.quick {
-            fleetbench::Options::quick()
-        } else {
-            fleetbench::Options::full()
-        };
-        if self.scale {
-            opts.rows = false;
-            opts.scale = true;
-        }
-        if self.no_scale {
-            opts.scale = false;
-        }
-        opts.only = self.only;
-        if self.cross_host {
-            (opts.cross_host, opts.rows, opts.scale) = (true, false, false);
-        }
-        if !opts.only.is_empty() && !self.scale {
-            opts.scale = false;
-        }
+        let mut opts = fleetbench::Options::chosen(
+            self.quick,
+            self.scale,
+            self.no_scale,
+            self.only,
+            self.cross_host,
+        );
         if let Some(n) = self.samples {
             opts.samples = n;
         }

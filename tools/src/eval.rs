@@ -104,10 +104,8 @@ impl EvalCmd {
             threads: self.threads,
             out: self.out,
         };
-        let done = eval(&opts, &mut crate::bar::Bar::new("eval")).map_err(|e| {
-            let bad = e.is_bad_input();
-            crate::classify(e, bad)
-        })?;
+        let done = eval(&opts, &mut crate::bar::Bar::new("eval"))
+            .map_err(|e| crate::classify(e, |e| e.is_bad_input()))?;
         write_out(format_args!("{}", done.table))?;
         out!(
             "\nwrote {} and {}",

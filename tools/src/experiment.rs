@@ -11,40 +11,32 @@ use std::process::Command;
 use std::time::Duration;
 
 use anyhow::{Context, Result, anyhow};
-use clap::{Args, ValueEnum};
-use contract::coordinator::MergeRule;
+use clap::Args;
 use contract::plan::ExperimentPlan;
-use contract::share::{merge_fits, merge_rule_for};
-use contract::{AgentArgs, ApplyRule, CoordArgs, ShareArgs};
-use launcher::out::{OutDir as LaunchDir, OutError, inventory};
+use contract::{AgentArgs, CoordArgs, Rules, ShareArgs};
+use launcher::out::{RunOutArgs, inventory};
 use launcher::spawn::sibling;
 use launcher::{Exit, Fleet, RestartPolicy, supervise};
-use planner::LearnerConfig;
-use qfleet_args::{Plan, ShareMode, ValueBound, load_manifest};
+use qfleet_args::{Plan, ShareMode};
 use report::{ExperimentResult, OutDir, OutFile};
 
 use crate::term::{self, out};
 
 /// Options of `qfleet experiment`.
 #[derive(Debug, Args)]
+#[command(mut_arg("out", |a| a.help("Directory for results, per-robot phase files and logs \
+    (default: a new private temporary directory, removed after success and kept after a \
+    failure). A directory that is not empty is refused unless `--force`")))]
+#[command(mut_arg("ignore_memory", |a| a.help("Start even if a repetition's estimated memory \
+    (robots and coordinator, from the map's size) exceeds the memory available now")))]
 pub struct ExperimentCmd {
     /// The experiment manifest (TOML; see examples/).
     file: PathBuf,
     /// Print the results (one per seed) as a JSON array on stdout.
     #[arg(long)]
     json: bool,
-    /// Directory for results, per-robot phase files and logs (default: a new private temporary
-    /// directory, removed after success and kept after a failure). A directory that is not
-    /// empty is refused unless `--force`.
-    #[arg(long)]
-    out: Option<PathBuf>,
-    /// Write into a non-empty `--out` directory, replacing files of the same names.
-    #[arg(long)]
-    force: bool,
-    /// Start even if a repetition's estimated memory (robots and coordinator, from the map's
-    /// size) exceeds the memory available now.
-    #[arg(long)]
-    ignore_memory: bool,
+    #[command(flatten)]
+    out: RunOutArgs,
     /// Restart a robot-agent or the coordinator that died, crashed or hung (with backoff; the
     /// coordinator warm-starts a robot from its goal's fleet table, a restarted coordinator
     /// resumes the experiment from its checkpoint).
@@ -78,151 +70,6 @@ pub struct ExperimentCmd {
     remote: crate::join::RemoteArgs,
 }
 
-/// The two rules of Q-hint sharing: how the coordinator merges robots' values into the fleet
-/// table, and how a robot applies the fleet's values to its own table. A rule not given is the
-/// one that fits the learner ([`Rules::resolve`]): `min` for the planning learner, whose values
-/// are upper bounds of Q*, `max` for the paper's learners, whose values are lower bounds.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Args)]
-pub struct Rules {
-    /// How a robot applies merged hints (robot-agent `--apply`; default: min for planning,
-    /// max for the paper's learners).
-    #[arg(long, value_enum)]
-    pub apply: Option<ApplyRule>,
-    /// How the coordinator merges hints into the fleet table (default: min for planning, max
-    /// for the paper's learners).
-    #[arg(long, value_parser = qfleet_args::choice::<MergeRule>())]
-    pub merge: Option<MergeRule>,
-}
-
-/// Both rules, decided.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Resolved {
-    /// Robot side.
-    pub apply: ApplyRule,
-    /// Coordinator side.
-    pub merge: MergeRule,
-}
-
-impl std::fmt::Display for Resolved {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}/{}", self.apply, self.merge)
-    }
-}
-
-impl Rules {
-    /// The rules for a learner: those given, and for the others the one that fits the bound
-    /// its values keep.
-    pub fn resolve(self, cfg: &LearnerConfig) -> Resolved {
-        let b = ValueBound::of(cfg);
-        Resolved {
-            apply: self.apply.unwrap_or(ApplyRule::for_bound(b)),
-            merge: self.merge.unwrap_or(merge_rule_for(b)),
-        }
-    }
-
-    /// A warning when a rule given does not fit the learner (`max` with upper bounds, `min`
-    /// with lower bounds). Not an error: measuring the wrong pairing is a legitimate ablation.
-    pub fn misfit(self, cfg: &LearnerConfig) -> Option<String> {
-        let b = ValueBound::of(cfg);
-        let mut bad = Vec::new();
-        if let Some(a) = self.apply.filter(|a| !a.fits(b)) {
-            bad.push(format!("--apply {a}"));
-        }
-        if let Some(m) = self.merge.filter(|m| !merge_fits(*m, b)) {
-            bad.push(format!("--merge {m}"));
-        }
-        if bad.is_empty() {
-            return None;
-        }
-        let (kind, fit) = match b {
-            ValueBound::Upper => ("upper bounds of Q* (optimistic start)", "min/min"),
-            ValueBound::Lower => ("lower bounds of Q* (start at 0)", "max/max"),
-        };
-        let verb = if bad.len() > 1 { "do" } else { "does" };
-        Some(format!(
-            "warning: {} {verb} not fit this learner: its values are {kind}; the rules that fit are {fit} (running as asked)",
-            bad.join(" and ")
-        ))
-    }
-}
-
-impl std::fmt::Display for Rules {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let a = self.apply.map_or("auto".to_string(), |a| a.to_string());
-        let m = self.merge.map_or("auto".to_string(), |m| m.to_string());
-        write!(f, "{a}/{m}")
-    }
-}
-
-impl std::str::FromStr for Rules {
-    type Err = String;
-    /// `APPLY/MERGE`, e.g. `max/max` or `min/min`; `auto` (alone or for either side) is the
-    /// rule that fits the learner.
-    fn from_str(s: &str) -> Result<Self, String> {
-        if s == "auto" {
-            return Ok(Rules::default());
-        }
-        let (a, m) = s
-            .split_once('/')
-            .ok_or_else(|| format!("{s:?}: expected APPLY/MERGE, e.g. min/min, or auto"))?;
-        Ok(Rules {
-            apply: match a {
-                "auto" => None,
-                _ => Some(
-                    ApplyRule::from_str(a, true).map_err(|e| format!("apply rule {a:?}: {e}"))?,
-                ),
-            },
-            merge: match m {
-                "auto" => None,
-                _ => Some(
-                    <MergeRule as report::Word>::from_word(&m.to_ascii_lowercase())
-                        .ok_or_else(|| format!("merge rule {m:?}: not max, mean, latest or min"))?,
-                ),
-            },
-        })
-    }
-}
-
-/// A run id for one repetition: `<prefix or exp>-<tag>-<pid>-<time>`.
-pub fn make_run_id(prefix: Option<&str>, tag: &str) -> String {
-    launcher::run_id::generate(&format!("{}-{tag}", prefix.unwrap_or("exp")))
-}
-
-/// The coordinator's `--hang-ms` default, raised for remote robots (see
-/// [`crate::join::RemoteArgs::hang_ms`]).
-const DEFAULT_HANG_MS: u64 = 2000;
-
-/// Loads a manifest and resolves it relative to its directory.
-pub fn load_plan(file: &Path) -> Result<Plan> {
-    let m = load_manifest(file)?;
-    let base = file.parent().unwrap_or(Path::new("."));
-    Ok(m.resolve(base)?)
-}
-
-/// How the processes of a repetition are supervised.
-#[derive(Debug, Clone, Copy)]
-pub struct Supervision {
-    /// Restart policy (robots and the coordinator).
-    pub policy: RestartPolicy,
-    /// Restarts allowed per process.
-    pub max_restarts: u32,
-    /// Grace period of a stopping process before it is killed.
-    pub grace: Duration,
-    /// The robots' `--pace` (steps per second), if any.
-    pub pace: Option<f64>,
-}
-
-impl Default for Supervision {
-    fn default() -> Self {
-        Supervision {
-            policy: RestartPolicy::Never,
-            max_restarts: 3,
-            grace: Duration::from_secs(5),
-            pace: None,
-        }
-    }
-}
-
 /// Runs one repetition of `plan` with `seed` and the sharing `rules` in `out`: claims the run
 /// id, writes the seed's plan, starts and supervises the coordinator and the robots (after
 /// `watch`, the live view / recorder, has joined), finishes the watch, cleans up, and returns
@@ -235,7 +82,7 @@ pub fn run_once(
     rules: Rules,
     run_id: &str,
     out: &Path,
-    sup: Supervision,
+    sup: launcher::Supervision,
     watch: Option<crate::live::Hook>,
     remote: Option<&crate::join::RemoteArgs>,
 ) -> Result<ExperimentResult> {
@@ -267,13 +114,10 @@ pub fn run_once(
         )
         .context(Exit::BadInput)
     })?;
-    let hang_ms = remote.map(|r| r.hang_ms(DEFAULT_HANG_MS));
+    let hang_ms = remote.map(|r| r.hang_ms(contract::coordinator::DEFAULT_HANG_MS));
     let spin_us = contract::spin_us_for(None, remote_robots);
     // the coordinator waits for a lost robot while the launcher may still restart it
-    let restarts = match sup.policy {
-        RestartPolicy::Never => 0,
-        RestartPolicy::OnFailure => sup.max_restarts,
-    };
+    let restarts = sup.policy.restarts(sup.max_restarts);
     let coordinator = || -> Command {
         // the plan gives the fleet, map and timeout; these are the rest
         let mut a = CoordArgs::new(run_id, out);
@@ -341,10 +185,7 @@ pub fn run_once(
     // the watch leaves the run before its files are removed (its node is one of them)
     let watched = watch.map(crate::live::finish).transpose();
     // the hub's proxies are nodes of this run: gone before its files are removed
-    let hosts = crate::join::finish_hub(hub, out).unwrap_or_else(|e| {
-        term::warn(&format!("warning: {e:#}"));
-        None
-    });
+    let hosts = crate::join::finish_hub(hub, out);
     // whatever happened: no file of the run may stay behind
     crate::launch::clean_up(run_id);
     watched?;
@@ -380,7 +221,7 @@ pub fn run_once(
 impl ExperimentCmd {
     /// Runs the command.
     pub fn run(mut self) -> Result<()> {
-        let mut plan = load_plan(&self.file).context(Exit::BadInput)?;
+        let mut plan = Plan::load(&self.file).context(Exit::BadInput)?;
         if let Some(s) = &self.sharing {
             plan.manifest.sharing = ShareMode::parse(s)
                 .ok_or_else(|| anyhow!("--sharing must be none, discoveries, hints or both"))
@@ -389,20 +230,15 @@ impl ExperimentCmd {
         if let Some(s) = self.seed {
             plan.manifest.seeds = vec![s];
         }
-        let grace = Duration::try_from_secs_f64(self.grace)
-            .map_err(|_| {
-                anyhow!(
-                    "--grace must be a number of seconds >= 0, got {}",
-                    self.grace
-                )
-            })
+        let grace = qfleet_args::seconds("--grace", self.grace)
+            .map_err(|e| anyhow!(e))
             .context(Exit::BadInput)?;
         if let Some(p) = &self.run_id {
             launcher::run_id::validate(p).context(Exit::BadInput)?;
         }
         // room in memory for this host's robots and the coordinator (issue 27), as `qfleet
         // run` checks: refused before anything is created
-        if !self.ignore_memory {
+        if !self.out.ignore_memory {
             let remote = self.remote.remote_robots.min(plan.manifest.robots);
             let cells = (plan.map.grid.width() * plan.map.grid.height()) as u64;
             bus::limits::check_memory(
@@ -412,17 +248,13 @@ impl ExperimentCmd {
             )
             .context(Exit::BadInput)?;
         }
-        let sup = Supervision {
+        let sup = launcher::Supervision {
             policy: self.restart,
             max_restarts: self.max_restarts,
             grace,
             pace: self.watch.pace,
         };
-        let out_dir =
-            LaunchDir::prepare(self.out.as_deref(), self.force, "exp").map_err(|e| match e {
-                OutError::Io { .. } => anyhow!(e),
-                e => anyhow!(e).context(Exit::BadInput),
-            })?;
+        let out_dir = crate::launch::out_dir(&self.out.dir, "exp")?;
         let out = out_dir.path().to_path_buf();
         let cfg = plan.manifest.learner.config().context(Exit::BadInput)?;
         if let Some(w) = self.rules.misfit(&cfg) {
@@ -441,7 +273,7 @@ impl ExperimentCmd {
         self.remote.secret_label = Some(self.run_id.clone().unwrap_or_else(|| "exp".into()));
         let mut results = Vec::new();
         for &seed in &plan.manifest.seeds.clone() {
-            let id = make_run_id(self.run_id.as_deref(), &format!("s{seed}"));
+            let id = launcher::run_id::repetition(self.run_id.as_deref(), &format!("s{seed}"));
             let dir = out.join(format!("seed-{seed}"));
             let rec = self
                 .watch
@@ -462,7 +294,7 @@ impl ExperimentCmd {
             ];
             let watch = crate::live::start(
                 &id,
-                &crate::live::experiment_task(&plan),
+                &plan.view_task(),
                 cfg,
                 &self.watch,
                 rec,
@@ -492,18 +324,7 @@ impl ExperimentCmd {
                 }
             };
             if !self.json {
-                out!("{}", crate::table::experiment_table(&r))?;
-                // a shared world: each phase's execution, as a MAPF user reads it
-                for ph in &r.phases {
-                    if let Some(g) = &ph.grid {
-                        out!(
-                            "phase {} ({}) on the shared grid: {}",
-                            ph.phase,
-                            ph.name,
-                            g.line()
-                        )?;
-                    }
-                }
+                term::write_out(format_args!("{}", report::summary::experiment(&r)))?;
             }
             results.push(r);
         }
@@ -514,37 +335,5 @@ impl ExperimentCmd {
             out!("wrote {}/seed-*/result.json", out.display())?;
         }
         Ok(())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn rules_default_to_the_learners_bound_and_a_misfit_is_named() {
-        let planning = LearnerConfig::planning(10, 1);
-        let improved = LearnerConfig::improved(10, 1);
-        let auto: Rules = "auto".parse().unwrap();
-        assert_eq!(auto, Rules::default());
-        assert_eq!(auto.resolve(&planning).to_string(), "min/min");
-        assert_eq!(auto.resolve(&improved).to_string(), "max/max");
-        assert_eq!(auto.misfit(&planning), None);
-        let half: Rules = "auto/max".parse().unwrap();
-        assert_eq!(half.to_string(), "auto/max");
-        assert_eq!(half.resolve(&planning).to_string(), "min/max");
-        let w = half.misfit(&planning).unwrap();
-        assert!(w.contains("--merge max does not fit"), "{w}");
-        let both: Rules = "max/max".parse().unwrap();
-        assert!(both.misfit(&planning).unwrap().contains("do not fit"));
-        assert_eq!(both.misfit(&improved), None);
-        let min: Rules = "min/min".parse().unwrap();
-        assert!(min.misfit(&improved).unwrap().contains("max/max"));
-        assert_eq!(
-            "latest/mean".parse::<Rules>().unwrap().misfit(&planning),
-            None
-        );
-        assert!("min".parse::<Rules>().is_err());
-        assert!("min/most".parse::<Rules>().is_err());
     }
 }

@@ -6,6 +6,7 @@
 
 use anyhow::{Context, Result, anyhow};
 use launcher::Exit;
+use launcher::out::{OutArgs, OutDir};
 use launcher::run_id::{RunClaim, RunIdError};
 
 use crate::term;
@@ -38,6 +39,13 @@ pub fn claim(run_id: &str) -> Result<RunClaim> {
         Err(e) => term::warn(&format!("warning: cleaning leftovers of run {run_id}: {e}")),
     }
     Ok(claim)
+}
+
+/// The out directory of a run, an experiment or a join (`--out`, `--force`; a temporary one
+/// named after `tag` without `--out`): a refused `--out` is bad input.
+pub fn out_dir(out: &OutArgs, tag: &str) -> Result<OutDir> {
+    out.prepare(tag)
+        .map_err(|e| crate::classify(e, |e| e.is_bad_input()))
 }
 
 /// Removes every shared-memory file of `run_id` once its processes ended; says so when some

@@ -37,55 +37,12 @@ impl LearnCmd {
             config: self.learner.config().context(Exit::BadInput)?,
             out: self.out.clone(),
         };
-        let result = learn(&opts).map_err(|e| {
-            let bad = e.is_bad_input();
-            crate::classify(e, bad)
-        })?;
+        let result = learn(&opts).map_err(|e| crate::classify(e, |e| e.is_bad_input()))?;
         if self.json {
             out!("{}", serde_json::to_string(&result)?)?;
         } else {
-            let fmt_opt = |v: Option<u32>| v.map_or("none (loops)".to_string(), |x| x.to_string());
-            out!(
-                "map {}  learner {} [{}]  episodes {}  seed {}",
-                result.map,
-                result.learner,
-                result.policy,
-                result.episodes,
-                result.seed
-            )?;
-            out!(
-                "  optimal path      {} moves (BFS)",
-                result.optimal_path_len
-            )?;
-            out!("  final path        {}", fmt_opt(result.final_path_len))?;
-            out!(
-                "  avg / max steps   {:.2} / {}",
-                result.avg_steps,
-                result.max_steps
-            )?;
-            out!(
-                "  collisions        {:.2} per episode ({} in all)",
-                result.collisions_per_episode,
-                result.collisions
-            )?;
-            out!(
-                "  first optimal     episode {}",
-                result
-                    .first_optimal_episode
-                    .map_or("never".into(), |e| e.to_string())
-            )?;
-            out!(
-                "  env steps         {} in {:.3} s ({:.1} M steps/s)",
-                result.env_steps,
-                result.elapsed_s,
-                result.env_steps_per_s / 1e6
-            )?;
-            if let Some(dir) = &self.out {
-                out!(
-                    "  wrote             {}/{{episodes.csv,summary.json,steps.svg,path.svg}}",
-                    dir.display()
-                )?;
-            }
+            let text = result.summary(self.out.as_deref());
+            crate::term::write_out(format_args!("{text}"))?;
         }
         Ok(())
     }

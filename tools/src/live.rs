@@ -3,7 +3,7 @@
 //! `observe::watch` thread before the run's processes, finish it after they exited and before
 //! the run's files are removed. Everything else lives in the `observe` crate.
 
-use std::net::{SocketAddr, ToSocketAddrs};
+use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -32,19 +32,8 @@ pub struct WatchArgs {
     /// goes on [default: 127.0.0.1:8765]; an address other than loopback lets any machine
     /// that reaches it watch (no TLS, no authentication).
     #[arg(long, value_name = "ADDR:PORT", num_args = 0..=1,
-          default_missing_value = observe::foxglove::DEFAULT_ADDR, value_parser = parse_addr)]
+          default_missing_value = observe::foxglove::DEFAULT_ADDR, value_parser = observe::foxglove::parse_addr)]
     pub foxglove: Option<SocketAddr>,
-}
-
-/// `ADDR:PORT` (a name such as `localhost:8765` is resolved to its first address).
-pub fn parse_addr(s: &str) -> Result<SocketAddr, String> {
-    if let Ok(a) = s.parse::<SocketAddr>() {
-        return Ok(a);
-    }
-    s.to_socket_addrs()
-        .map_err(|e| format!("{s:?} is not ADDR:PORT ({e})"))?
-        .next()
-        .ok_or_else(|| format!("{s:?} resolves to no address"))
 }
 
 impl WatchArgs {
@@ -82,11 +71,7 @@ pub fn stop_foxglove(server: Option<Arc<Server>>) {
     let Some(s) = server else {
         return;
     };
-    let r = s.shutdown();
-    crate::term::warn(&format!(
-        "foxglove: {} client(s), {} messages sent, {} dropped for slow clients, {} dropped by the server",
-        r.clients, r.sent, r.dropped_slow, r.dropped_input
-    ));
+    crate::term::warn(&s.shutdown().to_string());
 }
 
 /// A watch thread, if `--live`, `--record` or `--foxglove` asked for one.
@@ -169,42 +154,8 @@ pub fn finish(hook: Hook) -> Result<bool> {
             p.display()
         ));
     }
-    let others: u64 = r.others.iter().sum();
-    if others > 0 {
-        let topics: Vec<String> = bus::bus_schema::names::Topic::ALL
-            .iter()
-            .zip(&r.others)
-            .filter(|(_, n)| **n > 0)
-            .map(|(t, n)| format!("{} {n}", t.path()))
-            .collect();
-        crate::term::warn(&format!(
-            "warning: {others} message(s) from processes outside the run (or naming a robot it \
-             does not have) were neither shown nor recorded: {}",
-            topics.join(", ")
-        ));
+    if let Some(w) = r.others_warning() {
+        crate::term::warn(&w);
     }
     Ok(r.quit)
-}
-
-/// A task for the live view of an experiment: its map, the first robot's start and the first
-/// goal (the robots' own starts and goals arrive on the bus).
-pub fn experiment_task(plan: &qfleet_args::Plan) -> Task {
-    let start = plan
-        .starts
-        .first()
-        .copied()
-        .unwrap_or(planner::grid::Cell::new(0, 0));
-    let goal = plan.goal_cells.first().copied().unwrap_or(start);
-    Task {
-        map_name: plan.map.name.clone(),
-        grid: plan.map.grid.clone(),
-        start,
-        goal,
-        optimal_len: plan
-            .optimal
-            .first()
-            .and_then(|o| o.first())
-            .copied()
-            .unwrap_or(1),
-    }
 }

@@ -13,7 +13,6 @@ mod replay;
 mod replicate;
 mod run;
 mod sweep;
-mod table;
 mod term;
 mod topic;
 
@@ -77,26 +76,15 @@ pub fn catch_interrupts() -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("installing the Ctrl-C handler: {e}"))
 }
 
-/// A study's error as the CLI reports it: with [`Exit::BadInput`] (exit code 2) when the
-/// study refused its input, a failure (exit code 1) otherwise.
+/// A library error as the CLI reports it: with [`Exit::BadInput`] (exit code 2) when
+/// `bad_input` says the library refused its input, a failure (exit code 1) otherwise.
 pub fn classify<E: std::error::Error + Send + Sync + 'static>(
     e: E,
-    bad_input: bool,
+    bad_input: impl Fn(&E) -> bool,
 ) -> anyhow::Error {
+    let bad = bad_input(&e);
     let e = anyhow::Error::new(e);
-    if bad_input {
-        e.context(Exit::BadInput)
-    } else {
-        e
-    }
-}
-
-/// The figures of a fleet run (`qfleet run --out`), drawn by [`studies::runplots`].
-mod runplots {
-    /// Writes them; an error keeps its causes (the run prints it as a warning).
-    pub fn write(out: &std::path::Path) -> anyhow::Result<Vec<std::path::PathBuf>> {
-        Ok(studies::runplots::write(out)?)
-    }
+    if bad { e.context(Exit::BadInput) } else { e }
 }
 
 fn main() {
@@ -132,45 +120,15 @@ fn main() {
     std::process::exit(code.code());
 }
 
-/// The error and its causes on one line, each cause once: library errors often name their
-/// cause in their own message too, and `{:#}` would then print it twice.
+/// The error and its causes on one line ([`launcher::exit::one_line`]).
 fn report(e: &anyhow::Error) -> String {
-    let mut out = String::new();
-    for cause in e.chain() {
-        let msg = cause.to_string();
-        if out.contains(&msg) || is_exit_marker(&msg) {
-            continue;
-        }
-        if !out.is_empty() {
-            out.push_str(": ");
-        }
-        out.push_str(&msg);
-    }
-    out
-}
-
-/// Whether `msg` is the text of an [`Exit`] class marker (context that only sets the exit code).
-fn is_exit_marker(msg: &str) -> bool {
-    [Exit::BadInput, Exit::Interrupted, Exit::Failure]
-        .iter()
-        .any(|e| e.to_string() == msg)
+    launcher::exit::one_line(e.chain().map(ToString::to_string))
 }
 
 #[cfg(test)]
 mod tests {
     use super::{Exit, report};
     use anyhow::Context;
-
-    #[test]
-    fn each_cause_is_printed_once() {
-        let io = std::io::Error::other("disk on fire");
-        let inner = anyhow::Error::new(io).context("reading map.txt: disk on fire");
-        let e = Err::<(), _>(inner).context("loading the task").unwrap_err();
-        assert_eq!(
-            report(&e),
-            "loading the task: reading map.txt: disk on fire"
-        );
-    }
 
     #[test]
     fn an_exit_class_sets_the_code_and_is_not_printed() {

@@ -5,15 +5,14 @@
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow};
 use clap::Args;
-use observe::replay::{Messages, Recording, from_json};
-use observe::tui::{self, Feed};
+use observe::playback;
+use observe::replay::{Messages, Recording};
 use observe::watch::view_of_recording;
 
-use crate::table::TextTable;
+use report::TextTable;
 
 /// Options of `qfleet replay`.
 #[derive(Debug, Args)]
@@ -33,7 +32,7 @@ pub struct ReplayCmd {
     /// its own pace [default: 127.0.0.1:8765]: plays once a client has connected, then exits.
     #[arg(long, value_name = "ADDR:PORT", num_args = 0..=1,
           default_missing_value = observe::foxglove::DEFAULT_ADDR,
-          value_parser = crate::live::parse_addr, conflicts_with_all = ["live", "json"])]
+          value_parser = observe::foxglove::parse_addr, conflicts_with_all = ["live", "json"])]
     foxglove: Option<SocketAddr>,
 }
 
@@ -85,11 +84,7 @@ impl ReplayCmd {
             return Ok(());
         }
         // text from the file is escaped; one message (or none) spans no time worth printing
-        let span = match s.messages {
-            0 => "no messages".to_string(),
-            1 => "1 message".to_string(),
-            n => format!("{n} messages {}", span_text(s.duration_s)),
-        };
+        let span = s.span();
         crate::term::out!(
             "recording {}: run {} on {}, {span}",
             self.file.display(),
@@ -124,45 +119,15 @@ impl ReplayCmd {
         let vm = view_of_recording(rec).context(launcher::Exit::BadInput)?;
         // read as played, one message at a time (a recording is never held whole)
         let mut msgs = rec.messages().context(launcher::Exit::BadInput)?;
-        let mut first = next_owned(&mut msgs)?;
+        let first = next_owned(&mut msgs)?;
         let server = crate::live::serve_at(addr)?;
         crate::catch_interrupts()?;
-        let t0 = first
-            .as_ref()
-            .map_or_else(observe::record::wall_ns, |m| m.0);
-        let cell = |k: &str| rec.cell(k).map(|(x, y)| planner::grid::Cell::new(x, y));
-        let start = cell("start").unwrap_or(planner::grid::Cell::new(0, 0));
-        server.begin_run(
-            observe::foxglove::RunStart {
-                run_id: rec.meta.get("run_id").cloned().unwrap_or_default(),
-                map_name: vm.map_name.clone(),
-                grid: vm.grid.clone(),
-                start,
-                goal: cell("goal").unwrap_or(start),
-            },
-            t0,
-        );
-        crate::term::warn("foxglove: playing once a client connects (Ctrl-C stops)");
         let stopped = || crate::STOP.load(std::sync::atomic::Ordering::SeqCst);
-        while server.clients() == 0 && !stopped() {
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        // the client subscribes after it read the advertisement
-        std::thread::sleep(Duration::from_millis(500));
-        let begin = Instant::now();
-        while let Some((t, m)) = match first.take() {
-            Some(m) => Some(m),
-            None => next_owned(&mut msgs)?,
-        } {
-            if stopped() {
-                break;
-            }
-            let due = Duration::from_secs_f64(t.saturating_sub(t0) as f64 / 1e9 / self.speed);
-            if let Some(wait) = due.checked_sub(begin.elapsed()) {
-                std::thread::sleep(wait);
-            }
-            server.offer_wait(t, rec.mono_of(t), m);
-        }
+        let note = |l: &str| crate::term::warn(l);
+        playback::to_foxglove(
+            rec, &vm, &mut msgs, first, &server, self.speed, &stopped, &note,
+        )
+        .context(launcher::Exit::BadInput)?;
         crate::live::stop_foxglove(Some(server));
         if stopped() {
             return Err(anyhow!("interrupted").context(launcher::Exit::Interrupted));
@@ -175,62 +140,14 @@ impl ReplayCmd {
         // read as played, one message at a time (a recording is never held whole); a damaged
         // record ends the view with its error
         let mut msgs = rec.messages().context(launcher::Exit::BadInput)?;
-        let mut next = next_owned(&mut msgs)?.map(|(t, m)| (rec.mono_of(t), m));
-        let t0 = next.as_ref().map_or(0, |m| m.0);
-        let start = Instant::now();
-        let speed = self.speed;
-        let feed = |vm: &mut observe::view::ViewModel| -> Result<Feed, observe::ObserveError> {
-            let played = (start.elapsed().as_secs_f64() * speed * 1e9) as u64;
-            while let Some((t, m)) = next.take_if(|m| m.0.saturating_sub(t0) <= played) {
-                vm.apply(t, m.as_msg());
-                next = msgs
-                    .next_message()?
-                    .map(|m| (rec.mono_of(m.log_time), from_json(m.topic, &m.json)));
-            }
-            if next.is_none() {
-                return Ok(Feed::Ended);
-            }
-            std::thread::sleep(Duration::from_millis(2));
-            Ok(Feed::More)
-        };
+        let first = next_owned(&mut msgs)?;
         let src = format!("replay {}", self.file.display());
-        tui::run(&mut vm, &src, feed, &|| {}, true, true)?;
+        playback::live(rec, &mut vm, msgs, first, self.speed, &src)?;
         Ok(())
     }
 }
 
 /// The next message of a recording, typed, with its log time; a damaged record is bad input.
 fn next_owned(msgs: &mut Messages) -> Result<Option<(u64, observe::replay::Owned)>> {
-    Ok(msgs
-        .next_message()
-        .context(launcher::Exit::BadInput)?
-        .map(|m| (m.log_time, from_json(m.topic, &m.json))))
-}
-
-/// "over 2.500 s", "over 3.2 ms", "over 41 µs", "at one instant" (messages logged in the same
-/// nanosecond): never "over 0.000 s".
-fn span_text(s: f64) -> String {
-    if s >= 1.0 {
-        format!("over {s:.3} s")
-    } else if s >= 1e-3 {
-        format!("over {:.1} ms", s * 1e3)
-    } else if s > 0.0 {
-        format!("over {:.0} µs", (s * 1e6).max(1.0))
-    } else {
-        "at one instant".to_string()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::span_text;
-
-    #[test]
-    fn a_span_is_never_printed_as_zero_seconds() {
-        assert_eq!(span_text(2.5), "over 2.500 s");
-        assert_eq!(span_text(0.0032), "over 3.2 ms");
-        assert_eq!(span_text(0.000041), "over 41 µs");
-        assert_eq!(span_text(2e-9), "over 1 µs");
-        assert_eq!(span_text(0.0), "at one instant");
-    }
+    playback::next_owned(msgs).context(launcher::Exit::BadInput)
 }

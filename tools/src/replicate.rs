@@ -49,10 +49,8 @@ impl ReplicateCmd {
             threads: self.threads,
             out: self.out,
         };
-        let done = replicate(&opts, &mut crate::bar::Bar::new("replicate")).map_err(|e| {
-            let bad = e.is_bad_input();
-            crate::classify(e, bad)
-        })?;
+        let done = replicate(&opts, &mut crate::bar::Bar::new("replicate"))
+            .map_err(|e| crate::classify(e, |e| e.is_bad_input()))?;
         if self.json {
             out!("{}", done.json)?;
         } else {

@@ -11,7 +11,7 @@
 //! `launcher::supervise`. The run id is claimed exclusively (`launcher::run_id::RunClaim`)
 //! before anything starts (`crate::launch`, as `qfleet experiment` does).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
@@ -20,7 +20,7 @@ use clap::Args;
 use contract::coordinator::{MergeRule, WaitStrategy};
 use contract::{AgentArgs, CoordArgs, ShareArgs};
 use indicatif::{ProgressBar, ProgressStyle};
-use launcher::out::{OutDir, OutError, inventory};
+use launcher::out::{RunOutArgs, inventory};
 use launcher::spawn::sibling;
 use launcher::{Exit, Fleet, RestartPolicy, supervise};
 use qfleet_args::{LearnerArgs, MapArgs, WorldArgs};
@@ -30,6 +30,12 @@ use crate::term::{self, out};
 
 /// Options of `qfleet run`.
 #[derive(Debug, Args)]
+#[command(mut_arg("out", |a| a.help("Directory for result.json, per-robot results, .hgrm latency \
+    files and process logs (default: a new private temporary directory, removed after a \
+    successful run and kept after a failed one). A directory that is not empty is refused \
+    unless `--force`")))]
+#[command(mut_arg("ignore_memory", |a| a.help("Start even if the run's estimated memory (robots \
+    and coordinator, from the map's size) exceeds the memory available now")))]
 pub struct RunCmd {
     /// Number of robot-agent processes [default: 4, or `--agents`].
     #[arg(long = "robots", value_parser = clap::value_parser!(u32).range(1..=bus::MAX_ROBOTS as i64))]
@@ -71,18 +77,8 @@ pub struct RunCmd {
     /// Print the run result as one JSON object on stdout.
     #[arg(long)]
     json: bool,
-    /// Directory for result.json, per-robot results, .hgrm latency files and process logs
-    /// (default: a new private temporary directory, removed after a successful run and kept
-    /// after a failed one). A directory that is not empty is refused unless `--force`.
-    #[arg(long)]
-    out: Option<PathBuf>,
-    /// Write into a non-empty `--out` directory, replacing files of the same names.
-    #[arg(long)]
-    force: bool,
-    /// Start even if the run's estimated memory (robots and coordinator, from the map's size)
-    /// exceeds the memory available now.
-    #[arg(long)]
-    ignore_memory: bool,
+    #[command(flatten)]
+    out: RunOutArgs,
     /// Seconds a stopping process gets before it is killed.
     #[arg(long, default_value_t = 5.0)]
     grace: f64,
@@ -121,13 +117,15 @@ impl RunCmd {
                 .context(Exit::BadInput)?;
             (self.robots_asked, self.agents, self.map) = (Some(team), None, l.map_args(0));
         }
-        self.robots = self.fleet_size().context(Exit::BadInput)?;
+        self.robots =
+            qfleet_args::local_robots(self.robots_asked, self.agents, self.remote.remote_robots)
+                .context(Exit::BadInput)?;
         // check everything before starting any process: bad input is exit code 2
         let (task, cfg, grace, time_limit, run_id) = self.check().context(Exit::BadInput)?;
         // a Foxglove port in use is bad input too, found before anything starts
         let foxglove = self.watch.serve()?;
         // the sharing rules: those given, the ones that fit the learner for the others
-        let rules = crate::experiment::Rules {
+        let rules = contract::Rules {
             apply: self.share.apply,
             merge: self.merge,
         };
@@ -146,13 +144,9 @@ impl RunCmd {
         let claim = crate::launch::claim(&run_id)?;
         let coord_bin = sibling("qfleet-coordinator")?;
         let robot_bin = sibling("robot-agent")?;
-        let out_dir =
-            OutDir::prepare(self.out.as_deref(), self.force, &run_id).map_err(|e| match e {
-                OutError::Io { .. } => anyhow!(e),
-                e => anyhow!(e).context(Exit::BadInput),
-            })?;
+        let out_dir = crate::launch::out_dir(&self.out.dir, &run_id)?;
         let out = out_dir.path().to_path_buf();
-        if self.force {
+        if self.out.dir.force {
             // --force replaces the files a run writes: an old result must not pass for ours
             let _ = std::fs::remove_file(out.join("result.json"));
         }
@@ -210,27 +204,18 @@ impl RunCmd {
         let quit = crate::live::finish(watch);
         crate::live::stop_foxglove(foxglove);
         // the hub's proxies are nodes of this run: gone before its files are removed
-        let hosts = crate::join::finish_hub(hub, &out).unwrap_or_else(|e| {
-            term::warn(&format!("warning: {e:#}"));
-            None
-        });
-        let mut result = std::fs::read_to_string(out.join("result.json"))
-            .ok()
-            .and_then(|t| serde_json::from_str::<RunResult>(&t).ok());
+        let hosts = crate::join::finish_hub(hub, &out);
         // a coordinator that could not write its result (a full disk) sent it on its stdout
-        if result.is_none()
-            && let Ok(done) = &outcome
-            && let Some(json) = &done.result
-        {
-            result = serde_json::from_str::<RunResult>(json).ok();
-            if result.is_some() {
-                term::warn(&format!(
-                    "warning: the coordinator could not write {}; its result is printed from \
-                     what it sent the launcher",
-                    out.join("result.json").display()
-                ));
-            }
+        let sent = outcome.as_ref().ok().and_then(|d| d.result.as_deref());
+        let recovered = RunResult::recover(&out, sent);
+        if let Some((_, true)) = &recovered {
+            term::warn(&format!(
+                "warning: the coordinator could not write {}; its result is printed from what \
+                 it sent the launcher",
+                out.join("result.json").display()
+            ));
         }
+        let mut result = recovered.map(|(r, _)| r);
         // the coordinator knows only the merge rule and this host: the result names the apply
         // rule too, and where the robots ran
         if let Some(r) = &mut result {
@@ -247,39 +232,29 @@ impl RunCmd {
         crate::launch::clean_up(&run_id);
         if result.is_some()
             && !out_dir.is_temp()
-            && let Err(e) = crate::runplots::write(&out)
+            && let Err(e) = studies::runplots::write(&out)
         {
+            let e = anyhow::Error::from(e);
             term::warn(&format!("warning: plotting the run: {e:#}"));
         }
         let done = outcome?;
         match &result {
             Some(r) if self.json => out!("{}", serde_json::to_string(r)?)?,
             Some(r) => {
-                print_human(r, &out, out_dir.is_temp(), self.share.share.discoveries())?;
+                term::write_out(format_args!(
+                    "{}",
+                    report::summary::run(
+                        r,
+                        &out,
+                        out_dir.is_temp(),
+                        self.share.share.discoveries()
+                    )
+                ))?;
                 crate::join::print_hosts(&hosts, self.robots)?;
             }
             None => {}
         }
-        let mut failures = done.failures;
-        let mut exit = done.exit;
-        match quit {
-            // `q` in the live view is a user stop: a clean one is a success
-            Ok(true) => {
-                failures.retain(|f| !f.starts_with("interrupted"));
-                if failures.is_empty() {
-                    exit = Exit::Ok;
-                }
-            }
-            Ok(false) => {}
-            Err(e) => {
-                failures.push(format!("{e:#}"));
-                exit = exit.worst(Exit::Failure);
-            }
-        }
-        if result.is_none() {
-            failures.push("the coordinator wrote no result".into());
-            exit = exit.worst(Exit::Failure);
-        }
+        let (failures, exit) = done.verdict(quit.map_err(|e| format!("{e:#}")), result.is_some());
         drop(claim);
         if failures.is_empty() {
             return Ok(());
@@ -302,30 +277,6 @@ impl RunCmd {
     /// The merge rule, once `run` resolved it (`max` before).
     fn merge_rule(&self) -> MergeRule {
         self.merge.unwrap_or(MergeRule::Max)
-    }
-
-    /// The robots of this host: `--robots`, or `--agents` less `--remote-robots` (the agents
-    /// other hosts run), or 4; both given, they must agree.
-    fn fleet_size(&self) -> Result<u32> {
-        let remote = self.remote.remote_robots;
-        match (self.robots_asked, self.agents) {
-            (Some(r), Some(a)) if r != a && remote == 0 => Err(anyhow!(
-                "--robots {r} and --agents {a} disagree: one robot per agent (give one of them)"
-            )),
-            (Some(r), Some(a)) if u64::from(r) + u64::from(remote) != u64::from(a) => Err(anyhow!(
-                "--robots {r} on this host and --remote-robots {remote} make {} robots, but \
-                     --agents is {a}: one robot per agent",
-                u64::from(r) + u64::from(remote)
-            )),
-            (Some(n), _) => Ok(n),
-            (None, Some(a)) => a.checked_sub(remote).filter(|&n| n > 0).ok_or_else(|| {
-                anyhow!(
-                    "--agents {a} with --remote-robots {remote} leaves no robot on this host (at \
-                     least one runs here, beside the coordinator)"
-                )
-            }),
-            (None, None) => Ok(4),
-        }
     }
 
     /// Validates every option; the task, learner config, grace, time limit and run id.
@@ -351,18 +302,9 @@ impl RunCmd {
         }
         let cfg = self.learner.config()?;
         self.share.validate().map_err(|e| anyhow!(e))?;
-        let grace = Duration::try_from_secs_f64(self.grace).map_err(|_| {
-            anyhow!(
-                "--grace must be a number of seconds >= 0, got {}",
-                self.grace
-            )
-        })?;
-        let time_limit = Duration::try_from_secs_f64(self.time_limit).map_err(|_| {
-            anyhow!(
-                "--time-limit must be a number of seconds >= 0, got {}",
-                self.time_limit
-            )
-        })?;
+        let grace = qfleet_args::seconds("--grace", self.grace).map_err(|e| anyhow!(e))?;
+        let time_limit =
+            qfleet_args::seconds("--time-limit", self.time_limit).map_err(|e| anyhow!(e))?;
         let run_id = match &self.run_id {
             Some(id) => id.clone(),
             None => launcher::run_id::generate("run"),
@@ -377,7 +319,7 @@ impl RunCmd {
         )?)?;
         // every local process holds tables the size of the map: refuse what cannot fit (issue
         // 27: 32 robots on suite:maze-2048-1 need ~4.5 GB) rather than let the OOM killer choose
-        if !self.ignore_memory {
+        if !self.out.ignore_memory {
             let cells = (task.grid.width() * task.grid.height()) as u64;
             bus::limits::check_memory(cells, u64::from(self.robots), bus::limits::mem_available())?;
         }
@@ -439,10 +381,7 @@ impl RunCmd {
         episodes: u32,
         watch: &crate::live::Hook,
     ) -> Result<launcher::Supervised> {
-        let restarts = match self.restart {
-            RestartPolicy::Never => 0,
-            RestartPolicy::OnFailure => self.max_restarts,
-        };
+        let restarts = self.restart.restarts(self.max_restarts);
         // start-up waits that grow with the fleet (both sides wait the same)
         let timeout = launcher::timeouts::startup_timeout_s(fleet_size);
         let coordinator = || -> Command {
@@ -511,210 +450,4 @@ impl RunCmd {
         }
         Ok(done)
     }
-}
-
-fn fmt_us(ns: u64) -> String {
-    format!("{:.1} µs", ns as f64 / 1e3)
-}
-
-fn print_human(r: &RunResult, out: &Path, temp_out: bool, discoveries_used: bool) -> Result<()> {
-    // one task for the fleet, or on a shared grid a start and goal per robot (its grid line)
-    let task = match &r.grid {
-        None => format!("{} → {}", r.start, r.goal),
-        Some(g) => format!(
-            "one shared grid, starts and goals from {}",
-            g.scen.as_deref().unwrap_or("the scenario")
-        ),
-    };
-    out!(
-        "run {}: {} robots on {} ({task}), wait {}, apply {}, merge {}",
-        r.run_id,
-        r.robots.len(),
-        r.map,
-        r.wait,
-        r.apply.as_deref().unwrap_or("?"),
-        r.merge
-    )?;
-    for x in &r.robots {
-        let p = |v: Option<u32>| v.map_or("loops".to_string(), |v| v.to_string());
-        out!(
-            "  robot {:>3}  {:8}  final path {:>5} (own {:>5}, optimal {:>5})  avg steps {:8.1}  hints applied {}",
-            x.robot_id,
-            x.status,
-            p(x.final_path_len),
-            p(x.own_final_path_len),
-            p(x.optimal_path_len),
-            x.avg_steps,
-            x.hints_applied
-        )?;
-    }
-    out!(
-        "  all robots optimal: {}   discoveries sent {} / received {}{}",
-        r.all_optimal,
-        r.discoveries_sent,
-        r.discoveries_received,
-        discoveries_note(r.discoveries_sent, discoveries_used)
-    )?;
-    if !r.without_path.is_empty() {
-        let ids: Vec<String> = r.without_path.iter().map(u32::to_string).collect();
-        out!(
-            "  without a path     robot(s) {} stopped before they found one",
-            ids.join(", ")
-        )?;
-    }
-    out!("  latency            count      p50        p90        p99        p99.9      max")?;
-    for (k, s) in &r.latency_ns {
-        latency_row(k, s)?;
-    }
-    out!(
-        "  throughput         {:.0} messages/s, {:.0} Q-updates merged/s over {:.3} s",
-        r.throughput.messages_per_s,
-        r.throughput.q_updates_merged_per_s,
-        r.throughput.active_s
-    )?;
-    if let Some(g) = &r.grid {
-        print_grid(g)?;
-    }
-    if let Some(l) = &r.lifelong {
-        print_lifelong(l)?;
-    }
-    if !temp_out {
-        let files = match (&r.grid, &r.lifelong) {
-            (Some(_), _) => ",paths.txt",
-            (None, Some(_)) => ",paths.txt,lorr-output.json",
-            _ => "",
-        };
-        out!(
-            "  wrote              {}/{{result.json,robot-*.json,latency-*.hgrm,*.log{files}}}",
-            out.display(),
-        )?;
-    }
-    Ok(())
-}
-
-/// Why the discovery counts are what they are, after them on the summary line: relayed but not
-/// used by `--share hints` (the default: on the held-out maps they did not lower the env steps
-/// to the optimum beyond the spread of runs, docs/fleet.md), or none made at all.
-fn discoveries_note(sent: u64, used: bool) -> &'static str {
-    match (sent, used) {
-        (0, _) => {
-            " (none: the traditional learner makes none, the others once a robot reaches the goal)"
-        }
-        (_, false) => " (relayed, unused: --share hints; --share both uses them)",
-        (_, true) => "",
-    }
-}
-
-/// The shared grid's figures, as a MAPF user reads them.
-fn print_grid(g: &report::GridResult) -> Result<()> {
-    let ended = match g.ended {
-        report::GridEnd::Arrived => "every robot arrived",
-        report::GridEnd::TickLimit => "the tick limit (--max-ticks) passed",
-        report::GridEnd::Unsolvable => "no plan brings every robot home (proved by search)",
-        report::GridEnd::Stopped => "stopped",
-    };
-    out!(
-        "  shared grid        {} robots: {ended} ({} of {} arrived) after {} ticks",
-        g.agents,
-        g.arrived,
-        g.agents,
-        g.ticks
-    )?;
-    out!(
-        "  sum of costs       {} (lower bound {}, ratio {:.3}), makespan {}, conflicts {}",
-        g.sum_of_costs,
-        g.lower_bound,
-        g.soc_ratio,
-        g.makespan,
-        g.conflicts
-    )?;
-    out!(
-        "  moves              {} waits, {} denied moves, {} intents rejected; {:.0} ticks/s",
-        g.waits,
-        g.denied_moves,
-        g.intents_rejected,
-        g.ticks_per_s
-    )?;
-    for (k, s) in [
-        ("tick", &g.tick_latency_ns),
-        ("grant→intent", &g.intent_latency_ns),
-        ("resolve", &g.resolve_latency_ns),
-    ] {
-        latency_row(k, s)?;
-    }
-    Ok(())
-}
-
-/// A lifelong grid's figures: throughput first (the League of Robot Runners' score), then how
-/// the goals spread over the fleet and what decided the moves.
-fn print_lifelong(l: &report::LifelongResult) -> Result<()> {
-    let ended = if l.ended == "ticks" {
-        "ran its ticks"
-    } else {
-        "stopped early"
-    };
-    out!(
-        "  lifelong grid      {} robots, {} ticks ({ended}): {} goals reached, throughput {:.3} \
-         goals/tick ({:.3} in the second half)",
-        l.agents,
-        l.ticks,
-        l.goals_reached,
-        l.throughput,
-        l.throughput_2nd_half
-    )?;
-    let mut goals = l.robot_goals.clone();
-    goals.sort_unstable();
-    let at = |q: usize| {
-        goals
-            .get(q * goals.len().saturating_sub(1) / 2)
-            .copied()
-            .unwrap_or(0)
-    };
-    out!(
-        "  goals per robot    min {}, median {}, max {}; robots lost {}; conflicts {}",
-        at(0),
-        at(1),
-        at(2),
-        l.robots_lost.len(),
-        l.conflicts
-    )?;
-    let g = &l.learning;
-    out!(
-        "  learning ahead     {} goals learned ({} warm-started from the fleet table of their \
-         cell), {:.0} env steps per goal ({:.0} warm, {:.0} cold), {:.3} s each",
-        g.goals_learned,
-        g.warm_started,
-        g.env_steps_per_goal,
-        g.env_steps_per_warm_goal,
-        g.env_steps_per_cold_goal,
-        g.learn_s_per_goal
-    )?;
-    out!(
-        "  robot-ticks        {} towards a goal already learned, {} towards one not yet (every \
-         move ranked by map distance; a tick never waits for a learning robot)",
-        g.ticks_goal_learned,
-        g.ticks_goal_unlearned
-    )?;
-    out!(
-        "  speed              {} ticks in {:.3} s ({:.0} ticks/s)",
-        l.ticks,
-        l.exec_s,
-        l.ticks_per_s
-    )?;
-    latency_row("tick", &l.tick_latency_ns)?;
-    Ok(())
-}
-
-/// One row of the human summary's latency table: count, p50, p90, p99, p99.9, max.
-fn latency_row(k: &str, s: &report::LatencyStats) -> Result<()> {
-    out!(
-        "  {k:18} {:>6}  {:>10} {:>10} {:>10} {:>10} {:>10}",
-        s.count,
-        fmt_us(s.p50),
-        fmt_us(s.p90),
-        fmt_us(s.p99),
-        fmt_us(s.p999),
-        fmt_us(s.max)
-    )?;
-    Ok(())
 }

@@ -6,17 +6,14 @@ use std::sync::atomic::Ordering;
 
 use anyhow::Result;
 use clap::Args;
-use contract::ApplyRule;
-use contract::coordinator::MergeRule;
-use planner::LearnerConfig;
+use contract::Rules;
 use qfleet_args::Plan;
 use report::ExperimentResult;
-use studies::sweep::{
-    DEFAULT_PACE, Fleet, FleetRun, ShareRules, SweepError, SweepOptions, replot, sweep,
-};
+use studies::sweep::{DEFAULT_PACE, Fleet, FleetRun, SweepError, SweepOptions, replot, sweep};
 
-use crate::experiment::{Rules, Supervision, load_plan, make_run_id, run_once};
+use crate::experiment::run_once;
 use crate::term::{self, out};
+use launcher::Supervision;
 
 /// Options of `qfleet sweep`.
 #[derive(Debug, Args)]
@@ -71,17 +68,6 @@ pub struct SweepCmd {
     replot: Option<PathBuf>,
 }
 
-impl ShareRules for Rules {
-    fn resolve(&self, learner: &LearnerConfig) -> (ApplyRule, MergeRule) {
-        let r = Rules::resolve(*self, learner);
-        (r.apply, r.merge)
-    }
-
-    fn misfit(&self, learner: &LearnerConfig) -> Option<String> {
-        Rules::misfit(*self, learner)
-    }
-}
-
 /// An error of a fleet run or a manifest, kept whole so that its exit code survives the sweep.
 #[derive(Debug)]
 pub struct RunFailed(anyhow::Error);
@@ -101,7 +87,7 @@ impl Fleet<Rules> for Processes {
     type Error = RunFailed;
 
     fn load(&mut self, file: &Path) -> Result<Plan, RunFailed> {
-        load_plan(file).map_err(RunFailed)
+        Plan::load(file).map_err(|e| RunFailed(e.into()))
     }
 
     fn run(&mut self, run: &FleetRun<'_, Rules>) -> Result<ExperimentResult, RunFailed> {
@@ -109,7 +95,7 @@ impl Fleet<Rules> for Processes {
             pace: run.pace,
             ..Supervision::default()
         };
-        let id = make_run_id(Some("sw"), &run.id_tag);
+        let id = launcher::run_id::repetition(Some("sw"), &run.id_tag);
         run_once(run.plan, run.seed, run.rules, &id, run.dir, sup, None, None).map_err(RunFailed)
     }
 
@@ -126,10 +112,8 @@ impl SweepCmd {
     /// Runs the sweep.
     pub fn run(self) -> Result<()> {
         if let Some(json) = &self.replot {
-            let done = replot(json, self.svg.as_deref()).map_err(|e| {
-                let bad = e.is_bad_input();
-                crate::classify(e, bad)
-            })?;
+            let done = replot(json, self.svg.as_deref())
+                .map_err(|e| crate::classify(e, |e| e.is_bad_input()))?;
             out!("{}", done.markdown.trim_end())?;
             out!("wrote {}", done.svg.display())?;
             return Ok(());
@@ -149,10 +133,7 @@ impl SweepCmd {
         let done = sweep(&opts, &mut Processes).map_err(|e| match e {
             // the run's own error, with its exit class (interrupted, bad input, failure)
             SweepError::Run { run, source } => source.0.context(run),
-            e => {
-                let bad = e.is_bad_input();
-                crate::classify(e, bad)
-            }
+            e => crate::classify(e, |e| e.is_bad_input()),
         })?;
         out!("{}", done.markdown.trim_end())?;
         out!(

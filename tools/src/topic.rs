@@ -5,14 +5,13 @@
 use std::io::Write;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::{Args, Subcommand};
-use observe::attach::{Observer, Topics, leave, run_services_exist};
-use observe::decode::topic_by_name;
-use observe::stats::{Rate, TopicCounts, topic_index};
-use serde_json::json;
+use observe::attach::{Observer, Topics, leave, run_services_exist, topic_list};
+use observe::decode::topic_named;
+use observe::follow::{Follow, follow};
 
 use bus_schema::names::Topic;
 
@@ -56,16 +55,12 @@ impl Target {
     fn topic(&self) -> Result<Option<Topic>> {
         match &self.topic {
             None => Ok(None),
-            Some(t) => topic_by_name(t).map(Some).ok_or_else(|| {
-                let all: Vec<&str> = Topic::ALL.iter().map(|t| t.path()).collect();
-                anyhow!("unknown topic {t:?}; the topics are {}", all.join(", "))
-            }),
+            Some(t) => topic_named(t).map(Some).map_err(|e| anyhow!(e)),
         }
     }
 
     fn wait(&self) -> Result<Duration> {
-        Duration::try_from_secs_f64(self.wait)
-            .map_err(|_| anyhow!("--wait must be a number of seconds >= 0, got {}", self.wait))
+        qfleet_args::seconds("--wait", self.wait).map_err(|e| anyhow!(e))
     }
 }
 
@@ -91,8 +86,8 @@ impl TopicCmd {
     pub fn run(self) -> Result<()> {
         match self.action {
             TopicAction::List(t) => list(&t),
-            TopicAction::Echo(t) => watch(&t, Mode::Echo),
-            TopicAction::Hz(t) => watch(&t, Mode::Hz),
+            TopicAction::Echo(t) => watch(&t, false),
+            TopicAction::Hz(t) => watch(&t, true),
         }
     }
 }
@@ -101,50 +96,12 @@ fn list(t: &Target) -> Result<()> {
     bus::validate_run_id(&t.run_id).context(launcher::Exit::BadInput)?;
     let only = t.topic().context(launcher::Exit::BadInput)?;
     let live = run_services_exist(&t.run_id)?;
-    let mut out = std::io::stdout().lock();
-    let topics: Vec<Topic> = Topic::ALL
-        .into_iter()
-        .filter(|x| only.is_none_or(|o| o == *x))
-        .collect();
-    if t.json {
-        let v: Vec<_> = topics
-            .iter()
-            .map(|x| {
-                json!({
-                    "topic": x.service_name(&t.run_id), "type": x.type_name(),
-                    "delivery": format!("{:?}", x.delivery()), "direction": format!("{:?}", x.direction()),
-                    "payload_bytes": x.payload_size(), "live": live,
-                })
-            })
-            .collect();
-        out_ok(writeln!(out, "{}", serde_json::Value::Array(v)))?;
-    } else {
-        let mut tab = crate::table::TextTable::new(&["topic", "type", "delivery", ">bytes"]);
-        for x in &topics {
-            tab.row(vec![
-                x.service_name(&t.run_id),
-                x.type_name().to_string(),
-                format!("{:?}", x.delivery()),
-                x.payload_size().to_string(),
-            ]);
-        }
-        let state = if live {
-            "running"
-        } else {
-            "not running (no services)"
-        };
-        out_ok(write!(out, "run {}: {state}\n{}", t.run_id, tab.render("")))?;
-    }
+    let text = topic_list(&t.run_id, only, live, t.json);
+    out_ok(std::io::stdout().lock().write_all(text.as_bytes()))?;
     Ok(())
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Mode {
-    Echo,
-    Hz,
-}
-
-fn watch(t: &Target, mode: Mode) -> Result<()> {
+fn watch(t: &Target, hz: bool) -> Result<()> {
     bus::validate_run_id(&t.run_id).context(launcher::Exit::BadInput)?;
     let only = t.topic().context(launcher::Exit::BadInput)?;
     let wait = t.wait().context(launcher::Exit::BadInput)?;
@@ -153,113 +110,19 @@ fn watch(t: &Target, mode: Mode) -> Result<()> {
         stop.load(Ordering::SeqCst)
     })
     .with_context(|| format!("joining run {}", t.run_id))?;
-    let result = watch_loop(&observer, t, only, mode, &stop);
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    let mode = match hz {
+        false => Follow::Echo,
+        true => Follow::Hz { json: t.json },
+    };
+    let result = follow(&observer, only, mode, t.count, &stop, &mut out);
     drop(observer);
     // if the run ended while we were attached, its last files are ours to remove
     if let Err(e) = leave(&t.run_id) {
         crate::term::warn(&format!("warning: leaving run {}: {e}", t.run_id));
     }
-    result
-}
-
-fn watch_loop(
-    observer: &Observer,
-    t: &Target,
-    only: Option<Topic>,
-    mode: Mode,
-    stop: &AtomicBool,
-) -> Result<()> {
-    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
-    let mut counts = TopicCounts::default();
-    let mut rates: Vec<Rate> = (0..Topic::ALL.len())
-        .map(|_| Rate::new(1_000_000_000))
-        .collect();
-    let mut printed = 0u64;
-    let mut open = true;
-    let mut last_check = Instant::now();
-    let mut last_hz = Instant::now();
-    let mut line = Vec::with_capacity(8192);
-    let mut err: Option<anyhow::Error> = None;
-    let mut last_round = false;
-    loop {
-        let n = observer.poll(|recv_ns, m| {
-            let topic = m.topic();
-            if only.is_some_and(|o| o != topic) || !open || err.is_some() {
-                return;
-            }
-            counts.add(topic, recv_ns);
-            rates[topic_index(topic)].add(recv_ns, 1);
-            if mode == Mode::Echo {
-                line.clear();
-                let v = json!({
-                    "topic": topic.path(), "recv_ns": recv_ns, "msg": m.to_json(),
-                });
-                if let Err(e) = serde_json::to_writer(&mut line, &v) {
-                    err = Some(e.into());
-                    return;
-                }
-                line.push(b'\n');
-                match out_ok(out.write_all(&line)) {
-                    Ok(true) => {}
-                    Ok(false) => open = false,
-                    Err(e) => err = Some(e),
-                }
-                printed += 1;
-                if t.count > 0 && printed >= t.count {
-                    open = false;
-                }
-            }
-        })?;
-        if let Some(e) = err {
-            return Err(e);
-        }
-        if n > 0 && mode == Mode::Echo && !out_ok(out.flush())? {
-            open = false;
-        }
-        if !open || stop.load(Ordering::SeqCst) || last_round {
-            break;
-        }
-        if mode == Mode::Hz && last_hz.elapsed() >= Duration::from_secs(1) {
-            last_hz = Instant::now();
-            let now = bus::monotonic_ns();
-            let mut v = serde_json::Map::new();
-            let mut text = String::new();
-            for x in Topic::ALL
-                .into_iter()
-                .filter(|x| only.is_none_or(|o| o == *x))
-            {
-                let rate = rates[topic_index(x)].per_s(now);
-                let total = counts.get(x).count;
-                v.insert(x.path().into(), json!({"per_s": rate, "total": total}));
-                text.push_str(&format!(
-                    "{:18} {rate:>10.1} msg/s  {total:>9} total\n",
-                    x.path()
-                ));
-            }
-            let s = if t.json {
-                serde_json::Value::Object(v).to_string() + "\n"
-            } else {
-                text + "\n"
-            };
-            if !out_ok(out.write_all(s.as_bytes()).and_then(|()| out.flush()))? {
-                break;
-            }
-            printed += 1;
-            if t.count > 0 && printed >= t.count {
-                break;
-            }
-        }
-        if last_check.elapsed() >= Duration::from_millis(200) {
-            last_check = Instant::now();
-            // the run is over: one more drain for what it sent last, then leave
-            last_round = !observer.run_alive();
-        }
-        if n == 0 {
-            std::thread::sleep(Duration::from_millis(1));
-        }
-    }
-    let _ = out.flush();
-    if stop.load(Ordering::SeqCst) && printed == 0 && mode == Mode::Echo {
+    let printed = result?;
+    if stop.load(Ordering::SeqCst) && printed == 0 && mode == Follow::Echo {
         bail!("interrupted before any message arrived");
     }
     Ok(())
