@@ -130,6 +130,14 @@ impl AgentArgs {
         crate::parse::<AgentLine, _, _>(words).map(|c| c.args)
     }
 
+    /// Robot `robot` of a lifelong run on `l`: it starts on its start, and learns each goal it
+    /// is dealt from the one before (`--chain-goals`) until its greedy path is optimal.
+    pub fn lifelong(&mut self, l: &qfleet_args::Lifelong, robot: u32) {
+        self.map = l.map_args(robot as usize);
+        self.chain_goals = true;
+        self.stop_at_optimum = true;
+    }
+
     /// The options of robot `robot_id` of run `run_id` as another host sent them (`words`,
     /// `qfleet join`): read as the process reads them, refused when an option is unknown, a
     /// value wrong, or they name another run or robot than the slot's; they write into `out`,

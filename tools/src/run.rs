@@ -241,15 +241,9 @@ impl RunCmd {
         match &result {
             Some(r) if self.json => out!("{}", serde_json::to_string(r)?)?,
             Some(r) => {
-                term::write_out(format_args!(
-                    "{}",
-                    report::summary::run(
-                        r,
-                        &out,
-                        out_dir.is_temp(),
-                        self.share.share.discoveries()
-                    )
-                ))?;
+                let used = self.share.share.discoveries();
+                let text = report::summary::run(r, &out, out_dir.is_temp(), used);
+                term::write_out(format_args!("{text}"))?;
                 crate::join::print_hosts(&hosts, self.robots)?;
             }
             None => {}
@@ -347,11 +341,7 @@ impl RunCmd {
                 self.share.clone(),
             );
             if let Some(l) = &self.lifelong {
-                // a lifelong robot starts on its start and learns the goals it is dealt, each
-                // from the one before, until its greedy path is optimal
-                a.map = l.map_args(id as usize);
-                a.chain_goals = true;
-                a.stop_at_optimum = true;
+                a.lifelong(l, id);
             } else if self.world.shared() {
                 // robot i learns line i of the scenario: its own start and goal
                 a.map.scen_index = Some(id as usize);
