@@ -762,9 +762,11 @@ impl Engine {
 
     /// Sends goal `g`'s whole fleet table (after whatever is pending) as merged batches to
     /// every robot, pacing rounds of half a merged buffer so the robots' latest-wins buffers
-    /// keep up; returns the batches sent.
+    /// keep up (not in a lifelong run, between ticks); returns the batches sent.
     pub(crate) fn resend_table(&mut self, bus: &CoordinatorBus, g: u32) -> Result<u64, CoordError> {
         self.flush(bus, g)?;
+        // a lifelong run's warm starts go out between ticks: no pause there (no tick waits)
+        let live = self.live_merges;
         let round = (self.merged_buffer / 2).max(1);
         let mut in_round = 0;
         let mut err = None;
@@ -787,7 +789,7 @@ impl Engine {
             seq += 1;
             sent += 1;
             in_round += 1;
-            if in_round >= round {
+            if in_round >= round && live {
                 in_round = 0;
                 std::thread::sleep(Duration::from_millis(5));
             }

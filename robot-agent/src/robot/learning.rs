@@ -75,6 +75,12 @@ impl Robot<'_> {
             p.episode_end_ns.push(monotonic_ns());
             p.episode_cum_steps.push(p.steps);
             for (cell, value) in p.learner.take_new_pseudo_targets() {
+                // a lifelong robot (`--chain-goals`) keeps its discoveries: every other robot
+                // learns another goal, and lossless relays to hundreds of robots busy learning
+                // stalled the coordinator (256 robots: a relay not drained within 1 s)
+                if self.args.chain_goals {
+                    continue;
+                }
                 self.queue_discovery(p, cell, value);
             }
             self.resend_discoveries();
