@@ -203,7 +203,7 @@ impl Engine {
             roster: Roster::new(expected),
             robots: vec![Slot::default(); robots as usize],
             tables: (0..goals)
-                .map(|_| FleetTable::new(shape.cells(), merge))
+                .map(|_| FleetTable::lazy(shape.cells(), merge))
                 .collect(),
             touched: vec![false; goals as usize],
             assignment: Vec::new(),
@@ -723,6 +723,7 @@ impl Engine {
             record(&mut self.h.hint_age, now - b.oldest_update_ns);
         }
         let g = b.goal_id;
+        self.tables[g as usize].reserve();
         let cells = self.shape.cells();
         for h in entries {
             if validate::hint(h, cells).is_err() {
